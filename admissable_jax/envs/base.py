@@ -1,0 +1,175 @@
+"""The MJX environment base shared by our Gymnasium v5 ports.
+
+An environment is a plain Python object holding the compiled MuJoCo model; its
+``reset`` and ``step`` are pure functions of arrays and an :class:`EnvState` pytree, so
+they can be jitted and vmapped. Physics is MJX with the XML's own solver settings, stepped
+exactly as Gymnasium's ``MujocoEnv.do_simulation`` does: ``frame_skip`` calls of
+``mj_step`` with the action as ``ctrl`` (MuJoCo clamps it to ``ctrlrange``), followed by
+``mj_rnePostConstraint`` where the env reads contact forces.
+"""
+
+from __future__ import annotations
+
+import abc
+import os
+from typing import ClassVar
+
+import chex
+import gymnasium
+import jax
+import jax.numpy as jnp
+import mujoco
+from flax import struct
+from mujoco import mjx
+
+MAX_EPISODE_STEPS = 1000  # Gymnasium's TimeLimit for Hopper-v5, Walker2d-v5 and Ant-v5.
+
+
+def gymnasium_asset_path(xml_file: str) -> str:
+    """Path of a model XML shipped inside the installed gymnasium package (never copied)."""
+    return os.path.join(os.path.dirname(gymnasium.__file__), "envs", "mujoco", "assets", xml_file)
+
+
+@struct.dataclass
+class EnvState:
+    """One environment's state.
+
+    ``metrics`` holds this step's reward terms and positions (Gymnasium's ``info``);
+    ``episode_metrics`` holds the running sums of the reward terms and of the reward
+    (``"return"``) since the last reset.
+    """
+
+    data: mjx.Data
+    obs: jax.Array
+    reward: jax.Array
+    terminated: jax.Array
+    truncated: jax.Array
+    step_count: jax.Array
+    metrics: dict[str, jax.Array]
+    episode_metrics: dict[str, jax.Array]
+
+    @property
+    def done(self) -> jax.Array:
+        return jnp.logical_or(self.terminated, self.truncated)
+
+
+class MjxEnv(abc.ABC):
+    """A Gymnasium MuJoCo v5 task on MJX. Subclasses fill in the task-specific hooks."""
+
+    name: ClassVar[str]
+    gymnasium_id: ClassVar[str]
+    xml_file: ClassVar[str]
+    frame_skip: ClassVar[int]
+    reset_noise_scale: ClassVar[float]
+    reward_terms: ClassVar[tuple[str, ...]]
+    info_keys: ClassVar[tuple[str, ...]]
+    reads_contact_forces: ClassVar[bool] = False
+
+    def __init__(self, solver_iterations: int | None = None, ls_iterations: int | None = None):
+        """Load the XML from gymnasium. Solver settings default to the XML's (Gymnasium parity);
+        ``solver_iterations``/``ls_iterations`` override them for faster, non-parity physics."""
+        self.mj_model = mujoco.MjModel.from_xml_path(gymnasium_asset_path(self.xml_file))
+        if solver_iterations is not None:
+            self.mj_model.opt.iterations = solver_iterations
+        if ls_iterations is not None:
+            self.mj_model.opt.ls_iterations = ls_iterations
+        self.mjx_model = mjx.put_model(self.mj_model)
+        self.dt = float(self.mj_model.opt.timestep) * self.frame_skip
+        self.max_episode_steps = MAX_EPISODE_STEPS
+        self.init_qpos = jnp.asarray(self.mj_model.qpos0, dtype=jnp.float32)
+        self.init_qvel = jnp.zeros(self.mj_model.nv, dtype=jnp.float32)
+        ctrl_range = self.mj_model.actuator_ctrlrange
+        self.action_low = jnp.asarray(ctrl_range[:, 0], dtype=jnp.float32)
+        self.action_high = jnp.asarray(ctrl_range[:, 1], dtype=jnp.float32)
+        self.action_size = int(self.mj_model.nu)
+        self.observation_size = int(self._observation(mjx.make_data(self.mj_model)).shape[-1])
+
+    def __repr__(self) -> str:
+        return (
+            f"{type(self).__name__}({self.gymnasium_id}: obs {self.observation_size}, "
+            f"actions {self.action_size}, frame_skip {self.frame_skip}, dt {self.dt})"
+        )
+
+    # --- task hooks -------------------------------------------------------------------
+    @abc.abstractmethod
+    def _observation(self, data: mjx.Data) -> jax.Array:
+        """The v5 observation vector of ``data``."""
+
+    @abc.abstractmethod
+    def _is_healthy(self, qpos: jax.Array, qvel: jax.Array) -> jax.Array:
+        """Gymnasium's ``is_healthy`` for this (qpos, qvel)."""
+
+    @abc.abstractmethod
+    def _reward_terms(
+        self, before: mjx.Data, after: mjx.Data, action: jax.Array, healthy: jax.Array
+    ) -> tuple[dict[str, jax.Array], dict[str, jax.Array]]:
+        """(reward terms, summing to the reward; ``info_keys`` entries such as positions)."""
+
+    @abc.abstractmethod
+    def _reset_noise(self, rng: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """Noise added to (init_qpos, init_qvel) at reset, as the env's ``reset_model``."""
+
+    # --- public API -------------------------------------------------------------------
+    def is_healthy(self, qpos: jax.Array, qvel: jax.Array) -> jax.Array:
+        """Whether (qpos, qvel) is healthy; the episode terminates when it is not."""
+        return self._is_healthy(qpos, qvel)
+
+    def reset(self, rng: jax.Array) -> EnvState:
+        """A new episode from the v5 reset distribution."""
+        qpos_noise, qvel_noise = self._reset_noise(rng)
+        return self.state_from_qpos_qvel(self.init_qpos + qpos_noise, self.init_qvel + qvel_noise)
+
+    def state_from_qpos_qvel(self, qpos: jax.Array, qvel: jax.Array) -> EnvState:
+        """Put a given (qpos, qvel) into a fresh state, as Gymnasium's ``set_state`` does.
+
+        Runs ``mj_forward`` (not ``mj_rnePostConstraint``), so, as in Gymnasium after a
+        reset, contact forces read as zero until the first step. The step counter is 0.
+        Use this to compare one of our steps with Gymnasium's from the same state:
+        ``env.unwrapped.set_state(qpos, qvel)`` there, this here, then step both.
+        """
+        chex.assert_shape(qpos, (self.mj_model.nq,))
+        chex.assert_shape(qvel, (self.mj_model.nv,))
+        data = mjx.make_data(self.mjx_model).replace(
+            qpos=jnp.asarray(qpos, jnp.float32), qvel=jnp.asarray(qvel, jnp.float32)
+        )
+        data = mjx.forward(self.mjx_model, data)
+        zero = jnp.zeros((), jnp.float32)
+        return EnvState(
+            data=data,
+            obs=self._observation(data),
+            reward=zero,
+            terminated=jnp.zeros((), bool),
+            truncated=jnp.zeros((), bool),
+            step_count=jnp.zeros((), jnp.int32),
+            metrics={key: zero for key in (*self.reward_terms, *self.info_keys)},
+            episode_metrics={key: zero for key in (*self.reward_terms, "return")},
+        )
+
+    def step(self, state: EnvState, action: jax.Array) -> EnvState:
+        """One v5 transition. Does not reset: callers decide what to do when ``done``.
+
+        ``truncated`` is set at ``max_episode_steps`` (Gymnasium's TimeLimit); it may be set
+        together with ``terminated``.
+        """
+        chex.assert_shape(action, (self.action_size,))
+        action = jnp.asarray(action, jnp.float32)
+        data = state.data.replace(ctrl=action)
+        data = jax.lax.fori_loop(0, self.frame_skip, lambda _, d: mjx.step(self.mjx_model, d), data)
+        if self.reads_contact_forces:
+            data = mjx.rne_postconstraint(self.mjx_model, data)
+        healthy = self._is_healthy(data.qpos, data.qvel)
+        terms, info = self._reward_terms(state.data, data, action, healthy)
+        reward = sum(terms.values())
+        step_count = state.step_count + 1
+        episode_metrics = {key: state.episode_metrics[key] + terms[key] for key in self.reward_terms}
+        episode_metrics["return"] = state.episode_metrics["return"] + reward
+        return EnvState(
+            data=data,
+            obs=self._observation(data),
+            reward=reward,
+            terminated=jnp.logical_not(healthy),
+            truncated=step_count >= self.max_episode_steps,
+            step_count=step_count,
+            metrics={**terms, **info},
+            episode_metrics=episode_metrics,
+        )
