@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from admissable_jax.envs import contact_frames
 from admissable_jax.envs.ant import Ant
-from admissable_jax.envs.base import MAX_EPISODE_STEPS, EnvState, MjxEnv
+from admissable_jax.envs.base import MAX_EPISODE_STEPS, EnvState, MjxEnv, reset_where_done
 from admissable_jax.envs.planar_walkers import Hopper, Walker2d
 
 contact_frames.install()
@@ -47,4 +47,5 @@ __all__ = [
     "Walker2d",
     "canonical_env_name",
     "make_env",
+    "reset_where_done",
 ]

@@ -129,10 +129,11 @@ class MjxEnv(abc.ABC):
         """
         chex.assert_shape(qpos, (self.mj_model.nq,))
         chex.assert_shape(qvel, (self.mj_model.nv,))
-        data = mjx.make_data(self.mjx_model).replace(
-            qpos=jnp.asarray(qpos, jnp.float32), qvel=jnp.asarray(qvel, jnp.float32)
-        )
-        data = mjx.forward(self.mjx_model, data)
+        qpos = jnp.asarray(qpos, jnp.float32)
+        data = mjx.make_data(self.mjx_model).replace(qpos=qpos, qvel=jnp.asarray(qvel, jnp.float32))
+        # MJX's kinematics writes normalized free-joint quaternions back into qpos; C MuJoCo
+        # normalizes a copy, so Gymnasium's reset observation holds the raw quaternion.
+        data = mjx.forward(self.mjx_model, data).replace(qpos=qpos)
         zero = jnp.zeros((), jnp.float32)
         return EnvState(
             data=data,
@@ -173,3 +174,13 @@ class MjxEnv(abc.ABC):
             metrics={**terms, **info},
             episode_metrics=episode_metrics,
         )
+
+
+def reset_where_done(env: MjxEnv, state: EnvState, rng: jax.Array) -> EnvState:
+    """Start a new episode in ``state`` if it is done (terminated or truncated), else keep it.
+
+    Unbatched; vmap it for a batch. Both branches are computed (as under any ``where``),
+    which is what vmapped auto-reset costs anyway.
+    """
+    fresh = env.reset(rng)
+    return jax.tree.map(lambda new, old: jnp.where(state.done, new, old), fresh, state)

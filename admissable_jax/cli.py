@@ -1,0 +1,82 @@
+"""``key=value`` command lines parsed into typed dataclass configs (OmegaConf).
+
+Every entry point (``python -m admissable_jax.<tool> key=value ...``) goes through
+:func:`parse_args`: ``--help`` lists every key with its type and default, and an unknown
+key or a badly typed value ends the program with a one-line message and exit status 2.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+from typing import Callable, TypeVar
+
+from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+ConfigT = TypeVar("ConfigT")
+
+USAGE_ERROR = 2
+
+
+def _type_name(field: dataclasses.Field) -> str:
+    return getattr(field.type, "__name__", str(field.type))
+
+
+def help_text(config_cls: type, program: str, summary: str) -> str:
+    """Usage line, summary and one line per key: name, type, default and description."""
+    lines = [f"usage: python -m {program} [key=value ...]", "", summary, "", "keys:"]
+    defaults = config_cls()
+    for field in dataclasses.fields(config_cls):
+        default = getattr(defaults, field.name)
+        doc = field.metadata.get("help", "")
+        setting = f"{field.name}={default}"
+        lines.append(f"  {setting:<28} ({_type_name(field)}) {doc}")
+    return "\n".join(lines)
+
+
+def parse_args(
+    config_cls: type[ConfigT],
+    argv: list[str],
+    program: str,
+    summary: str,
+    validate: Callable[[ConfigT], None] | None = None,
+) -> ConfigT:
+    """The config given by ``argv`` (``key=value`` items) over ``config_cls``'s defaults.
+
+    Exits with status 0 after printing help for ``-h``/``--help``, and with status 2 and a
+    one-line message on stderr for anything malformed, unknown, mistyped or rejected by
+    ``validate`` (which raises ``ValueError``/``TypeError``).
+    """
+    if any(arg in ("-h", "--help") for arg in argv):
+        print(help_text(config_cls, program, summary))
+        raise SystemExit(0)
+    malformed = [arg for arg in argv if "=" not in arg or arg.startswith("=")]
+    if malformed:
+        fail(f"expected key=value, got {malformed[0]!r} (see --help)")
+    schema = OmegaConf.structured(config_cls)
+    try:
+        merged = OmegaConf.merge(schema, OmegaConf.from_dotlist(argv))
+        config = OmegaConf.to_object(merged)
+    except OmegaConfBaseException as error:
+        fail(_one_line(error))
+    if validate is not None:
+        try:
+            validate(config)
+        except (ValueError, TypeError) as error:
+            fail(str(error))
+    return config
+
+
+def _one_line(error: OmegaConfBaseException) -> str:
+    message = str(error).strip().splitlines()[0]
+    key = getattr(error, "full_key", None)
+    if "not in struct" in message or "Key '" in message and "not" in message:
+        return f"unknown key {key!r} (see --help for the valid keys)"
+    return f"bad value for {key!r}: {message}" if key else message
+
+
+def fail(message: str) -> None:
+    """Print ``error: message`` on one line to stderr and exit with status 2."""
+    print(f"error: {message}", file=sys.stderr)
+    raise SystemExit(USAGE_ERROR)

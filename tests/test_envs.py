@@ -1,0 +1,249 @@
+"""Our MJX envs against Gymnasium's C-MuJoCo v5 envs.
+
+Parity: from (qpos, qvel) visited by Gymnasium under random actions, one of our steps and
+one of Gymnasium's, with the same action, give the same obs, reward and termination. We
+run in float32 and Gymnasium in float64, so we allow small absolute errors (per env below).
+"""
+
+from __future__ import annotations
+
+import math
+
+import gymnasium
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from admissable_jax import make_env
+from admissable_jax.envs import MAX_EPISODE_STEPS, contact_frames
+
+ENV_NAMES = ("hopper", "walker2d", "ant")
+N_TRANSITIONS = 120
+
+# Largest |ours - Gymnasium| allowed on an observation entry. Measured maxima over 100
+# transitions: Hopper 4e-6, Walker2d 1.2e-4, Ant 1.9e-4 (all in clipped joint velocities,
+# where float32 round-off over 4-5 RK4 substeps with contact shows). Walker2d and Ant get
+# 5e-4, about 4x their measured maximum; a changed weight, clip or term moves entries by
+# far more (Ant without the contact-frame fix is off by 2.0).
+OBS_TOLERANCE = {"hopper": 1e-4, "walker2d": 5e-4, "ant": 5e-4}
+REWARD_TOLERANCE = 1e-4  # measured maxima 4e-6 (Hopper), 4e-6 (Walker2d), 7e-6 (Ant)
+
+
+def _gymnasium_transitions(env_id: str, n: int, seed: int = 0) -> dict[str, np.ndarray]:
+    """``n`` transitions of Gymnasium's env under uniform random actions.
+
+    Each starts with ``set_state`` at the visited (qpos, qvel), as our
+    ``state_from_qpos_qvel`` does, so both sides start from identical data. Every fourth
+    start gets extra joint velocity (sigma 8) so that velocity clipping is exercised.
+    """
+    rng = np.random.default_rng(seed)
+    env = gymnasium.make(env_id)
+    env.reset(seed=seed)
+    env.action_space.seed(seed)
+    sim = env.unwrapped
+    out = {key: [] for key in ("qpos", "qvel", "action", "obs", "reward", "terminated", "info")}
+    for i in range(n):
+        qpos, qvel = sim.data.qpos.copy(), sim.data.qvel.copy()
+        if i % 4 == 3:
+            qvel += rng.normal(0.0, 8.0, size=qvel.shape)
+        action = env.action_space.sample()
+        sim.set_state(qpos, qvel)
+        obs, reward, terminated, _, info = env.step(action)
+        for key, value in zip(out, (qpos, qvel, action, obs, reward, terminated, info)):
+            out[key].append(value)
+        if terminated:
+            env.reset()
+    env.close()
+    info = out.pop("info")
+    arrays = {key: np.asarray(value) for key, value in out.items()}
+    arrays.update({f"info_{key}": np.asarray([i[key] for i in info]) for key in info[0]})
+    return arrays
+
+
+@pytest.fixture(scope="module", params=ENV_NAMES)
+def parity_case(request):
+    """(env, Gymnasium transitions, our batched step from the same states)."""
+    env = make_env(request.param)
+    gym = _gymnasium_transitions(env.gymnasium_id, N_TRANSITIONS)
+    # Step counts spread so that some transitions reach the 1000-step limit.
+    step_counts = np.arange(N_TRANSITIONS, dtype=np.int32) % 4 + (MAX_EPISODE_STEPS - 3)
+    step_counts[: N_TRANSITIONS // 2] = 0
+
+    @jax.jit
+    def batched_step(qpos, qvel, action, step_count):
+        def one(q, v, a, c):
+            state = env.state_from_qpos_qvel(q, v).replace(step_count=c)
+            return env.step(state, a)
+
+        return jax.vmap(one)(qpos, qvel, action, step_count)
+
+    ours = batched_step(gym["qpos"], gym["qvel"], gym["action"], step_counts)
+    return env, gym, ours, step_counts
+
+
+def test_step_parity_with_gymnasium(parity_case):
+    env, gym, ours, step_counts = parity_case
+    name = env.name
+
+    # The sample must exercise what the test guards: terminations, and the clipping.
+    assert gym["terminated"].any(), "no termination among the sampled transitions"
+    if name == "ant":
+        contact = gym["obs"][:, 27:]
+        assert (np.abs(contact) == 1.0).any(), "no clipped contact force in the sample"
+        assert (gym["info_reward_contact"] < 0).any()
+    else:
+        velocities = gym["obs"][:, env.mj_model.nq - 1 :]
+        assert (np.abs(velocities) == 10.0).any(), "no clipped joint velocity in the sample"
+
+    obs_error = np.abs(np.asarray(ours.obs) - gym["obs"])
+    assert obs_error.max() <= OBS_TOLERANCE[name], (obs_error.max(), obs_error.max(0).argmax())
+    np.testing.assert_allclose(np.asarray(ours.reward), gym["reward"], rtol=0, atol=REWARD_TOLERANCE)
+    np.testing.assert_array_equal(np.asarray(ours.terminated), gym["terminated"])
+
+    # Each reward term and position in the metrics matches Gymnasium's info.
+    for key in (*env.reward_terms, *env.info_keys):
+        np.testing.assert_allclose(
+            np.asarray(ours.metrics[key]), gym[f"info_{key}"], rtol=1e-5, atol=REWARD_TOLERANCE,
+            err_msg=key,
+        )
+    terms_sum = sum(np.asarray(ours.metrics[key]) for key in env.reward_terms)
+    np.testing.assert_allclose(terms_sum, np.asarray(ours.reward), atol=1e-5)
+    np.testing.assert_allclose(np.asarray(ours.episode_metrics["return"]), np.asarray(ours.reward))
+
+    # Truncation: exactly when the step counter reaches the 1000-step limit.
+    np.testing.assert_array_equal(np.asarray(ours.step_count), step_counts + 1)
+    np.testing.assert_array_equal(
+        np.asarray(ours.truncated), step_counts + 1 >= MAX_EPISODE_STEPS
+    )
+    assert np.asarray(ours.truncated).any() and not np.asarray(ours.truncated).all()
+
+
+def test_ant_needs_c_contact_frames():
+    assert contact_frames.is_installed()
+
+
+@pytest.fixture(scope="module", params=ENV_NAMES)
+def reset_case(request):
+    env = make_env(request.param)
+    keys = jax.random.split(jax.random.key(0), 4096)
+    states = jax.jit(jax.vmap(env.reset))(keys)
+    return env, states
+
+
+def test_reset_distribution_and_observation(reset_case):
+    env, states = reset_case
+    scale = env.reset_noise_scale
+    qpos_noise = np.asarray(states.data.qpos) - np.asarray(env.init_qpos)
+    qvel_noise = np.asarray(states.data.qvel) - np.asarray(env.init_qvel)
+    # qpos noise ~ U(-s, s) in every env: bounded, mean 0, std s/sqrt(3).
+    assert np.abs(qpos_noise).max() <= scale * (1 + 1e-5)
+    np.testing.assert_allclose(qpos_noise.std(0), scale / math.sqrt(3), rtol=0.06)
+    np.testing.assert_allclose(qpos_noise.mean(0), 0.0, atol=0.05 * scale)
+    if env.name == "ant":  # qvel noise ~ s * N(0, 1), unbounded
+        np.testing.assert_allclose(qvel_noise.std(0), scale, rtol=0.06)
+        assert np.abs(qvel_noise).max() > 2 * scale
+    else:
+        assert np.abs(qvel_noise).max() <= scale * (1 + 1e-5)
+        np.testing.assert_allclose(qvel_noise.std(0), scale / math.sqrt(3), rtol=0.06)
+    # Independent draws per key.
+    assert len(np.unique(qpos_noise, axis=0)) == len(qpos_noise)
+    assert not np.asarray(states.done).any()
+    assert (np.asarray(states.step_count) == 0).all()
+
+    # The reset observation is Gymnasium's for the same (qpos, qvel).
+    gym_env = gymnasium.make(env.gymnasium_id)
+    gym_env.reset(seed=0)
+    for i in range(5):
+        qpos = np.asarray(states.data.qpos[i], np.float64)
+        qvel = np.asarray(states.data.qvel[i], np.float64)
+        gym_env.unwrapped.set_state(qpos, qvel)
+        np.testing.assert_allclose(
+            np.asarray(states.obs[i]), gym_env.unwrapped._get_obs(), rtol=1e-5, atol=1e-6
+        )
+    gym_env.close()
+
+
+def _boundary_states(env) -> list[tuple[np.ndarray, np.ndarray]]:
+    """States on both sides of each health boundary (1e-4 away: float32 rounds exact ties)."""
+    base_qpos = np.asarray(env.init_qpos, np.float64)
+    base_qvel = np.zeros(env.mj_model.nv)
+    eps = 1e-4
+    states = []
+
+    def with_qpos(index, value):
+        qpos = base_qpos.copy()
+        qpos[index] = value
+        states.append((qpos, base_qvel.copy()))
+
+    if env.name == "ant":
+        for z in (0.2 - eps, 0.2, 0.2 + eps, 1.0 - eps, 1.0, 1.0 + eps):
+            with_qpos(2, z)
+        nan_qvel = base_qvel.copy()
+        nan_qvel[3] = np.nan
+        states.append((base_qpos.copy(), nan_qvel))
+    else:
+        for z_bound in env.healthy_z_range:
+            if math.isfinite(z_bound):
+                for z in (z_bound - eps, z_bound + eps):
+                    with_qpos(1, z)
+        for angle_bound in env.healthy_angle_range:
+            for angle in (angle_bound - eps, angle_bound + eps):
+                with_qpos(2, angle)
+    if env.name == "hopper":
+        for value in (99.99, 100.01, -100.01):
+            qvel = base_qvel.copy()
+            qvel[4] = value
+            states.append((base_qpos.copy(), qvel))
+        qpos = base_qpos.copy()
+        qpos[4] = -100.01
+        states.append((qpos, base_qvel.copy()))
+    return states
+
+
+@pytest.mark.parametrize("name", ENV_NAMES)
+def test_health_rules_match_gymnasium_at_their_boundaries(name):
+    env = make_env(name)
+    gym_env = gymnasium.make(env.gymnasium_id)
+    gym_env.reset(seed=0)
+    ours, theirs = [], []
+    for qpos, qvel in _boundary_states(env):
+        ours.append(bool(env.is_healthy(jnp.asarray(qpos, jnp.float32), jnp.asarray(qvel, jnp.float32))))
+        gym_env.unwrapped.data.qpos[:] = qpos
+        gym_env.unwrapped.data.qvel[:] = qvel
+        theirs.append(bool(gym_env.unwrapped.is_healthy))
+    gym_env.close()
+    assert ours == theirs
+    assert any(ours) and not all(ours)
+
+
+def test_batched_step_equals_unbatched(parity_case):
+    env, gym, batched, _ = parity_case
+    if env.name != "hopper":
+        pytest.skip("compiled once, on Hopper: the vmap semantics do not depend on the env")
+    step = jax.jit(lambda q, v, a: env.step(env.state_from_qpos_qvel(q, v), a))
+    for i in (0, 7, 31):
+        single = step(gym["qpos"][i], gym["qvel"][i], gym["action"][i])
+        np.testing.assert_allclose(np.asarray(single.obs), np.asarray(batched.obs[i]), atol=1e-5)
+        np.testing.assert_allclose(float(single.reward), float(batched.reward[i]), atol=1e-5)
+
+
+def test_make_env_names_and_spaces():
+    for name, alias, obs_size, action_size in (
+        ("hopper", "Hopper-v5", 11, 3),
+        ("walker2d", "Walker2d-v5", 17, 6),
+        ("ant", "Ant-v5", 105, 8),
+    ):
+        env = make_env(alias)
+        assert env.name == name
+        assert (env.observation_size, env.action_size) == (obs_size, action_size)
+        gym_env = gymnasium.make(alias)
+        np.testing.assert_array_equal(np.asarray(env.action_low), gym_env.action_space.low)
+        np.testing.assert_array_equal(np.asarray(env.action_high), gym_env.action_space.high)
+        assert gym_env.observation_space.shape == (obs_size,)
+        assert env.dt == pytest.approx(gym_env.unwrapped.dt)
+        gym_env.close()
+    with pytest.raises(ValueError, match="valid names: hopper, walker2d, ant"):
+        make_env("cheetah")
+    with pytest.raises(TypeError):
+        make_env(3)
