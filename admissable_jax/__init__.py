@@ -8,6 +8,19 @@ import io
 with contextlib.redirect_stdout(io.StringIO()):
     from mujoco import mjx  # noqa: F401
 
+from admissable_jax.config import TrainConfig  # noqa: E402
 from admissable_jax.envs import make_env  # noqa: E402
+from admissable_jax.missingness import candidate_sets, mask_observation  # noqa: E402
+from admissable_jax.scoring import MissingnessScores, score_missingness  # noqa: E402
+from admissable_jax.runs import TrainResult, train_fn  # noqa: E402
 
-__all__ = ["make_env"]
+__all__ = [
+    "MissingnessScores",
+    "TrainConfig",
+    "TrainResult",
+    "candidate_sets",
+    "make_env",
+    "mask_observation",
+    "score_missingness",
+    "train_fn",
+]

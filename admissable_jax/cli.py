@@ -8,6 +8,7 @@ key or a badly typed value ends the program with a one-line message and exit sta
 from __future__ import annotations
 
 import dataclasses
+import os
 import sys
 from typing import Callable, TypeVar
 
@@ -74,6 +75,16 @@ def _one_line(error: OmegaConfBaseException) -> str:
     if "not in struct" in message or "Key '" in message and "not" in message:
         return f"unknown key {key!r} (see --help for the valid keys)"
     return f"bad value for {key!r}: {message}" if key else message
+
+
+def enable_compilation_cache() -> None:
+    """Keep compiled XLA programs in ``~/.cache/admissable_jax/jax_cache`` (outside any repo)
+    unless ``JAX_COMPILATION_CACHE_DIR`` says otherwise: MJX programs take a minute to build."""
+    import jax
+
+    default = os.path.join(os.path.expanduser("~"), ".cache", "admissable_jax", "jax_cache")
+    jax.config.update("jax_compilation_cache_dir", os.environ.get("JAX_COMPILATION_CACHE_DIR", default))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
 
 def fail(message: str) -> None:

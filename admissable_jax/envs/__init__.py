@@ -1,4 +1,7 @@
-"""MJX ports of Gymnasium's Hopper-v5, Walker2d-v5 and Ant-v5, and :func:`make_env`."""
+"""MJX ports of Gymnasium's Hopper-v5, Walker2d-v5 and Ant-v5, and :func:`make_env`.
+
+``point_mass`` is a pure-JAX toy with the same interface, for tests and smoke runs.
+"""
 
 from __future__ import annotations
 
@@ -6,11 +9,12 @@ from admissable_jax.envs import contact_frames
 from admissable_jax.envs.ant import Ant
 from admissable_jax.envs.base import MAX_EPISODE_STEPS, EnvState, MjxEnv, reset_where_done
 from admissable_jax.envs.planar_walkers import Hopper, Walker2d
+from admissable_jax.envs.point_mass import PointMass
 
 contact_frames.install()
 
-ENV_CLASSES: dict[str, type[MjxEnv]] = {cls.name: cls for cls in (Hopper, Walker2d, Ant)}
-_ALIASES = {cls.gymnasium_id.lower(): cls.name for cls in ENV_CLASSES.values()}
+ENV_CLASSES: dict[str, type] = {cls.name: cls for cls in (Hopper, Walker2d, Ant, PointMass)}
+_ALIASES = {cls.gymnasium_id.lower(): cls.name for cls in ENV_CLASSES.values() if cls.gymnasium_id}
 
 
 def canonical_env_name(name: str) -> str:
@@ -20,7 +24,7 @@ def canonical_env_name(name: str) -> str:
     key = name.lower()
     key = _ALIASES.get(key, key)
     if key not in ENV_CLASSES:
-        valid = ", ".join([*ENV_CLASSES, *(cls.gymnasium_id for cls in ENV_CLASSES.values())])
+        valid = ", ".join([*ENV_CLASSES, *(cls.gymnasium_id for cls in ENV_CLASSES.values() if cls.gymnasium_id)])
         raise ValueError(f"unknown env {name!r}; valid names: {valid}")
     return key
 
@@ -44,6 +48,7 @@ __all__ = [
     "EnvState",
     "Hopper",
     "MjxEnv",
+    "PointMass",
     "Walker2d",
     "canonical_env_name",
     "make_env",

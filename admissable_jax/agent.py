@@ -1,0 +1,206 @@
+"""Soft Actor-Critic (Haarnoja et al. 2018), written by hand with Stable-Baselines3's defaults.
+
+Tanh-squashed Gaussian actor (log-std clipped to [-20, 2]), twin Q critics with Polyak
+target copies, automatic entropy coefficient (target entropy -|A|), Adam for all three.
+The update follows SB3's order: entropy coefficient, critics, actor, target networks, with
+the entropy coefficient from before its own step used in the critic and actor losses.
+Inputs are the 2·d masked observations; the agent never sees which env it runs in.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Sequence
+
+import chex
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0
+
+
+@dataclasses.dataclass(frozen=True)
+class SACHyperparams:
+    """SB3's SAC defaults; the values the paper's experiments used."""
+
+    learning_rate: float = 3e-4
+    gamma: float = 0.99
+    tau: float = 0.005
+    batch_size: int = 256
+    hidden_sizes: tuple[int, ...] = (256, 256)
+    initial_alpha: float = 1.0
+
+
+class MLP(nn.Module):
+    hidden_sizes: Sequence[int]
+    out_size: int
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        for size in self.hidden_sizes:
+            x = nn.relu(nn.Dense(size)(x))
+        return nn.Dense(self.out_size)(x)
+
+
+class Actor(nn.Module):
+    """Mean and log-std of the pre-tanh Gaussian."""
+
+    hidden_sizes: Sequence[int]
+    action_size: int
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+        x = obs
+        for size in self.hidden_sizes:
+            x = nn.relu(nn.Dense(size)(x))
+        mean = nn.Dense(self.action_size)(x)
+        log_std = jnp.clip(nn.Dense(self.action_size)(x), LOG_STD_MIN, LOG_STD_MAX)
+        return mean, log_std
+
+
+class TwinCritic(nn.Module):
+    """Two independent Q(s, a) networks; returns shape (2, ...)."""
+
+    hidden_sizes: Sequence[int]
+
+    @nn.compact
+    def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
+        x = jnp.concatenate([obs, action], axis=-1)
+        q1 = MLP(self.hidden_sizes, 1)(x)[..., 0]
+        q2 = MLP(self.hidden_sizes, 1)(x)[..., 0]
+        return jnp.stack([q1, q2])
+
+
+@struct.dataclass
+class SACState:
+    actor_params: dict
+    critic_params: dict
+    target_critic_params: dict
+    log_alpha: jax.Array
+    actor_opt_state: optax.OptState
+    critic_opt_state: optax.OptState
+    alpha_opt_state: optax.OptState
+
+
+@struct.dataclass
+class SACBatch:
+    obs: jax.Array  # (B, 2·d) masked
+    action: jax.Array  # (B, A)
+    reward: jax.Array  # (B,)
+    next_obs: jax.Array  # (B, 2·d) masked with the same set
+    terminated: jax.Array  # (B,)
+
+
+class SAC:
+    """Networks, optimizers and the pure functions that act and learn."""
+
+    def __init__(self, input_size: int, action_low: jax.Array, action_high: jax.Array, hp: SACHyperparams):
+        self.input_size = input_size
+        self.action_size = int(action_low.shape[0])
+        self.action_low = jnp.asarray(action_low, jnp.float32)
+        self.action_high = jnp.asarray(action_high, jnp.float32)
+        self.hp = hp
+        self.actor = Actor(hp.hidden_sizes, self.action_size)
+        self.critic = TwinCritic(hp.hidden_sizes)
+        self.optimizer = optax.adam(hp.learning_rate)
+        self.target_entropy = -float(self.action_size)
+
+    # --- acting -------------------------------------------------------------------------
+    def _scale(self, squashed: jax.Array) -> jax.Array:
+        return self.action_low + (squashed + 1.0) * 0.5 * (self.action_high - self.action_low)
+
+    def sample_action(self, actor_params, obs: jax.Array, rng: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """(action in the env's bounds, log π(action | obs)) for a batch of masked obs."""
+        mean, log_std = self.actor.apply(actor_params, obs)
+        std = jnp.exp(log_std)
+        pre_tanh = mean + std * jax.random.normal(rng, mean.shape)
+        squashed = jnp.tanh(pre_tanh)
+        gaussian_log_prob = -0.5 * (((pre_tanh - mean) / std) ** 2 + 2 * log_std + jnp.log(2 * jnp.pi))
+        # Change of variables through tanh (SB3's 1e-6 guard) and the affine scale.
+        log_det = jnp.log(1.0 - squashed**2 + 1e-6) + jnp.log(0.5 * (self.action_high - self.action_low))
+        return self._scale(squashed), jnp.sum(gaussian_log_prob - log_det, axis=-1)
+
+    def deterministic_action(self, actor_params, obs: jax.Array) -> jax.Array:
+        """The policy's mean action, squashed and scaled: what scoring evaluates."""
+        mean, _ = self.actor.apply(actor_params, obs)
+        return self._scale(jnp.tanh(mean))
+
+    # --- learning -----------------------------------------------------------------------
+    def init(self, rng: jax.Array) -> SACState:
+        actor_rng, critic_rng = jax.random.split(rng)
+        dummy_obs = jnp.zeros((1, self.input_size))
+        actor_params = self.actor.init(actor_rng, dummy_obs)
+        critic_params = self.critic.init(critic_rng, dummy_obs, jnp.zeros((1, self.action_size)))
+        log_alpha = jnp.log(jnp.asarray(self.hp.initial_alpha, jnp.float32))
+        return SACState(
+            actor_params=actor_params,
+            critic_params=critic_params,
+            target_critic_params=jax.tree.map(jnp.copy, critic_params),
+            log_alpha=log_alpha,
+            actor_opt_state=self.optimizer.init(actor_params),
+            critic_opt_state=self.optimizer.init(critic_params),
+            alpha_opt_state=self.optimizer.init(log_alpha),
+        )
+
+    def update(self, state: SACState, batch: SACBatch, rng: jax.Array) -> tuple[SACState, dict[str, jax.Array]]:
+        """One gradient step on all three losses, then the Polyak target update."""
+        chex.assert_rank(batch.obs, 2)
+        chex.assert_equal(batch.obs.shape[-1], self.input_size)
+        actor_rng, next_rng = jax.random.split(rng)
+        hp = self.hp
+
+        # Entropy coefficient: -log α · (log π + target entropy), log π detached.
+        _, log_prob = self.sample_action(state.actor_params, batch.obs, actor_rng)
+        entropy_gap = jax.lax.stop_gradient(log_prob + self.target_entropy)
+        alpha_loss, alpha_grad = jax.value_and_grad(lambda la: -jnp.mean(la * entropy_gap))(state.log_alpha)
+        alpha_updates, alpha_opt_state = self.optimizer.update(alpha_grad, state.alpha_opt_state)
+        log_alpha = optax.apply_updates(state.log_alpha, alpha_updates)
+        alpha = jnp.exp(state.log_alpha)  # the value before this step, as SB3
+
+        # Critics: soft Bellman target; truncations are not terminations (bootstrap).
+        next_action, next_log_prob = self.sample_action(state.actor_params, batch.next_obs, next_rng)
+        next_q = jnp.min(self.critic.apply(state.target_critic_params, batch.next_obs, next_action), axis=0)
+        not_terminal = 1.0 - batch.terminated.astype(jnp.float32)
+        target = batch.reward + not_terminal * hp.gamma * (next_q - alpha * next_log_prob)
+        target = jax.lax.stop_gradient(target)
+
+        def critic_loss_fn(params):
+            q = self.critic.apply(params, batch.obs, batch.action)
+            return 0.5 * jnp.sum(jnp.mean((q - target) ** 2, axis=-1)), q
+
+        (critic_loss, q), critic_grad = jax.value_and_grad(critic_loss_fn, has_aux=True)(state.critic_params)
+        critic_updates, critic_opt_state = self.optimizer.update(critic_grad, state.critic_opt_state)
+        critic_params = optax.apply_updates(state.critic_params, critic_updates)
+
+        # Actor: α log π − min Q, against the freshly updated critics (SB3 order).
+        def actor_loss_fn(params):
+            action, log_prob = self.sample_action(params, batch.obs, actor_rng)
+            q_pi = jnp.min(self.critic.apply(critic_params, batch.obs, action), axis=0)
+            return jnp.mean(alpha * log_prob - q_pi), -jnp.mean(log_prob)
+
+        (actor_loss, entropy), actor_grad = jax.value_and_grad(actor_loss_fn, has_aux=True)(state.actor_params)
+        actor_updates, actor_opt_state = self.optimizer.update(actor_grad, state.actor_opt_state)
+        actor_params = optax.apply_updates(state.actor_params, actor_updates)
+
+        target_critic_params = optax.incremental_update(critic_params, state.target_critic_params, hp.tau)
+        new_state = SACState(
+            actor_params=actor_params,
+            critic_params=critic_params,
+            target_critic_params=target_critic_params,
+            log_alpha=log_alpha,
+            actor_opt_state=actor_opt_state,
+            critic_opt_state=critic_opt_state,
+            alpha_opt_state=alpha_opt_state,
+        )
+        metrics = {
+            "critic_loss": critic_loss,
+            "actor_loss": actor_loss,
+            "alpha_loss": alpha_loss,
+            "alpha": alpha,
+            "entropy": entropy,
+            "q_mean": jnp.mean(q),
+        }
+        return new_state, metrics

@@ -1,0 +1,99 @@
+"""The training configuration: one typed dataclass with the paper's defaults.
+
+The paper trains all three envs with the same settings (SB3 SAC defaults; ζ = 5000,
+ε = 1e-8, l = 0, k = 1), so there are no per-env presets: ``env`` only picks the task.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+
+from admissable_jax.adversary import MODES
+from admissable_jax.envs import canonical_env_name
+
+
+def _field(default, help_text: str):
+    return dataclasses.field(default=default, metadata={"help": help_text})
+
+
+@dataclasses.dataclass
+class TrainConfig:
+    # task and adversary (paper §3, Table of hyperparameters)
+    env: str = _field("hopper", "hopper, walker2d or ant (or Hopper-v5, Walker2d-v5, Ant-v5)")
+    missingness: str = _field("adversarial", "adversarial | uniform | none")
+    k: int = _field(1, "features hidden per episode (|u| = k)")
+    include_empty_set: bool = _field(False, "also let the adversary pick 'nothing hidden'")
+    score_every: int = _field(5000, "zeta: env steps (over all envs) between scorings")
+    score_episodes: int = _field(10, "N: deterministic episodes per missing set")
+    lower_bound: float = _field(0.0, "l: return lower bound; scores below are clipped to it")
+    epsilon: float = _field(1e-8, "eps in p_miss = 1/(a_u - l + eps), normalised")
+    # run
+    total_steps: int = _field(1_000_000, "env steps to train, over all envs (rounded up to a multiple of score_every)")
+    num_envs: int = _field(0, "parallel envs; 0 = 8 on CPU, 128 on GPU")
+    seed: int = _field(0, "PRNG seed")
+    episode_length: int = _field(1000, "step limit of an episode (Gymnasium v5: 1000)")
+    # SAC (Stable-Baselines3 defaults)
+    learning_rate: float = _field(3e-4, "Adam learning rate (actor, critics, alpha)")
+    gamma: float = _field(0.99, "discount")
+    tau: float = _field(0.005, "Polyak coefficient of the target critics")
+    batch_size: int = _field(256, "minibatch size")
+    hidden_size: int = _field(256, "units per hidden layer")
+    hidden_layers: int = _field(2, "hidden layers per network")
+    buffer_size: int = _field(1_000_000, "replay capacity (transitions)")
+    learning_starts: int = _field(10_000, "env steps of uniform random actions before learning")
+    utd: float = _field(1.0, "gradient steps per env step")
+    # output
+    out: str = _field("", "run directory; '' = runs/<env>-<missingness>-s<seed>")
+    checkpoint_every: int = _field(10, "checkpoint every this many scorings (and at the end)")
+    resume: bool = _field(False, "continue the run in 'out' from its last checkpoint")
+    progress: bool = _field(True, "show a progress bar")
+
+    def resolved(self) -> "TrainConfig":
+        """A copy with the env name canonical, ``num_envs`` and ``out`` filled in, validated."""
+        config = dataclasses.replace(self)
+        validate(config)
+        config.env = canonical_env_name(config.env)
+        if config.num_envs == 0:
+            config.num_envs = 8 if jax.default_backend() == "cpu" else 128
+        if config.score_every % config.num_envs:
+            raise ValueError(
+                f"score_every ({config.score_every}) must be a multiple of num_envs ({config.num_envs})"
+            )
+        if not config.out:
+            config.out = f"runs/{config.env}-{config.missingness}-s{config.seed}"
+        return config
+
+
+def validate(config: TrainConfig) -> None:
+    """Raise ValueError/TypeError with a one-line message for any bad setting."""
+    if not isinstance(config, TrainConfig):
+        raise TypeError(f"expected a TrainConfig, got {type(config).__name__}")
+    for field in dataclasses.fields(TrainConfig):
+        value = getattr(config, field.name)
+        expected = {"int": int, "float": (int, float), "bool": bool, "str": str}[field.type]
+        if not isinstance(value, expected) or (field.type == "int" and isinstance(value, bool)):
+            raise TypeError(f"{field.name} must be {field.type}, got {value!r}")
+    canonical_env_name(config.env)
+    if config.missingness not in MODES:
+        raise ValueError(f"missingness must be one of {', '.join(MODES)}, got {config.missingness!r}")
+    positive = ("k", "score_every", "score_episodes", "total_steps", "episode_length",
+                "batch_size", "hidden_size", "hidden_layers", "buffer_size", "checkpoint_every")
+    for name in positive:
+        if getattr(config, name) < 1:
+            raise ValueError(f"{name} must be >= 1, got {getattr(config, name)}")
+    if config.num_envs < 0:
+        raise ValueError(f"num_envs must be >= 0, got {config.num_envs}")
+    if config.utd <= 0:
+        raise ValueError(f"utd must be > 0, got {config.utd}")
+    if config.epsilon <= 0:
+        raise ValueError(f"epsilon must be > 0, got {config.epsilon}")
+    if not 0 <= config.gamma <= 1 or not 0 < config.tau <= 1:
+        raise ValueError("gamma must be in [0, 1] and tau in (0, 1]")
+    if config.learning_starts < config.batch_size:
+        raise ValueError(
+            f"learning_starts ({config.learning_starts}) must be >= batch_size ({config.batch_size})"
+        )
+    if config.episode_length > 1000:
+        raise ValueError("episode_length must be <= 1000 (the v5 limit)")

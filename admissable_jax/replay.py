@@ -1,0 +1,71 @@
+"""A fixed-capacity ring buffer of transitions that lives on the device.
+
+It stores the raw observation and the index of the episode's missing set rather than the
+2·d masked vector (half the memory, and the mask is applied once, at sampling). Inserts
+write a whole batch of parallel-env transitions with one ``dynamic_update_slice``; the
+capacity is a multiple of that batch so a write never wraps mid-batch.
+"""
+
+from __future__ import annotations
+
+import chex
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+
+@struct.dataclass
+class Transitions:
+    obs: jax.Array  # (..., d) raw observation
+    set_index: jax.Array  # (...,) index of the episode's missing set
+    action: jax.Array  # (..., A)
+    reward: jax.Array  # (...,)
+    next_obs: jax.Array  # (..., d) raw observation after the step (before any reset)
+    terminated: jax.Array  # (...,) true termination only; truncation bootstraps
+
+
+@struct.dataclass
+class ReplayBuffer:
+    data: Transitions  # leading axis: capacity
+    position: jax.Array  # () next row to write
+    size: jax.Array  # () rows filled
+
+
+def buffer_capacity(requested: int, insert_batch: int) -> int:
+    """The largest multiple of ``insert_batch`` not above ``requested`` (at least one batch)."""
+    return max(insert_batch, requested // insert_batch * insert_batch)
+
+
+def init_buffer(capacity: int, obs_size: int, action_size: int) -> ReplayBuffer:
+    data = Transitions(
+        obs=jnp.zeros((capacity, obs_size), jnp.float32),
+        set_index=jnp.zeros((capacity,), jnp.int32),
+        action=jnp.zeros((capacity, action_size), jnp.float32),
+        reward=jnp.zeros((capacity,), jnp.float32),
+        next_obs=jnp.zeros((capacity, obs_size), jnp.float32),
+        terminated=jnp.zeros((capacity,), bool),
+    )
+    return ReplayBuffer(data=data, position=jnp.zeros((), jnp.int32), size=jnp.zeros((), jnp.int32))
+
+
+def insert(buffer: ReplayBuffer, batch: Transitions) -> ReplayBuffer:
+    """Write a batch of transitions (leading axis n, capacity % n == 0) at ``position``."""
+    n = batch.reward.shape[0]
+    capacity = buffer.data.reward.shape[0]
+    chex.assert_equal(capacity % n, 0)
+    data = jax.tree.map(
+        lambda column, rows: jax.lax.dynamic_update_slice_in_dim(column, rows.astype(column.dtype), buffer.position, 0),
+        buffer.data,
+        batch,
+    )
+    return ReplayBuffer(
+        data=data,
+        position=(buffer.position + n) % capacity,
+        size=jnp.minimum(buffer.size + n, capacity),
+    )
+
+
+def sample(buffer: ReplayBuffer, rng: jax.Array, batch_size: int) -> Transitions:
+    """``batch_size`` transitions drawn uniformly, with replacement, from the filled rows."""
+    indices = jax.random.randint(rng, (batch_size,), 0, jnp.maximum(buffer.size, 1))
+    return jax.tree.map(lambda column: column[indices], buffer.data)

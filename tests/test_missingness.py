@@ -1,0 +1,75 @@
+"""Candidate sets, masking and the adversary's p_miss update (pure functions, no physics)."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from admissable_jax.adversary import inverse_score_p_miss, update_p_miss, uniform_p_miss
+from admissable_jax.missingness import (
+    candidate_sets,
+    describe_set,
+    mask_observation,
+    sample_set_indices,
+)
+
+
+def test_candidate_sets():
+    singles = candidate_sets(5)
+    np.testing.assert_array_equal(singles, np.eye(5, dtype=np.float32))
+    pairs = candidate_sets(5, k=2, include_empty=True)
+    assert pairs.shape == (1 + math.comb(5, 2), 5)
+    assert pairs[0].sum() == 0 and (pairs[1:].sum(axis=1) == 2).all()
+    assert len({tuple(row) for row in pairs}) == len(pairs)
+    assert describe_set(pairs[1]) == "{0,1}" and describe_set(pairs[0]) == "{}"
+    with pytest.raises(ValueError, match="k < d"):
+        candidate_sets(11, k=11)
+    with pytest.raises(ValueError, match="k < d"):
+        candidate_sets(11, k=0)
+    with pytest.raises(TypeError):
+        candidate_sets(11, k=True)
+    with pytest.raises(ValueError, match="exceed"):
+        candidate_sets(105, k=4)
+
+
+def test_mask_observation():
+    obs = jnp.array([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]])
+    hidden = jnp.array([[0.0, 1.0, 0.0], [1.0, 0.0, 1.0]])
+    np.testing.assert_array_equal(
+        mask_observation(obs, hidden),
+        [[1.0, 0.0, 3.0, 0.0, 1.0, 0.0], [0.0, 5.0, 0.0, 1.0, 0.0, 1.0]],
+    )
+    # A single row of u broadcasts over a batch; nothing hidden leaves obs and a zero indicator.
+    np.testing.assert_array_equal(mask_observation(obs, jnp.zeros(3)), jnp.concatenate([obs, jnp.zeros((2, 3))], 1))
+    with pytest.raises((AssertionError, ValueError)):
+        mask_observation(obs, jnp.zeros(4))
+
+
+def test_p_miss_update_against_hand_computed_values():
+    scores = jnp.array([10.0, 20.0, -5.0, 40.0])
+    eps = 1e-8
+    # l = 0: -5 is clipped to 0 and gets nearly all the mass.
+    weights = np.array([1 / (10 + eps), 1 / (20 + eps), 1 / eps, 1 / (40 + eps)])
+    np.testing.assert_allclose(inverse_score_p_miss(scores, 0.0, eps), weights / weights.sum(), rtol=1e-6)
+    # l = 5: 10 -> 1/5, 20 -> 1/15, -5 clipped to 5 -> 1/eps, 40 -> 1/35.
+    weights = np.array([1 / (5 + eps), 1 / (15 + eps), 1 / eps, 1 / (35 + eps)])
+    np.testing.assert_allclose(inverse_score_p_miss(scores, 5.0, eps), weights / weights.sum(), rtol=1e-6)
+    # Positive scores, l = 0: p ∝ 1/a exactly.
+    positive = jnp.array([1.0, 2.0, 4.0])
+    np.testing.assert_allclose(inverse_score_p_miss(positive, 0.0, eps), [4 / 7, 2 / 7, 1 / 7], rtol=1e-6)
+
+    uniform = uniform_p_miss(3)
+    np.testing.assert_allclose(uniform, [1 / 3] * 3)
+    np.testing.assert_allclose(update_p_miss(uniform, positive, jnp.array(True), 0.0, eps), [4 / 7, 2 / 7, 1 / 7], rtol=1e-6)
+    np.testing.assert_array_equal(update_p_miss(uniform, positive, jnp.array(False), 0.0, eps), uniform)
+
+
+def test_set_draws_follow_p_miss():
+    p_miss = jnp.array([0.5, 0.3, 0.15, 0.05])
+    draws = np.asarray(sample_set_indices(jax.random.key(0), p_miss, (40_000,)))
+    frequencies = np.bincount(draws, minlength=4) / len(draws)
+    # 4 standard errors of a binomial proportion at n = 40000.
+    tolerance = 4 * np.sqrt(np.asarray(p_miss) * (1 - np.asarray(p_miss)) / len(draws))
+    assert (np.abs(frequencies - np.asarray(p_miss)) < tolerance).all(), frequencies

@@ -1,0 +1,212 @@
+"""The trainer end to end: SAC learning, per-episode missing sets, scoring, checkpoints, CLI.
+
+Most tests use the pure-JAX point mass (seconds to compile); one short Hopper run goes
+through ``train_fn`` on MJX.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from admissable_jax import TrainConfig, candidate_sets, make_env, mask_observation, score_missingness, train_fn
+from admissable_jax.checkpointing import CheckpointError
+from admissable_jax.runs import TrainingDiverged
+from admissable_jax.training import Trainer
+
+POINT_MASS = TrainConfig(
+    env="point_mass",
+    total_steps=6000,
+    score_every=1000,
+    num_envs=4,
+    learning_starts=1000,
+    episode_length=100,
+    score_episodes=4,
+    batch_size=128,
+    buffer_size=20_000,
+    progress=False,
+)
+
+
+@pytest.fixture(scope="module")
+def point_mass_run(tmp_path_factory):
+    out = str(tmp_path_factory.mktemp("runs") / "pm")
+    return train_fn(dataclasses.replace(POINT_MASS, out=out))
+
+
+def test_sac_learns_point_mass(point_mass_run):
+    """Random actions (the first scoring, policy untrained) vs 5000 steps of SAC."""
+    scores = point_mass_run.scores
+    assert len(scores) == 6
+    first, last = scores[0]["clean_score"], scores[-1]["clean_score"]
+    # The return is at most 100 (reward <= 1 per step, 100 steps). An untrained policy
+    # scores ~20; we require 60, which SAC passes by 5000 steps.
+    assert first < 40, first
+    assert last > 60, last
+    metrics = point_mass_run.metrics
+    assert metrics[-1]["grad_steps"] == 5000  # UTD 1 from learning_starts on
+    assert all(np.isfinite(m["critic_loss"]) for m in metrics[1:])
+
+
+def test_run_directory_contents(point_mass_run):
+    run_dir = point_mass_run.run_dir
+    assert sorted(os.listdir(run_dir)) == ["checkpoints", "config.yaml", "metrics.jsonl", "scores.jsonl"]
+    for row in point_mass_run.scores:
+        assert len(row["scores"]) == 4 and len(row["p_miss"]) == 4
+        assert row["min_score"] == pytest.approx(min(row["scores"]), abs=1e-3)
+        assert row["scores"][row["argmin"]] == pytest.approx(row["min_score"], abs=1e-3)
+        assert sum(row["p_miss"]) == pytest.approx(1.0, abs=1e-5)
+        # Adversarial mode: p_miss after the update is the inverse-score distribution.
+        inverse = 1.0 / np.maximum(np.array(row["scores"]), 0.0)
+        np.testing.assert_allclose(row["p_miss"], inverse / inverse.sum(), rtol=1e-3)
+
+
+def test_missing_set_fixed_within_episode_and_drawn_from_p_miss():
+    env = make_env("point_mass")
+    env.max_episode_steps = 5  # many episode starts
+    config = dataclasses.replace(POINT_MASS, num_envs=20, episode_length=5).resolved()
+    trainer = Trainer(env, config)
+    p_miss = jnp.array([0.55, 0.25, 0.15, 0.05])
+    state = trainer.init(0, True, True).replace(p_miss=p_miss)
+
+    def record(state, _):
+        state, _ = trainer.iteration(state)
+        return state, (state.set_index, state.env_states.step_count)
+
+    _, (set_index, step_count) = jax.jit(lambda s: jax.lax.scan(record, s, None, length=300))(state)
+    set_index, step_count = np.asarray(set_index), np.asarray(step_count)
+    episode_start = step_count[1:] == 0
+    changed = set_index[1:] != set_index[:-1]
+    assert not (changed & ~episode_start).any(), "u changed within an episode"
+    draws = set_index[1:][episode_start]
+    assert len(draws) > 800
+    frequencies = np.bincount(draws, minlength=4) / len(draws)
+    tolerance = 4 * np.sqrt(np.asarray(p_miss) * (1 - np.asarray(p_miss)) / len(draws))
+    assert (np.abs(frequencies - np.asarray(p_miss)) < tolerance).all(), frequencies
+
+
+def _feature_zero_controller(gain, masked_obs):
+    """Pushes x home using only feature 0 (x); blind to everything else."""
+    return jnp.clip(jnp.array([-gain * masked_obs[0], 0.0]), -1.0, 1.0)
+
+
+def test_score_missingness_equals_a_plain_loop_and_finds_the_used_feature():
+    env = make_env("point_mass")
+    env.max_episode_steps = 60
+    hidden_sets = candidate_sets(4, k=1)
+    rng = jax.random.key(7)
+    n_episodes = 3
+    scored = jax.jit(score_missingness, static_argnums=(0, 1, 5))(
+        env, _feature_zero_controller, 2.0, rng, hidden_sets, n_episodes
+    )
+
+    step = jax.jit(env.step)
+    policy = jax.jit(_feature_zero_controller)
+    keys = jax.random.split(rng, n_episodes)
+    for row, hidden in enumerate([*hidden_sets, np.zeros(4, np.float32)]):
+        for episode in range(n_episodes):
+            state, total, length = env.reset(keys[episode]), 0.0, 0
+            while length < env.max_episode_steps:
+                state = step(state, policy(2.0, mask_observation(state.obs, jnp.asarray(hidden))))
+                total += float(state.reward)
+                length += 1
+                if bool(state.terminated):
+                    break
+            assert scored.returns[row, episode] == pytest.approx(total, rel=1e-5, abs=1e-4)
+            assert int(scored.lengths[row, episode]) == length
+    assert int(scored.argmin) == 0
+    assert float(scored.scores[0]) < float(scored.clean_score) - 1.0
+    np.testing.assert_allclose(scored.scores[1:], scored.clean_score, rtol=1e-6)
+
+
+def test_checkpoint_resume_continues_exactly(tmp_path):
+    config = dataclasses.replace(POINT_MASS, total_steps=4000, checkpoint_every=1)
+    straight = train_fn(dataclasses.replace(config, out=str(tmp_path / "straight")))
+    resumed_dir = str(tmp_path / "resumed")
+    train_fn(dataclasses.replace(config, total_steps=2000, out=resumed_dir))
+    with pytest.raises(FileExistsError, match="resume=true"):
+        train_fn(dataclasses.replace(config, out=resumed_dir))
+    with pytest.raises(ValueError, match="cannot resume with seed=1"):
+        train_fn(dataclasses.replace(config, out=resumed_dir, resume=True, seed=1))
+    resumed = train_fn(dataclasses.replace(config, out=resumed_dir, resume=True))
+
+    assert [r["scores"] for r in resumed.scores] == [r["scores"] for r in straight.scores]
+    assert [r["p_miss"] for r in resumed.scores] == [r["p_miss"] for r in straight.scores]
+    for a, b in zip(jax.tree.leaves(resumed.state), jax.tree.leaves(straight.state)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_corrupt_checkpoint_and_divergence_keep_finished_work(tmp_path):
+    out = str(tmp_path / "diverges")
+    # Learning starts after the first scoring; a huge learning rate then blows up the losses.
+    config = dataclasses.replace(
+        POINT_MASS, total_steps=3000, score_every=500, learning_starts=600, learning_rate=1e6,
+        checkpoint_every=1, out=out,
+    )
+    with pytest.raises(TrainingDiverged, match="last checkpoint \\(step 500\\) kept"):
+        train_fn(config)
+    with open(os.path.join(out, "scores.jsonl")) as file:
+        assert [json.loads(line)["env_steps"] for line in file] == [500]
+
+    checkpoint = os.path.join(out, "checkpoints", "500")
+    for root, _, files in os.walk(checkpoint):
+        for name in files:
+            with open(os.path.join(root, name), "wb") as file:
+                file.write(b"garbage")
+    with pytest.raises(CheckpointError, match="cannot be restored"):
+        train_fn(dataclasses.replace(config, resume=True))
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["bogus=1"], "unknown key 'bogus'"),
+        (["total_steps=ten"], "bad value for 'total_steps'"),
+        (["env=cheetah"], "unknown env 'cheetah'"),
+        (["missingness=sometimes"], "missingness must be one of"),
+        (["env=hopper", "k=11"], "k must satisfy 1 <= k < d = 11"),
+    ],
+)
+def test_cli_rejects_bad_input_with_one_line(args, message, tmp_path):
+    result = subprocess.run(
+        [sys.executable, "-m", "admissable_jax.train", *args, f"out={tmp_path}/x", "progress=false"],
+        capture_output=True, text=True, env={**os.environ, "JAX_PLATFORMS": "cpu"},
+    )
+    assert result.returncode == 2
+    assert message in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1, result.stderr
+
+
+def test_cli_help_lists_every_key():
+    result = subprocess.run(
+        [sys.executable, "-m", "admissable_jax.train", "--help"], capture_output=True, text=True
+    )
+    assert result.returncode == 0
+    for field in dataclasses.fields(TrainConfig):
+        assert f"  {field.name}=" in result.stdout
+
+
+def test_short_hopper_run_through_train_fn(tmp_path):
+    config = TrainConfig(
+        env="hopper", missingness="uniform", total_steps=200, score_every=100, num_envs=4,
+        learning_starts=64, batch_size=32, hidden_size=32, buffer_size=1000, score_episodes=2,
+        episode_length=50, out=str(tmp_path / "hopper"), progress=False,
+    )
+    result = train_fn(config)
+    assert [row["env_steps"] for row in result.scores] == [100, 200]
+    for row in result.scores:
+        assert len(row["scores"]) == 11
+        np.testing.assert_allclose(row["p_miss"], [1 / 11] * 11, rtol=1e-6)  # uniform mode
+        assert 0 < row["mean_episode_length"] <= 50
+        assert np.isfinite(row["clean_score"])
+    assert result.metrics[-1]["grad_steps"] > 0
+    assert result.metrics[-1]["episodes"] > 0
+    assert os.listdir(os.path.join(result.run_dir, "checkpoints"))
