@@ -2,7 +2,9 @@
 
 A checkpoint holds the :class:`~admissable_jax.training.TrainState` pytree: network
 parameters, optimizer states, p_miss, step counters, the RNG, the env states and the
-replay buffer, so a resumed run continues exactly where the saved one stood.
+replay buffer, so a resumed run continues exactly where the saved one stood. Orbax cannot
+write zero-size arrays (``mjx.Data`` has several), so those leaves are left out and taken
+from the run's own freshly built state on restore.
 """
 
 from __future__ import annotations
@@ -20,16 +22,17 @@ class CheckpointError(RuntimeError):
 class Checkpoints:
     def __init__(self, directory: str, max_to_keep: int = 2):
         self.directory = os.path.abspath(directory)
-        self._manager = ocp.CheckpointManager(
-            self.directory, options=ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, create=True)
+        options = ocp.CheckpointManagerOptions(
+            max_to_keep=max_to_keep, create=True, enable_async_checkpointing=False
         )
+        self._manager = ocp.CheckpointManager(self.directory, options=options)
 
     def latest_step(self) -> int | None:
         return self._manager.latest_step()
 
     def save(self, step: int, state) -> None:
         """Write ``state`` as checkpoint ``step`` and wait until it is on disk."""
-        self._manager.save(step, args=ocp.args.StandardSave(state), force=True)
+        self._manager.save(step, args=ocp.args.StandardSave(_non_empty_leaves(state)), force=True)
         self._manager.wait_until_finished()
 
     def restore(self, like) -> tuple[int, object]:
@@ -37,15 +40,22 @@ class Checkpoints:
         step = self.latest_step()
         if step is None:
             raise CheckpointError(f"no checkpoint to resume from in {self.directory}")
-        abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, like)
+        abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, _non_empty_leaves(like))
         try:
-            state = self._manager.restore(step, args=ocp.args.StandardRestore(abstract))
+            saved = self._manager.restore(step, args=ocp.args.StandardRestore(abstract))
         except Exception as error:  # orbax raises many types for unreadable data
             first_line = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
             raise CheckpointError(
                 f"checkpoint {step} in {self.directory} cannot be restored: {first_line}"
             ) from error
-        return step, state
+        leaves, treedef = jax.tree.flatten(like)
+        leaves = [saved.get(str(i), leaf) for i, leaf in enumerate(leaves)]
+        return step, jax.tree.unflatten(treedef, leaves)
 
     def close(self) -> None:
         self._manager.close()
+
+
+def _non_empty_leaves(state) -> dict[str, jax.Array]:
+    """The pytree's leaves with at least one element, keyed by their flat index."""
+    return {str(i): leaf for i, leaf in enumerate(jax.tree.leaves(state)) if leaf.size > 0}
