@@ -210,3 +210,29 @@ def test_short_hopper_run_through_train_fn(tmp_path):
     assert result.metrics[-1]["grad_steps"] > 0
     assert result.metrics[-1]["episodes"] > 0
     assert os.listdir(os.path.join(result.run_dir, "checkpoints"))
+
+
+def test_train_step_vmaps_over_seeds_and_modes():
+    """Two (seed, mode) pairs in one vmapped program give each pair's unbatched result."""
+    env = make_env("point_mass")
+    env.max_episode_steps = 20
+    config = dataclasses.replace(POINT_MASS, learning_starts=64, batch_size=32, episode_length=20).resolved()
+    trainer = Trainer(env, config)
+
+    def run(seed, adversarial):
+        state, _ = trainer.run_chunk(trainer.init(seed, adversarial, True), 40)
+        state, scores = trainer.score_and_update(state, 2)
+        return state, scores.scores
+
+    batched_state, batched_scores = jax.jit(jax.vmap(run))(jnp.array([0, 1]), jnp.array([True, False]))
+    for pair, (seed, adversarial) in enumerate([(0, True), (1, False)]):
+        state, scores = jax.jit(run, static_argnums=(0, 1))(seed, adversarial)
+        np.testing.assert_allclose(batched_scores[pair], scores, rtol=1e-4, atol=1e-4)
+        np.testing.assert_allclose(
+            batched_state.sac.actor_params["params"]["Dense_0"]["kernel"][pair],
+            state.sac.actor_params["params"]["Dense_0"]["kernel"], rtol=1e-4, atol=1e-5,
+        )
+        assert int(batched_state.grad_steps[pair]) == int(state.grad_steps) > 0
+    # The adversarial pair moved p_miss, the uniform one did not.
+    assert not np.allclose(batched_state.p_miss[0], 0.25)
+    np.testing.assert_allclose(batched_state.p_miss[1], 0.25)
