@@ -17,6 +17,7 @@ import pytest
 
 from admissable_jax import make_env
 from admissable_jax.envs import MAX_EPISODE_STEPS, contact_frames
+from admissable_jax.envs.parity import gymnasium_transitions, step_from_states
 
 ENV_NAMES = ("hopper", "walker2d", "ant")
 N_TRANSITIONS = 120
@@ -30,55 +31,15 @@ OBS_TOLERANCE = {"hopper": 1e-4, "walker2d": 5e-4, "ant": 5e-4}
 REWARD_TOLERANCE = 1e-4  # measured maxima 4e-6 (Hopper), 4e-6 (Walker2d), 7e-6 (Ant)
 
 
-def _gymnasium_transitions(env_id: str, n: int, seed: int = 0) -> dict[str, np.ndarray]:
-    """``n`` transitions of Gymnasium's env under uniform random actions.
-
-    Each starts with ``set_state`` at the visited (qpos, qvel), as our
-    ``state_from_qpos_qvel`` does, so both sides start from identical data. Every fourth
-    start gets extra joint velocity (sigma 8) so that velocity clipping is exercised.
-    """
-    rng = np.random.default_rng(seed)
-    env = gymnasium.make(env_id)
-    env.reset(seed=seed)
-    env.action_space.seed(seed)
-    sim = env.unwrapped
-    out = {key: [] for key in ("qpos", "qvel", "action", "obs", "reward", "terminated", "info")}
-    for i in range(n):
-        qpos, qvel = sim.data.qpos.copy(), sim.data.qvel.copy()
-        if i % 4 == 3:
-            qvel += rng.normal(0.0, 8.0, size=qvel.shape)
-        action = env.action_space.sample()
-        sim.set_state(qpos, qvel)
-        obs, reward, terminated, _, info = env.step(action)
-        for key, value in zip(out, (qpos, qvel, action, obs, reward, terminated, info)):
-            out[key].append(value)
-        if terminated:
-            env.reset()
-    env.close()
-    info = out.pop("info")
-    arrays = {key: np.asarray(value) for key, value in out.items()}
-    arrays.update({f"info_{key}": np.asarray([i[key] for i in info]) for key in info[0]})
-    return arrays
-
-
 @pytest.fixture(scope="module", params=ENV_NAMES)
 def parity_case(request):
     """(env, Gymnasium transitions, our batched step from the same states)."""
     env = make_env(request.param)
-    gym = _gymnasium_transitions(env.gymnasium_id, N_TRANSITIONS)
+    gym = gymnasium_transitions(env.gymnasium_id, N_TRANSITIONS)
     # Step counts spread so that some transitions reach the 1000-step limit.
     step_counts = np.arange(N_TRANSITIONS, dtype=np.int32) % 4 + (MAX_EPISODE_STEPS - 3)
     step_counts[: N_TRANSITIONS // 2] = 0
-
-    @jax.jit
-    def batched_step(qpos, qvel, action, step_count):
-        def one(q, v, a, c):
-            state = env.state_from_qpos_qvel(q, v).replace(step_count=c)
-            return env.step(state, a)
-
-        return jax.vmap(one)(qpos, qvel, action, step_count)
-
-    ours = batched_step(gym["qpos"], gym["qvel"], gym["action"], step_counts)
+    ours = step_from_states(env, gym["qpos"], gym["qvel"], gym["action"], step_counts)
     return env, gym, ours, step_counts
 
 

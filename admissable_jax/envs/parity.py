@@ -1,0 +1,54 @@
+"""Reference transitions from Gymnasium's C-MuJoCo envs, and our step from the same states.
+
+Used by the parity tests and by ``benchmarks/physics_deviation.py``, which measures how far
+a faster solver setting moves our envs from Gymnasium's.
+"""
+
+from __future__ import annotations
+
+import gymnasium
+import jax
+import numpy as np
+
+from admissable_jax.envs.base import EnvState, MjxEnv
+
+
+def gymnasium_transitions(env_id: str, n: int, seed: int = 0) -> dict[str, np.ndarray]:
+    """``n`` transitions of Gymnasium's env under uniform random actions.
+
+    Each starts with ``set_state`` at the visited (qpos, qvel), as our
+    ``state_from_qpos_qvel`` does, so both sides start from identical data. Every fourth
+    start gets extra joint velocity (sigma 8) so that velocity clipping is exercised.
+    Keys: qpos, qvel, action, obs, reward, terminated, and ``info_<key>`` per info entry.
+    """
+    rng = np.random.default_rng(seed)
+    env = gymnasium.make(env_id)
+    env.reset(seed=seed)
+    env.action_space.seed(seed)
+    sim = env.unwrapped
+    out = {key: [] for key in ("qpos", "qvel", "action", "obs", "reward", "terminated", "info")}
+    for i in range(n):
+        qpos, qvel = sim.data.qpos.copy(), sim.data.qvel.copy()
+        if i % 4 == 3:
+            qvel += rng.normal(0.0, 8.0, size=qvel.shape)
+        action = env.action_space.sample()
+        sim.set_state(qpos, qvel)
+        obs, reward, terminated, _, info = env.step(action)
+        for key, value in zip(out, (qpos, qvel, action, obs, reward, terminated, info)):
+            out[key].append(value)
+        if terminated:
+            env.reset()
+    env.close()
+    info = out.pop("info")
+    arrays = {key: np.asarray(value) for key, value in out.items()}
+    arrays.update({f"info_{key}": np.asarray([i[key] for i in info]) for key in info[0]})
+    return arrays
+
+
+def step_from_states(env: MjxEnv, qpos, qvel, action, step_count) -> EnvState:
+    """Our step from each (qpos, qvel, step_count) with its action, batched and jitted."""
+
+    def one(q, v, a, c):
+        return env.step(env.state_from_qpos_qvel(q, v).replace(step_count=c), a)
+
+    return jax.jit(jax.vmap(one))(qpos, qvel, action, step_count)

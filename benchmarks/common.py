@@ -1,0 +1,45 @@
+"""Shared by the benchmark scripts: the machine/version record and result files."""
+
+from __future__ import annotations
+
+import datetime
+import json
+import os
+import platform
+import resource
+import sys
+
+import jax
+import mujoco
+
+RESULTS_DIR = os.path.join(os.path.dirname(__file__), "results")
+
+
+def environment_record() -> dict:
+    """Machine, device and library versions, for every result record."""
+    device = jax.devices()[0]
+    return {
+        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "machine": platform.node(),
+        "cpu_count": os.cpu_count(),
+        "platform": platform.platform(),
+        "device": f"{device.platform}:{getattr(device, 'device_kind', '')}",
+        "python": platform.python_version(),
+        "jax": jax.__version__,
+        "mujoco": mujoco.__version__,
+        "command": " ".join([os.path.basename(sys.executable), *sys.argv]),
+    }
+
+
+def peak_host_memory_mb() -> float:
+    """Peak resident memory of this process (Linux reports kilobytes)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def append_record(name: str, record: dict) -> str:
+    """Append one JSON line to ``benchmarks/results/<name>.jsonl``; returns the path."""
+    os.makedirs(RESULTS_DIR, exist_ok=True)
+    path = os.path.join(RESULTS_DIR, f"{name}.jsonl")
+    with open(path, "a") as file:
+        file.write(json.dumps({**environment_record(), **record}) + "\n")
+    return path
