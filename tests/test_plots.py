@@ -1,0 +1,53 @@
+"""Figures from run directories (synthetic histories; no training)."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+from omegaconf import OmegaConf
+
+from admissable_jax.config import TrainConfig
+from admissable_jax.plots import find_runs, mean_and_interval, moving_average, plot_runs
+
+
+def _fake_run(root, mode, seed, records=12, sets=3):
+    path = os.path.join(root, f"{mode}-s{seed}")
+    os.makedirs(path)
+    OmegaConf.save(OmegaConf.structured(TrainConfig(env="hopper", missingness=mode, seed=seed)), os.path.join(path, "config.yaml"))
+    rng = np.random.default_rng(seed)
+    with open(os.path.join(path, "scores.jsonl"), "w") as file:
+        for t in range(records):
+            scores = (rng.uniform(0, 100, sets) + 10 * t).tolist()
+            p_miss = (np.ones(sets) / sets).tolist()
+            file.write(json.dumps({"env_steps": 5000 * (t + 1), "scores": scores, "min_score": min(scores),
+                                   "clean_score": max(scores) + 5, "p_miss": p_miss}) + "\n")
+    return path
+
+
+def test_smoothing_and_interval():
+    np.testing.assert_allclose(moving_average(np.array([1.0, 3.0, 5.0, 7.0]), 2), [1.0, 2.0, 4.0, 6.0])
+    np.testing.assert_allclose(moving_average(np.array([[2.0, 4.0, 6.0]]), 10), [[2.0, 3.0, 4.0]])
+    curves = np.array([[1.0, 2.0], [3.0, 4.0], [5.0, 6.0]])
+    mean, low, high = mean_and_interval(curves)
+    np.testing.assert_allclose(mean, [3.0, 4.0])
+    # t(0.975, 2) = 4.303, std 2, n 3: half-width 4.969.
+    np.testing.assert_allclose(high - mean, [4.969, 4.969], atol=1e-3)
+    np.testing.assert_allclose(mean - low, high - mean)
+
+
+def test_plot_runs_writes_every_figure(tmp_path):
+    for mode in ("adversarial", "uniform"):
+        for seed in range(3):
+            _fake_run(str(tmp_path / "runs"), mode, seed)
+    runs = find_runs([str(tmp_path / "runs")])
+    assert len(runs) == 6
+    written = plot_runs(runs, str(tmp_path / "figures"), window=4)
+    names = sorted(os.path.basename(p) for p in written)
+    assert names == sorted(
+        f"{stem}.{ext}" for stem in ("min_score", "scores_adversarial", "scores_uniform", "p_miss_adversarial", "p_miss_uniform")
+        for ext in ("png", "pdf")
+    )
+    assert all(os.path.getsize(p) > 1000 for p in written)
+    with pytest.raises(FileNotFoundError):
+        find_runs([str(tmp_path / "missing")])
