@@ -84,11 +84,11 @@ def main(argv: list[str]) -> None:
     )
     if bench.sequential:
         record.update(_sequential_round(env, trainer, state.sac.actor_params, bench))
-        record["sequential_over_batched"] = round(record["sequential_s"] / run_s, 2)
+        record["sequential_over_batched"] = round(record["sequential_s"] / run_s, 3)
         print(
             f"sequential Gymnasium loop: {record['sequential_env_steps']} env steps in "
             f"{record['sequential_s']:.1f} s ({record['sequential_ms_per_step']:.3f} ms/step); "
-            f"batched is {record['sequential_over_batched']:.1f}x faster"
+            f"sequential time / batched time = {record['sequential_over_batched']:.2f}"
         )
     append_record("scoring_round", record)
 
