@@ -1,11 +1,14 @@
-"""One training run: ``train_fn(config)`` and its run directory.
+"""Training runs on the host: ``train_fn(config)`` for one run, and the loop it shares with
+:mod:`admissable_jax.experiment` (many (seed, mode) pairs vmapped in one program).
 
 The host loop alternates two jitted functions: ``run_chunk`` (ζ env steps of SAC over the
 parallel envs, on the device) and ``score_and_update`` (every u scored in one batched
 rollout, then the adversary's p_miss update). After each scoring it appends one row to
-``scores.jsonl`` and one to ``metrics.jsonl`` in the run directory, and every
+``scores.jsonl`` and one to ``metrics.jsonl`` of every run directory, and every
 ``checkpoint_every`` scorings (and at the end) it saves an orbax checkpoint of the whole
-training state, from which ``resume=true`` continues.
+training state, from which ``resume=true`` continues. Both functions are compiled before
+the state is allocated, so a run that would not fit in memory stops with a one-line
+message before it starts (:func:`memory_budget`).
 """
 
 from __future__ import annotations
@@ -15,10 +18,11 @@ import json
 import math
 import os
 import time
-from typing import Any
+from typing import Any, Callable
 
 import jax
 import numpy as np
+import psutil
 from omegaconf import OmegaConf
 from tqdm.auto import tqdm
 
@@ -35,6 +39,10 @@ RESUMABLE_CHANGES = ("resume", "total_steps", "progress", "checkpoint_every")
 
 class TrainingDiverged(RuntimeError):
     """A loss became NaN or infinite; the last checkpoint is kept."""
+
+
+class MemoryBudgetExceeded(RuntimeError):
+    """The compiled programs and the training state would not fit in this device's memory."""
 
 
 @dataclasses.dataclass
@@ -61,107 +69,211 @@ def mode_flags(missingness: str) -> tuple[bool, bool]:
     return missingness == "adversarial", missingness != "none"
 
 
+def make_trainer(config: TrainConfig) -> Trainer:
+    """The env (with the config's episode limit) and the trainer for a resolved config."""
+    env = make_env(config.env)
+    env.max_episode_steps = config.episode_length
+    return Trainer(env, config)
+
+
 def train_fn(config: TrainConfig) -> TrainResult:
     """Train SAC against missingness as ``config`` says; returns params and histories."""
     validate(config)
     config = config.resolved()
-    env = make_env(config.env)
-    env.max_episode_steps = config.episode_length
-    trainer = Trainer(env, config)
-    run = _RunDirectory(config)
-
-    state = jax.jit(trainer.init)(config.seed, *mode_flags(config.missingness))
-    start_step = 0
-    if config.resume:
-        start_step, state = run.checkpoints.restore(state)
-        run.truncate_logs(start_step)
-
-    num_scorings = math.ceil(config.total_steps / config.score_every)
-    total = num_scorings * config.score_every
-    run_chunk = jax.jit(trainer.run_chunk, static_argnums=1, donate_argnums=0)
-    score_and_update = jax.jit(trainer.score_and_update, static_argnums=1, donate_argnums=0)
-
-    bar = tqdm(total=total, initial=start_step, unit="step", disable=not config.progress, dynamic_ncols=True)
-    try:
-        for scoring in range(start_step // config.score_every, num_scorings):
-            started = time.perf_counter()
-            state, chunk_metrics = run_chunk(state, trainer.iterations_per_scoring)
-            chunk_metrics = jax.device_get(chunk_metrics)
-            train_seconds = time.perf_counter() - started
-            env_steps = int(state.env_steps)
-            _check_finite(chunk_metrics, env_steps, run)
-
-            started = time.perf_counter()
-            state, scores = score_and_update(state, config.score_episodes)
-            score_row = _score_row(env_steps, scores, state, trainer)
-            score_seconds = time.perf_counter() - started
-            run.append("scores.jsonl", score_row)
-            run.append("metrics.jsonl", _metrics_row(env_steps, state, chunk_metrics, train_seconds, score_seconds, config))
-
-            last = scoring == num_scorings - 1
-            if (scoring + 1) % config.checkpoint_every == 0 or last:
-                run.checkpoints.save(env_steps, state)
-            bar.update(config.score_every)
-            bar.set_postfix(
-                min_a_u=f"{score_row['min_score']:.1f}",
-                clean=f"{score_row['clean_score']:.1f}",
-                train_sps=f"{config.score_every / train_seconds:.0f}",
-            )
-    finally:
-        bar.close()
-        run.checkpoints.close()
+    trainer = make_trainer(config)
+    checkpoint_dir = os.path.join(config.out, "checkpoints")
+    run = RunDirectory(config, checkpoint_dir)
+    checkpoints = Checkpoints(checkpoint_dir)
+    loop = TrainingLoop(
+        trainer, config, [run], checkpoints,
+        init=lambda: trainer.init(config.seed, *mode_flags(config.missingness)),
+        run_chunk=lambda state: trainer.run_chunk(state, trainer.iterations_per_scoring),
+        score_and_update=lambda state: trainer.score_and_update(state, config.score_episodes),
+        select_pair=lambda tree, pair: tree,
+    )
+    state = loop.run()
     return TrainResult(config, trainer, state, run.read("scores.jsonl"), run.read("metrics.jsonl"))
 
 
-def _check_finite(chunk_metrics: dict[str, np.ndarray], env_steps: int, run: "_RunDirectory") -> None:
-    learned = chunk_metrics["learned"].astype(bool)
-    for name in ("critic_loss", "actor_loss", "alpha"):
-        if not np.all(np.isfinite(chunk_metrics[name][learned])):
-            kept = run.checkpoints.latest_step()
-            where = f"last checkpoint (step {kept}) kept" if kept is not None else "no checkpoint yet"
-            raise TrainingDiverged(f"{name} became non-finite before env step {env_steps}; {where} in {run.path}")
+@dataclasses.dataclass
+class MemoryBudget:
+    """Bytes the run needs on its device, from the compiled programs, against what it has."""
+
+    state_bytes: int
+    chunk_temp_bytes: int
+    score_temp_bytes: int
+    available_bytes: int
+    device: str
+
+    @property
+    def needed_bytes(self) -> int:
+        # The state stays live; the two programs run one after the other, so their
+        # temporaries do not add up.
+        return self.state_bytes + max(self.chunk_temp_bytes, self.score_temp_bytes)
+
+    def describe(self) -> str:
+        gib = lambda b: f"{b / 2**30:.2f} GiB"
+        return (
+            f"memory on {self.device}: training state {gib(self.state_bytes)} + largest program "
+            f"temporaries {gib(max(self.chunk_temp_bytes, self.score_temp_bytes))} "
+            f"(train chunk {gib(self.chunk_temp_bytes)}, scoring {gib(self.score_temp_bytes)}) "
+            f"= {gib(self.needed_bytes)} of {gib(self.available_bytes)} available"
+        )
 
 
-def _score_row(env_steps: int, scores: MissingnessScores, state: TrainState, trainer: Trainer) -> dict[str, Any]:
-    argmin = int(scores.argmin)
+def memory_budget(abstract_state, compiled_chunk, compiled_score) -> MemoryBudget:
+    """What the state and the compiled programs need, and what the device has free."""
+    device = jax.devices()[0]
+    state_bytes = sum(leaf.size * leaf.dtype.itemsize for leaf in jax.tree.leaves(abstract_state))
+    stats = device.memory_stats() if device.platform != "cpu" else None
+    if stats and "bytes_limit" in stats:
+        available = int(stats["bytes_limit"]) - int(stats.get("bytes_in_use", 0))
+    else:
+        available = int(psutil.virtual_memory().available)
+    temp = lambda compiled: int(getattr(compiled.memory_analysis(), "temp_size_in_bytes", 0) or 0)
+    return MemoryBudget(state_bytes, temp(compiled_chunk), temp(compiled_score), available,
+                        f"{device.platform}:{getattr(device, 'device_kind', '')}")
+
+
+class TrainingLoop:
+    """The host loop over scorings for one run or a vmapped batch of runs.
+
+    ``init``, ``run_chunk`` and ``score_and_update`` are the pure functions of the training
+    state (vmapped already for a batch); ``select_pair(tree, i)`` takes run i's part of a
+    batched pytree (the identity for one run). ``runs[i]`` is run i's directory.
+    """
+
+    def __init__(
+        self,
+        trainer: Trainer,
+        config: TrainConfig,
+        runs: list["RunDirectory"],
+        checkpoints: Checkpoints,
+        init: Callable[[], TrainState],
+        run_chunk: Callable[[TrainState], tuple[TrainState, dict]],
+        score_and_update: Callable[[TrainState], tuple[TrainState, MissingnessScores]],
+        select_pair: Callable[[Any, int], Any],
+    ):
+        self.trainer, self.config, self.runs, self.checkpoints = trainer, config, runs, checkpoints
+        self.init, self.select_pair = init, select_pair
+        self._run_chunk, self._score_and_update = run_chunk, score_and_update
+
+    def compile(self) -> MemoryBudget:
+        """Compile both programs without allocating the state; refuse if they won't fit."""
+        abstract_state = jax.eval_shape(self.init)
+        self.run_chunk = jax.jit(self._run_chunk, donate_argnums=0).lower(abstract_state).compile()
+        self.score_and_update = jax.jit(self._score_and_update, donate_argnums=0).lower(abstract_state).compile()
+        budget = memory_budget(abstract_state, self.run_chunk, self.score_and_update)
+        if budget.needed_bytes > budget.available_bytes:
+            raise MemoryBudgetExceeded(
+                f"does not fit: {budget.describe()}; use fewer pairs, fewer num_envs or a smaller buffer_size"
+            )
+        return budget
+
+    def run(self) -> TrainState:
+        config = self.config
+        self.compile()
+        state = jax.jit(self.init)()
+        start_step = 0
+        if config.resume:
+            start_step, state = self.checkpoints.restore(state)
+            for run in self.runs:
+                run.truncate_logs(start_step)
+        num_scorings = math.ceil(config.total_steps / config.score_every)
+        total = num_scorings * config.score_every
+        bar = tqdm(total=total, initial=start_step, unit="step", disable=not config.progress, dynamic_ncols=True)
+        try:
+            for scoring in range(start_step // config.score_every, num_scorings):
+                started = time.perf_counter()
+                state, chunk_metrics = self.run_chunk(state)
+                chunk_metrics = jax.device_get(chunk_metrics)
+                train_seconds = time.perf_counter() - started
+                env_steps = int(np.max(state.env_steps))
+                self._check_finite(chunk_metrics, env_steps)
+
+                started = time.perf_counter()
+                state, scores = self.score_and_update(state)
+                scores = jax.device_get(scores)
+                score_seconds = time.perf_counter() - started
+                rows = []
+                for pair, run in enumerate(self.runs):
+                    pick = lambda tree: self.select_pair(tree, pair)
+                    rows.append(_score_row(env_steps, pick(scores), pick(state.p_miss), self.trainer))
+                    run.append("scores.jsonl", rows[-1])
+                    run.append("metrics.jsonl", _metrics_row(
+                        env_steps, int(pick(state.grad_steps)), pick(chunk_metrics),
+                        train_seconds, score_seconds, config, len(self.runs)))
+
+                if (scoring + 1) % config.checkpoint_every == 0 or scoring == num_scorings - 1:
+                    self.checkpoints.save(env_steps, state)
+                bar.update(config.score_every)
+                bar.set_postfix(
+                    min_a_u=f"{np.mean([row['min_score'] for row in rows]):.1f}",
+                    clean=f"{np.mean([row['clean_score'] for row in rows]):.1f}",
+                    train_sps=f"{config.score_every * len(self.runs) / train_seconds:.0f}",
+                )
+        finally:
+            bar.close()
+            self.checkpoints.close()
+        return state
+
+    def _check_finite(self, chunk_metrics: dict[str, np.ndarray], env_steps: int) -> None:
+        for pair, run in enumerate(self.runs):
+            metrics = self.select_pair(chunk_metrics, pair)
+            learned = metrics["learned"].astype(bool)
+            for name in ("critic_loss", "actor_loss", "alpha"):
+                if not np.all(np.isfinite(metrics[name][learned])):
+                    kept = self.checkpoints.latest_step()
+                    where = f"last checkpoint (step {kept}) kept" if kept is not None else "no checkpoint yet"
+                    raise TrainingDiverged(
+                        f"{name} became non-finite before env step {env_steps} in {run.path}; "
+                        f"{where} in {self.checkpoints.directory}"
+                    )
+
+
+def _score_row(env_steps: int, scores: MissingnessScores, p_miss, trainer: Trainer) -> dict[str, Any]:
+    argmin = int(np.argmin(scores.scores))
     return {
         "env_steps": env_steps,
-        "min_score": float(scores.min_score),
+        "min_score": float(np.min(scores.scores)),
         "argmin": argmin,
         "argmin_set": describe_set(np.asarray(trainer.hidden_sets[argmin])),
         "clean_score": float(scores.clean_score),
         "scores": np.asarray(scores.scores).round(4).tolist(),
-        "p_miss": np.asarray(state.p_miss).tolist(),
+        "p_miss": np.asarray(p_miss).tolist(),
         "mean_episode_length": float(np.asarray(scores.lengths).mean()),
     }
 
 
-def _metrics_row(env_steps, state, chunk, train_seconds, score_seconds, config) -> dict[str, Any]:
+def _metrics_row(env_steps, grad_steps, chunk, train_seconds, score_seconds, config, num_runs) -> dict[str, Any]:
+    """One run's training curves over the last chunk. Speeds are per run: a batch of
+    ``num_runs`` runs shares the wall-clock time."""
     learned = chunk["learned"].astype(bool)
     episodes = int(chunk["episodes"].sum())
     row = {
         "env_steps": env_steps,
-        "grad_steps": int(state.grad_steps),
+        "grad_steps": grad_steps,
         "episodes": episodes,
         "episode_return": float(chunk["episode_return_sum"].sum() / episodes) if episodes else None,
         "episode_length": float(chunk["episode_length_sum"].sum() / episodes) if episodes else None,
         "env_steps_per_s": config.score_every / train_seconds,
         "grad_steps_per_s": float(learned.sum()) * max(1, round(config.num_envs * config.utd)) / train_seconds,
         "score_seconds": score_seconds,
+        "runs_in_program": num_runs,
     }
     for name in ("critic_loss", "actor_loss", "alpha", "entropy", "q_mean"):
         row[name] = float(chunk[name][learned].mean()) if learned.any() else None
     return row
 
 
-class _RunDirectory:
-    """The run's folder: config.yaml, scores.jsonl, metrics.jsonl, checkpoints/."""
+class RunDirectory:
+    """A run's folder: config.yaml, scores.jsonl, metrics.jsonl (checkpoints are kept by
+    whoever drives the run: the run's own ``checkpoints/`` or the experiment's)."""
 
-    def __init__(self, config: TrainConfig):
+    def __init__(self, config: TrainConfig, checkpoint_dir: str):
         self.path = config.out
         os.makedirs(self.path, exist_ok=True)
         config_path = os.path.join(self.path, "config.yaml")
-        checkpoint_dir = os.path.join(self.path, "checkpoints")
         has_checkpoints = os.path.isdir(checkpoint_dir) and bool(os.listdir(checkpoint_dir))
         if config.resume:
             if not os.path.exists(config_path):
@@ -176,7 +288,6 @@ class _RunDirectory:
                 if os.path.exists(os.path.join(self.path, name)):
                     os.remove(os.path.join(self.path, name))
         OmegaConf.save(OmegaConf.structured(config), config_path)
-        self.checkpoints = Checkpoints(checkpoint_dir)
 
     @staticmethod
     def _check_same_run(config: TrainConfig, config_path: str) -> None:

@@ -1,7 +1,8 @@
 """``python -m admissable_jax.train key=value ...``: train one agent from the command line.
 
 ``--help`` lists every key with its default. Bad settings exit with status 2 and a one-line
-message; a corrupt checkpoint or a diverged run (NaN) exits with status 1, and the run
+message; a corrupt checkpoint, a diverged run (NaN) or a run too large for the device's
+memory exits with status 1, and the run
 directory keeps everything finished before.
 """
 
@@ -12,7 +13,7 @@ import sys
 from admissable_jax.checkpointing import CheckpointError
 from admissable_jax.cli import USAGE_ERROR, enable_compilation_cache, parse_args
 from admissable_jax.config import TrainConfig
-from admissable_jax.runs import TrainingDiverged, train_fn
+from admissable_jax.runs import MemoryBudgetExceeded, TrainingDiverged, train_fn
 
 
 def main(argv: list[str]) -> int:
@@ -27,7 +28,7 @@ def main(argv: list[str]) -> int:
     except (ValueError, TypeError, FileExistsError) as error:
         print(f"error: {error}", file=sys.stderr)
         return USAGE_ERROR
-    except (CheckpointError, TrainingDiverged) as error:
+    except (CheckpointError, TrainingDiverged, MemoryBudgetExceeded) as error:
         print(f"error: {error}", file=sys.stderr)
         return 1
     last = result.scores[-1]

@@ -1,10 +1,18 @@
 """Time our SAC training iterations (env steps + buffer + gradient steps, one jitted scan).
 
     python benchmarks/train_throughput.py env=hopper num_envs=8 iterations=100
+    python benchmarks/train_throughput.py env=hopper num_envs=8 iterations=50 seeds=5
+    python benchmarks/train_throughput.py env=hopper num_envs=128 iterations=50 roofline=true
 
 A warm-up chunk (which compiles) passes learning_starts; the timed chunk then runs
-``iterations`` iterations in which every iteration learns (UTD as configured). Prints env
-steps/s and gradient steps/s and appends a record to benchmarks/results/train_throughput.jsonl.
+``iterations`` iterations in which every iteration learns (UTD as configured). With
+``seeds=S`` the chunk is vmapped over S seeds in one program (aggregate figures are over
+all seeds). With ``roofline=true`` it also times the SAC update alone (a scan of updates on
+one fixed minibatch), takes its FLOPs from XLA's cost analysis, and measures the matmul
+roofline of this device in the same run (a square float32 matmul at the default
+precision), so the update's share of the device's matmul rate is measured, not guessed.
+Prints env steps/s and gradient steps/s and appends a record to
+benchmarks/results/train_throughput.jsonl.
 """
 
 from __future__ import annotations
@@ -14,7 +22,9 @@ import sys
 import time
 
 import jax
+import jax.numpy as jnp
 
+from admissable_jax.agent import SACBatch
 from admissable_jax.cli import parse_args
 from admissable_jax.config import TrainConfig
 from admissable_jax.envs import make_env
@@ -29,6 +39,50 @@ class TrainBenchConfig:
     iterations: int = dataclasses.field(default=100, metadata={"help": "timed iterations"})
     utd: float = dataclasses.field(default=1.0, metadata={"help": "gradient steps per env step"})
     batch_size: int = dataclasses.field(default=256, metadata={"help": "SAC minibatch"})
+    seeds: int = dataclasses.field(default=1, metadata={"help": "seeds vmapped in one program"})
+    roofline: bool = dataclasses.field(default=False, metadata={"help": "also time the SAC update alone against the matmul roofline"})
+
+
+def _timed(function, *args) -> tuple[object, float]:
+    start = time.perf_counter()
+    out = jax.block_until_ready(function(*args))
+    return out, time.perf_counter() - start
+
+
+def matmul_gflops(size: int = 4096, repeats: int = 10) -> float:
+    """Measured rate of a square float32 matmul at JAX's default precision."""
+    a, b = jax.random.normal(jax.random.key(1), (2, size, size))
+    matmul = jax.jit(lambda a, b: a @ b)
+    jax.block_until_ready(matmul(a, b))
+    best = min(_timed(matmul, a, b)[1] for _ in range(repeats))
+    return 2 * size**3 / best / 1e9
+
+
+def update_alone(trainer: Trainer, state, updates: int) -> dict:
+    """Time ``updates`` SAC updates on one fixed minibatch; FLOPs from XLA's cost analysis."""
+    obs_size = 2 * trainer.env.observation_size
+    keys = jax.random.split(jax.random.key(2), 4)
+    batch = SACBatch(
+        obs=jax.random.normal(keys[0], (trainer.config.batch_size, obs_size)),
+        action=jax.random.uniform(keys[1], (trainer.config.batch_size, trainer.env.action_size), minval=-1, maxval=1),
+        reward=jax.random.normal(keys[2], (trainer.config.batch_size,)),
+        next_obs=jax.random.normal(keys[3], (trainer.config.batch_size, obs_size)),
+        terminated=jnp.zeros(trainer.config.batch_size, bool),
+    )
+    one = jax.jit(trainer.agent.update).lower(state.sac, batch, jax.random.key(0)).compile()
+    flops = float(one.cost_analysis()["flops"])
+    many = jax.jit(lambda sac, rng: jax.lax.scan(
+        lambda s, k: trainer.agent.update(s, batch, k), sac, jax.random.split(rng, updates)))
+    _timed(many, state.sac, jax.random.key(3))
+    _, seconds = _timed(many, state.sac, jax.random.key(4))
+    roof = matmul_gflops()
+    achieved = flops * updates / seconds / 1e9
+    return {
+        "update_flops": flops, "updates_per_s": round(updates / seconds, 1),
+        "update_gflops_per_s": round(achieved, 2), "matmul_roofline_gflops_per_s": round(roof, 1),
+        "update_share_of_roofline": round(achieved / roof, 4),
+        "roofline_updates_per_s": round(roof * 1e9 / flops, 1),
+    }
 
 
 def main(argv: list[str]) -> None:
@@ -41,34 +95,41 @@ def main(argv: list[str]) -> None:
     ).resolved()
     env = make_env(config.env)
     trainer = Trainer(env, config)
-    state = jax.jit(trainer.init)(0, True, True)
-    run_chunk = jax.jit(trainer.run_chunk, static_argnums=1, donate_argnums=0)
+    seeds = jnp.arange(bench.seeds)
+    state = jax.jit(jax.vmap(trainer.init, (0, None, None)))(seeds, True, True)
+    run_chunk = jax.jit(jax.vmap(trainer.run_chunk, (0, None)), static_argnums=1, donate_argnums=0)
 
-    start = time.perf_counter()
-    state, _ = jax.block_until_ready(run_chunk(state, warmup_iterations))
-    warmup_s = time.perf_counter() - start
+    (state, _), warmup_s = _timed(run_chunk, state, warmup_iterations)
     start = time.perf_counter()
     compiled = run_chunk.lower(state, bench.iterations).compile()
     compile_s = time.perf_counter() - start
-    start = time.perf_counter()
-    state, metrics = jax.block_until_ready(compiled(state))
-    run_s = time.perf_counter() - start
+    (state, metrics), run_s = _timed(compiled, state)
     assert bool(metrics["learned"].all())
-    env_steps = bench.iterations * bench.num_envs
-    grad_steps = bench.iterations * trainer.updates_per_iteration
+    env_steps = bench.iterations * bench.num_envs * bench.seeds
+    grad_steps = bench.iterations * trainer.updates_per_iteration * bench.seeds
     record = {
-        "env": env.gymnasium_id, "num_envs": bench.num_envs, "utd": bench.utd,
+        "env": env.gymnasium_id, "num_envs": bench.num_envs, "seeds": bench.seeds, "utd": bench.utd,
         "batch_size": bench.batch_size, "hidden_sizes": [config.hidden_size] * config.hidden_layers,
         "buffer_size": trainer.capacity, "iterations": bench.iterations,
         "warmup_with_compile_s": round(warmup_s, 1), "compile_s": round(compile_s, 1), "run_s": round(run_s, 2),
         "env_steps_per_s": round(env_steps / run_s, 1), "grad_steps_per_s": round(grad_steps / run_s, 1),
         "peak_host_memory_mb": round(peak_host_memory_mb(), 1),
     }
+    if jax.devices()[0].platform != "cpu":
+        record["peak_device_memory_mb"] = round(jax.devices()[0].memory_stats().get("peak_bytes_in_use", 0) / 2**20, 1)
     print(
-        f"{env.gymnasium_id}: {bench.num_envs} envs, UTD {bench.utd}, batch {bench.batch_size}: "
-        f"{env_steps / run_s:,.1f} env steps/s, {grad_steps / run_s:,.1f} gradient steps/s "
+        f"{env.gymnasium_id}: {bench.seeds} seed(s) x {bench.num_envs} envs, UTD {bench.utd}, batch {bench.batch_size}: "
+        f"{env_steps / run_s:,.1f} env steps/s, {grad_steps / run_s:,.1f} gradient steps/s over all seeds "
         f"(timed {bench.iterations} iterations in {run_s:.1f} s; compile {compile_s:.1f} s)"
     )
+    if bench.roofline:
+        single = jax.tree.map(lambda leaf: leaf[0], state)
+        record.update(update_alone(trainer, single, updates=max(200, trainer.updates_per_iteration)))
+        print(
+            f"SAC update alone: {record['update_flops'] / 1e9:.3f} GFLOP, {record['updates_per_s']:,.1f} updates/s "
+            f"= {record['update_gflops_per_s']:.1f} GFLOP/s; matmul roofline {record['matmul_roofline_gflops_per_s']:.1f} "
+            f"GFLOP/s -> {record['update_share_of_roofline']:.1%} of it (roofline bound {record['roofline_updates_per_s']:,.0f} updates/s)"
+        )
     append_record("train_throughput", record)
 
 

@@ -1,0 +1,139 @@
+"""Many (seed, mode) training runs in ONE jitted program: the paper's Figure 1 in one command.
+
+    python -m admissable_jax.experiment env=hopper seeds=5 modes=adversarial,uniform \
+        total_steps=1000000 out=runs/fig1-hopper
+
+The missingness modes differ only in data (the ``adversarial`` and ``masking`` flags of the
+training state), not in code, so every pair's training state is stacked along a leading
+pair axis and the train chunk and the scoring round are ``jax.vmap``-ed over it. Each pair
+writes its own run directory ``<out>/<mode>-s<seed>`` in the format of ``train``
+(``config.yaml``, ``scores.jsonl``, ``metrics.jsonl``); the experiment keeps one orbax
+checkpoint of the whole batch in ``<out>/checkpoints`` and resumes as one unit.
+Before anything is allocated the programs are compiled and their memory counted; an
+experiment that would not fit stops with a one-line message (``budget_only=true`` prints
+the budget and stops there).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import sys
+
+import jax
+import jax.numpy as jnp
+from omegaconf import OmegaConf
+
+from admissable_jax.adversary import MODES
+from admissable_jax.checkpointing import CheckpointError, Checkpoints
+from admissable_jax.cli import USAGE_ERROR, enable_compilation_cache, parse_args
+from admissable_jax.config import TrainConfig, validate
+from admissable_jax.runs import (
+    MemoryBudgetExceeded, RunDirectory, TrainingDiverged, TrainingLoop, TrainResult, make_trainer, mode_flags,
+)
+
+# TrainConfig keys that name one run and so are replaced by the experiment's own.
+_PER_RUN_KEYS = ("missingness", "seed", "out")
+
+
+def _experiment_fields() -> list[tuple]:
+    own = [
+        ("seeds", "int", dataclasses.field(default=5, metadata={"help": "seeds per mode: first_seed .. first_seed + seeds - 1"})),
+        ("first_seed", "int", dataclasses.field(default=0, metadata={"help": "the first seed"})),
+        ("modes", "str", dataclasses.field(default="adversarial,uniform", metadata={"help": "comma-separated missingness modes (adversarial, uniform, none)"})),
+        ("out", "str", dataclasses.field(default="", metadata={"help": "experiment directory; '' = runs/fig1-<env>"})),
+        ("budget_only", "bool", dataclasses.field(default=False, metadata={"help": "print the memory budget and stop"})),
+    ]
+    shared = [
+        (field.name, field.type, dataclasses.field(default=field.default, metadata=field.metadata))
+        for field in dataclasses.fields(TrainConfig)
+        if field.name not in _PER_RUN_KEYS
+    ]
+    return own + shared
+
+
+ExperimentConfig = dataclasses.make_dataclass("ExperimentConfig", _experiment_fields())
+ExperimentConfig.__doc__ = "An experiment: TrainConfig's settings shared by every pair, plus seeds and modes."
+
+
+def pair_configs(config) -> list[TrainConfig]:
+    """One resolved TrainConfig per (mode, seed) pair, in the batch's order (modes outer)."""
+    modes = [mode.strip() for mode in config.modes.split(",") if mode.strip()]
+    unknown = [mode for mode in modes if mode not in MODES]
+    if not modes or unknown:
+        raise ValueError(f"modes must be a comma-separated list of {', '.join(MODES)}, got {config.modes!r}")
+    if len(set(modes)) != len(modes):
+        raise ValueError(f"modes repeats a mode: {config.modes!r}")
+    if config.seeds < 1 or config.first_seed < 0:
+        raise ValueError(f"seeds must be >= 1 and first_seed >= 0, got seeds={config.seeds}, first_seed={config.first_seed}")
+    shared = {name: getattr(config, name) for name in (f.name for f in dataclasses.fields(TrainConfig)) if name not in _PER_RUN_KEYS}
+    out = config.out or f"runs/fig1-{TrainConfig(env=config.env).resolved().env}"
+    pairs = []
+    for mode in modes:
+        for seed in range(config.first_seed, config.first_seed + config.seeds):
+            pair = TrainConfig(**shared, missingness=mode, seed=seed, out=os.path.join(out, f"{mode}-s{seed}"))
+            validate(pair)
+            pairs.append(pair.resolved())
+    return pairs
+
+
+def experiment_dir(pairs: list[TrainConfig]) -> str:
+    return os.path.dirname(pairs[0].out)
+
+
+def run_experiment(config) -> list[TrainResult]:
+    """Train every (seed, mode) pair of ``config`` in one vmapped program; one result per pair."""
+    pairs = pair_configs(config)
+    first = pairs[0]
+    trainer = make_trainer(first)
+    root = experiment_dir(pairs)
+    os.makedirs(root, exist_ok=True)
+    checkpoint_dir = os.path.join(root, "checkpoints")
+    runs = [RunDirectory(pair, checkpoint_dir) for pair in pairs]
+    OmegaConf.save(OmegaConf.structured(config), os.path.join(root, "experiment.yaml"))
+
+    seeds = jnp.array([pair.seed for pair in pairs])
+    adversarial, masking = (jnp.array(flags) for flags in zip(*(mode_flags(pair.missingness) for pair in pairs)))
+    loop = TrainingLoop(
+        trainer, first, runs, Checkpoints(checkpoint_dir),
+        init=lambda: jax.vmap(trainer.init)(seeds, adversarial, masking),
+        run_chunk=jax.vmap(lambda state: trainer.run_chunk(state, trainer.iterations_per_scoring)),
+        score_and_update=jax.vmap(lambda state: trainer.score_and_update(state, first.score_episodes)),
+        select_pair=lambda tree, pair: jax.tree.map(lambda leaf: leaf[pair], tree),
+    )
+    if config.budget_only:
+        print(f"{len(pairs)} pairs x {first.num_envs} envs, {first.env}: {loop.compile().describe()}")
+        loop.checkpoints.close()
+        return []
+    state = loop.run()
+    return [
+        TrainResult(pair, trainer, jax.tree.map(lambda leaf: leaf[index], state),
+                    run.read("scores.jsonl"), run.read("metrics.jsonl"))
+        for index, (pair, run) in enumerate(zip(pairs, runs))
+    ]
+
+
+def main(argv: list[str]) -> int:
+    config = parse_args(
+        ExperimentConfig, argv, "admissable_jax.experiment",
+        "Train every (seed, mode) pair in one vmapped program: the data for the paper's Figure 1.",
+        validate=pair_configs,
+    )
+    enable_compilation_cache()
+    try:
+        results = run_experiment(config)
+    except (ValueError, TypeError, FileExistsError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return USAGE_ERROR
+    except (CheckpointError, TrainingDiverged, MemoryBudgetExceeded) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+    for result in results:
+        last = result.scores[-1]
+        print(f"{result.config.missingness} seed {result.config.seed}: min_u a_u {last['min_score']:.1f}, "
+              f"clean {last['clean_score']:.1f} at {last['env_steps']} env steps ({result.run_dir})")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))

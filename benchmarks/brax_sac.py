@@ -1,0 +1,119 @@
+"""Brax's own SAC (``brax.training.agents.sac``) on our MJX env, at settings matched to ours.
+
+    python benchmarks/brax_sac.py env=hopper num_envs=128 steps_per_epoch=50
+
+Our env is wrapped as a ``brax.envs.base.Env`` (same MJX physics, same XML solver
+settings); Brax adds its own episode (1000-step) and auto-reset wrappers. Matched to our
+trainer: ``num_envs`` envs stepped per iteration, ``num_envs · utd`` gradient steps per
+iteration (UTD 1), minibatch 256, 256×256 networks, Adam 3e-4, γ = 0.99, τ = 0.005.
+Brax's policy sees the d raw features where ours sees the 2·d masked vector; the networks'
+first layer is the only difference and costs under 1% of an update.
+
+Brax times every training epoch; the first one includes compilation, so three evaluations
+are asked for and the second epoch's ``training/sps`` is reported. Appends a record to
+benchmarks/results/brax_sac.jsonl.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+from brax.envs import base as brax_base
+from brax.training.agents.sac import train as brax_sac_train
+
+from admissable_jax.cli import parse_args
+from admissable_jax.envs import MjxEnv, make_env
+from common import append_record, peak_host_memory_mb
+
+
+def _device_put_replicated(tree, devices):
+    """What ``jax.device_put_replicated`` did (Brax 0.14.2 still calls it; JAX 0.10 removed
+    it): a leading axis of one copy per device, the layout ``jax.pmap`` expects."""
+    return jax.device_put(jax.tree.map(lambda leaf: jnp.stack([leaf] * len(devices)), tree), devices[0])
+
+
+class BraxEnv(brax_base.Env):
+    """One of our MJX envs behind Brax's Env interface. ``done`` is termination only: Brax's
+    EpisodeWrapper adds the 1000-step truncation (and bootstraps through it, as we do)."""
+
+    def __init__(self, env: MjxEnv):
+        self.env = env
+        env.max_episode_steps = 10**9  # the wrapper truncates
+
+    def reset(self, rng: jax.Array) -> brax_base.State:
+        state = self.env.reset(rng)
+        return brax_base.State(pipeline_state=state, obs=state.obs, reward=state.reward,
+                               done=state.terminated.astype(state.reward.dtype))
+
+    def step(self, state: brax_base.State, action: jax.Array) -> brax_base.State:
+        stepped = self.env.step(state.pipeline_state, action)
+        return state.replace(pipeline_state=stepped, obs=stepped.obs, reward=stepped.reward,
+                             done=stepped.terminated.astype(stepped.reward.dtype))
+
+    @property
+    def observation_size(self) -> int:
+        return self.env.observation_size
+
+    @property
+    def action_size(self) -> int:
+        return self.env.action_size
+
+    @property
+    def backend(self) -> str:
+        return "mjx"
+
+
+@dataclasses.dataclass
+class BraxBenchConfig:
+    env: str = dataclasses.field(default="hopper", metadata={"help": "hopper, walker2d or ant"})
+    num_envs: int = dataclasses.field(default=128, metadata={"help": "parallel envs"})
+    utd: float = dataclasses.field(default=1.0, metadata={"help": "gradient steps per env step"})
+    batch_size: int = dataclasses.field(default=256, metadata={"help": "SAC minibatch"})
+    steps_per_epoch: int = dataclasses.field(default=50, metadata={"help": "training iterations per timed epoch"})
+    num_eval_envs: int = dataclasses.field(default=8, metadata={"help": "Brax's evaluation envs (outside the timing)"})
+
+
+def main(argv: list[str]) -> None:
+    bench = parse_args(BraxBenchConfig, argv, "benchmarks/brax_sac.py", __doc__.splitlines()[0])
+    if len(jax.local_devices()) != 1:
+        raise SystemExit("run on one device (Brax would pmap over all of them; ours uses one)")
+    jax.device_put_replicated = _device_put_replicated
+    env = BraxEnv(make_env(bench.env))
+    grad_updates = max(1, round(bench.num_envs * bench.utd))
+    min_replay = max(bench.batch_size, bench.num_envs) * 4
+    # Brax: num_timesteps covers the prefill plus (num_evals - 1) epochs.
+    epoch_env_steps = bench.steps_per_epoch * bench.num_envs
+    num_timesteps = min_replay + 2 * epoch_env_steps
+    progress: list[tuple[int, dict]] = []
+    started = time.perf_counter()
+    brax_sac_train.train(
+        environment=env, num_timesteps=num_timesteps, episode_length=1000, num_envs=bench.num_envs,
+        num_eval_envs=bench.num_eval_envs, learning_rate=3e-4, discounting=0.99, batch_size=bench.batch_size,
+        num_evals=3, min_replay_size=min_replay, max_replay_size=1_000_000, grad_updates_per_step=grad_updates,
+        tau=0.005, seed=0, progress_fn=lambda step, metrics: progress.append((step, dict(metrics))),
+    )
+    total_s = time.perf_counter() - started
+    timed = [metrics for _, metrics in progress if "training/sps" in metrics]
+    if len(timed) < 2:
+        raise SystemExit(f"Brax reported {len(timed)} timed epochs; need 2 (raise steps_per_epoch)")
+    env_sps = float(timed[1]["training/sps"])
+    record = {
+        "env": env.env.gymnasium_id, "trainer": "brax.training.agents.sac", "num_envs": bench.num_envs,
+        "utd": bench.utd, "grad_updates_per_iteration": grad_updates, "batch_size": bench.batch_size,
+        "hidden_sizes": [256, 256], "steps_per_epoch": bench.steps_per_epoch,
+        "env_steps_per_s": round(env_sps, 1), "grad_steps_per_s": round(env_sps * grad_updates / bench.num_envs, 1),
+        "first_epoch_sps_with_compile": round(float(timed[0]["training/sps"]), 1),
+        "total_s_with_compile_and_evals": round(total_s, 1), "peak_host_memory_mb": round(peak_host_memory_mb(), 1),
+    }
+    print(f"Brax SAC, {record['env']}: {bench.num_envs} envs, {grad_updates} gradient steps per iteration: "
+          f"{env_sps:,.1f} env steps/s (second epoch; whole run {total_s:.0f} s with compile and evals)")
+    append_record("brax_sac", record)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

@@ -1,0 +1,118 @@
+"""Seeds × modes in one vmapped program (``admissable_jax.experiment``) and the quickstart notebook."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import nbformat
+import numpy as np
+import pytest
+from nbclient import NotebookClient
+
+from admissable_jax.experiment import ExperimentConfig, pair_configs, run_experiment
+from admissable_jax.plots import find_runs, plot_runs
+from admissable_jax.runs import MemoryBudgetExceeded
+
+EXPERIMENT = dict(
+    env="point_mass", seeds=2, modes="adversarial,uniform", score_every=1000, num_envs=4,
+    learning_starts=500, episode_length=50, score_episodes=2, batch_size=64, buffer_size=5000,
+    checkpoint_every=1, progress=False,
+)
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _scores(root: str) -> dict[str, list]:
+    return {
+        name: [json.loads(line)["scores"] for line in open(os.path.join(root, name, "scores.jsonl"))]
+        for name in sorted(os.listdir(root)) if name not in ("checkpoints", "experiment.yaml", "figures")
+    }
+
+
+def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path):
+    straight = run_experiment(ExperimentConfig(**EXPERIMENT, total_steps=3000, out=str(tmp_path / "straight")))
+    assert [(r.config.missingness, r.config.seed) for r in straight] == [
+        ("adversarial", 0), ("adversarial", 1), ("uniform", 0), ("uniform", 1)]
+    for result in straight:
+        assert sorted(os.listdir(result.run_dir)) == ["config.yaml", "metrics.jsonl", "scores.jsonl"]
+        assert [row["env_steps"] for row in result.scores] == [1000, 2000, 3000]
+        assert result.metrics[-1]["runs_in_program"] == 4
+        if result.config.missingness == "uniform":
+            np.testing.assert_allclose(result.scores[-1]["p_miss"], 0.25)
+        else:
+            assert not np.allclose(result.scores[-1]["p_miss"], 0.25)
+    # Seeds differ, so pairs of one mode differ.
+    assert straight[0].scores[-1]["scores"] != straight[1].scores[-1]["scores"]
+
+    resumed_root = str(tmp_path / "resumed")
+    run_experiment(ExperimentConfig(**EXPERIMENT, total_steps=2000, out=resumed_root))
+    assert sorted(os.listdir(os.path.join(resumed_root, "checkpoints"))) == ["1000", "2000"]
+    with pytest.raises(FileExistsError, match="resume=true"):
+        run_experiment(ExperimentConfig(**EXPERIMENT, total_steps=3000, out=resumed_root))
+    run_experiment(ExperimentConfig(**EXPERIMENT, total_steps=3000, out=resumed_root, resume=True))
+    assert _scores(resumed_root) == _scores(str(tmp_path / "straight"))
+
+    written = plot_runs(find_runs([resumed_root]), str(tmp_path / "figures"), window=2)
+    assert {os.path.basename(path) for path in written} >= {"min_score.png", "min_score.pdf", "p_miss_adversarial.png"}
+
+
+def test_experiment_refuses_what_does_not_fit_before_allocating(tmp_path, monkeypatch):
+    import admissable_jax.runs as runs
+
+    class Tiny:
+        available = 1024
+
+    monkeypatch.setattr(runs.psutil, "virtual_memory", lambda: Tiny())
+    config = ExperimentConfig(**EXPERIMENT, total_steps=1000, out=str(tmp_path / "big"))
+    with pytest.raises(MemoryBudgetExceeded, match="does not fit: memory on cpu: training state .* GiB available"):
+        run_experiment(config)
+    assert not os.listdir(tmp_path / "big" / "checkpoints")  # nothing was trained or saved
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["modes=adversarial,sometimes"], "modes must be a comma-separated list"),
+        (["modes=uniform,uniform"], "modes repeats a mode"),
+        (["seeds=0"], "seeds must be >= 1"),
+        (["missingness=uniform"], "unknown key 'missingness'"),
+        (["env=ant", "k=105"], "k must satisfy 1 <= k < d = 105"),
+    ],
+)
+def test_experiment_cli_rejects_bad_input_with_one_line(args, message, tmp_path):
+    result = subprocess.run(
+        [sys.executable, "-m", "admissable_jax.experiment", *args, f"out={tmp_path}/x", "progress=false"],
+        capture_output=True, text=True, env={**os.environ, "JAX_PLATFORMS": "cpu"},
+    )
+    assert result.returncode == 2, result.stderr
+    assert message in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1, result.stderr
+
+
+def test_pair_configs_name_one_directory_per_pair():
+    pairs = pair_configs(ExperimentConfig(env="Hopper-v5", seeds=3, first_seed=4, modes="uniform,none"))
+    assert [p.out for p in pairs] == [f"runs/fig1-hopper/{m}-s{s}" for m in ("uniform", "none") for s in (4, 5, 6)]
+    assert all(p.env == "hopper" and p.num_envs > 0 for p in pairs)
+
+
+def test_quickstart_notebook_runs(tmp_path):
+    """The notebook end to end on a tiny Hopper run (its parameter cell replaced)."""
+    notebook = nbformat.read(os.path.join(REPO, "notebooks", "quickstart.ipynb"), as_version=4)
+    parameters = next(cell for cell in notebook.cells if cell.source.startswith("# Parameters"))
+    parameters.source = "\n".join([
+        "TOTAL_STEPS = 200", "SCORE_EVERY = 100", "NUM_ENVS = 4", "SCORE_EPISODES = 2",
+        "EPISODE_LENGTH = 30", "LEARNING_STARTS = 64",
+        "EXTRA = dict(batch_size=32, hidden_size=32, buffer_size=1000, progress=False)",
+        f"OUT = {str(tmp_path / 'quickstart')!r}",
+    ])
+    NotebookClient(notebook, timeout=1200, kernel_name="python3",
+                   resources={"metadata": {"path": str(tmp_path)}}).execute()
+    outputs = "".join(
+        output.get("text", "") for cell in notebook.cells if cell.cell_type == "code" for output in cell.outputs
+    )
+    assert "min_u a_u =" in outputs and "env steps: min_u a_u" in outputs
+    images = [o for cell in notebook.cells if cell.cell_type == "code" for o in cell.outputs if "image/png" in o.get("data", {})]
+    assert len(images) == 3  # bar chart, Figure 1, p_miss
+    assert os.path.exists(tmp_path / "quickstart" / "figures" / "min_score.pdf")
