@@ -172,7 +172,9 @@ class TrainingLoop:
 
     def run(self) -> TrainState:
         config = self.config
-        self.compile()
+        budget = self.compile()
+        if config.progress:
+            tqdm.write(f"{len(self.runs)} run(s) x {config.num_envs} envs: {budget.describe()}")
         state = jax.jit(self.init)()
         start_step = 0
         if config.resume:
