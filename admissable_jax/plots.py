@@ -8,7 +8,8 @@ and PDF:
   moving average over ``window`` records, shaded with a 95% t-interval over seeds; a
   second panel shows the clean return (nothing hidden) the same way;
 * ``scores_<mode>.*`` — a_u for every feature over time (mean over seeds), a heatmap;
-* ``p_miss_<mode>.*`` — the adversary's distribution over time (mean over seeds).
+* ``p_miss_<mode>.*`` — the adversary's distribution over time (mean over seeds);
+* ``summary.md`` (CLI) — :func:`summary_table`: final and AUC min_u a_u per mode.
 
 ``python -m admissable_jax.plot runs/fig1-hopper [window=40] [out=DIR]`` finds every run
 directory (one holding ``scores.jsonl``) under the given paths.
@@ -155,6 +156,32 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 40) -> list[str]:
     return written
 
 
+def _estimate(values: np.ndarray) -> str:
+    mean, low, _ = mean_and_interval(values[:, None])
+    return f"{mean[0]:.1f} ± {mean[0] - low[0]:.1f}" if len(values) > 1 else f"{mean[0]:.1f}"
+
+
+def summary_table(run_dirs: list[str]) -> str:
+    """Markdown table per mode: final and area-under-curve min_u a_u and the final clean
+    return, mean ± 95% t-interval half-width over seeds. The AUC is the mean of min_u a_u
+    over all records (the area under the curve divided by its length in records)."""
+    by_mode: dict[str, list[Run]] = collections.defaultdict(list)
+    for run in (load_run(path) for path in run_dirs):
+        by_mode[(run.env, run.mode)].append(run)
+    lines = [
+        "| env | mode | seeds | env steps | final min_u a_u | AUC min_u a_u (mean over records) | final clean return |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for (env, mode), runs in sorted(by_mode.items()):
+        steps, minimum = _aligned(runs, "min_score")
+        _, clean = _aligned(runs, "clean_score")
+        lines.append(
+            f"| {env} | {mode} | {len(runs)} | {int(steps[-1])} | {_estimate(minimum[:, -1])} | "
+            f"{_estimate(minimum.mean(axis=1))} | {_estimate(clean[:, -1])} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
 @dataclasses.dataclass
 class PlotConfig:
     window: int = dataclasses.field(default=40, metadata={"help": "moving-average window (records)"})
@@ -168,10 +195,16 @@ def main(argv: list[str]) -> int:
     if not paths:
         fail("give at least one run directory (or a folder of them)")
     try:
-        written = plot_runs(find_runs(paths), config.out or os.path.join(paths[0], "figures"), config.window)
+        runs = find_runs(paths)
+        out_dir = config.out or os.path.join(paths[0], "figures")
+        written = plot_runs(runs, out_dir, config.window)
+        table = summary_table(runs)
     except (ValueError, FileNotFoundError, KeyError) as error:
         fail(str(error))
-    print("\n".join(written))
+    with open(os.path.join(out_dir, "summary.md"), "w") as file:
+        file.write(table)
+    print("\n".join([*written, os.path.join(out_dir, "summary.md")]))
+    print(table)
     return 0
 
 
