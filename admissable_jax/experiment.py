@@ -25,12 +25,10 @@ import jax.numpy as jnp
 from omegaconf import OmegaConf
 
 from admissable_jax.adversary import MODES
-from admissable_jax.checkpointing import CheckpointError, Checkpoints
-from admissable_jax.cli import USAGE_ERROR, enable_compilation_cache, parse_args
+from admissable_jax.checkpointing import Checkpoints
+from admissable_jax.cli import enable_compilation_cache, parse_args
 from admissable_jax.config import TrainConfig, validate
-from admissable_jax.runs import (
-    MemoryBudgetExceeded, RunDirectory, TrainingDiverged, TrainingLoop, TrainResult, make_trainer, mode_flags,
-)
+from admissable_jax.runs import RunDirectory, TrainingLoop, TrainResult, make_trainer, mode_flags, run_from_cli
 
 # TrainConfig keys that name one run and so are replaced by the experiment's own.
 _PER_RUN_KEYS = ("missingness", "seed", "out")
@@ -120,14 +118,9 @@ def main(argv: list[str]) -> int:
         validate=pair_configs,
     )
     enable_compilation_cache()
-    try:
-        results = run_experiment(config)
-    except (ValueError, TypeError, FileExistsError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return USAGE_ERROR
-    except (CheckpointError, TrainingDiverged, MemoryBudgetExceeded) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 1
+    results, status = run_from_cli(run_experiment, config)
+    if status:
+        return status
     for result in results:
         last = result.scores[-1]
         print(f"{result.config.missingness} seed {result.config.seed}: min_u a_u {last['min_score']:.1f}, "

@@ -17,6 +17,7 @@ import dataclasses
 import json
 import math
 import os
+import sys
 import time
 from typing import Any, Callable
 
@@ -43,6 +44,20 @@ class TrainingDiverged(RuntimeError):
 
 class MemoryBudgetExceeded(RuntimeError):
     """The compiled programs and the training state would not fit in this device's memory."""
+
+
+def run_from_cli(function: Callable[[Any], Any], config: Any) -> tuple[Any, int]:
+    """(result, exit status) of ``function(config)`` for a command line: bad settings exit 2,
+    a corrupt checkpoint, a diverged run or one too large for memory exit 1, each with one
+    line on stderr (finished work stays in the run directory)."""
+    try:
+        return function(config), 0
+    except (ValueError, TypeError, FileExistsError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return None, 2
+    except (CheckpointError, TrainingDiverged, MemoryBudgetExceeded) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return None, 1
 
 
 @dataclasses.dataclass

@@ -2,18 +2,16 @@
 
 ``--help`` lists every key with its default. Bad settings exit with status 2 and a one-line
 message; a corrupt checkpoint, a diverged run (NaN) or a run too large for the device's
-memory exits with status 1, and the run
-directory keeps everything finished before.
+memory exits with status 1, and the run directory keeps everything finished before.
 """
 
 from __future__ import annotations
 
 import sys
 
-from admissable_jax.checkpointing import CheckpointError
-from admissable_jax.cli import USAGE_ERROR, enable_compilation_cache, parse_args
+from admissable_jax.cli import enable_compilation_cache, parse_args
 from admissable_jax.config import TrainConfig
-from admissable_jax.runs import MemoryBudgetExceeded, TrainingDiverged, train_fn
+from admissable_jax.runs import run_from_cli, train_fn
 
 
 def main(argv: list[str]) -> int:
@@ -23,14 +21,9 @@ def main(argv: list[str]) -> int:
         validate=lambda c: c.resolved(),
     )
     enable_compilation_cache()
-    try:
-        result = train_fn(config)
-    except (ValueError, TypeError, FileExistsError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return USAGE_ERROR
-    except (CheckpointError, TrainingDiverged, MemoryBudgetExceeded) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 1
+    result, status = run_from_cli(train_fn, config)
+    if status:
+        return status
     last = result.scores[-1]
     print(
         f"done: {result.config.env} {result.config.missingness}, {last['env_steps']} env steps, "

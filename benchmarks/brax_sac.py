@@ -17,7 +17,6 @@ benchmarks/results/brax_sac.jsonl.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import sys
 import time
 
