@@ -8,7 +8,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from admissable_jax.config import TrainConfig
-from admissable_jax.plots import find_runs, mean_and_interval, moving_average, plot_runs
+from admissable_jax.plots import find_runs, load_run, mean_and_interval, moving_average, plot_runs, summary_table
 
 
 def _fake_run(root, mode, seed, records=12, sets=3):
@@ -51,3 +51,18 @@ def test_plot_runs_writes_every_figure(tmp_path):
     assert all(os.path.getsize(p) > 1000 for p in written)
     with pytest.raises(FileNotFoundError):
         find_runs([str(tmp_path / "missing")])
+
+
+def test_summary_table_reports_final_and_auc_per_mode(tmp_path):
+    paths = [_fake_run(str(tmp_path), mode, seed, records=4) for mode in ("adversarial", "uniform") for seed in range(2)]
+    table = summary_table(paths).splitlines()
+    assert len(table) == 4  # header, rule, one row per mode
+    for mode, row in zip(("adversarial", "uniform"), table[2:]):
+        runs = [load_run(path) for path in paths if f"{mode}-s" in path]
+        final = np.array([run.min_score[-1] for run in runs])
+        auc = np.array([run.min_score.mean() for run in runs])
+        mean, low, _ = mean_and_interval(final[:, None])
+        cells = [cell.strip() for cell in row.strip("|").split("|")]
+        assert cells[:4] == ["hopper", mode, "2", "20000"]
+        assert cells[4] == f"{mean[0]:.1f} ± {mean[0] - low[0]:.1f}"
+        assert cells[5].startswith(f"{auc.mean():.1f} ± ")
