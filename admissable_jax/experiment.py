@@ -27,11 +27,14 @@ from omegaconf import OmegaConf
 from admissable_jax.adversary import MODES
 from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.cli import enable_compilation_cache, parse_args
-from admissable_jax.config import TrainConfig, validate
-from admissable_jax.runs import RunDirectory, TrainingLoop, TrainResult, make_trainer, mode_flags, run_from_cli
+from admissable_jax.config import TrainConfig
+from admissable_jax.envs import canonical_env_name
+from admissable_jax.runs import RunDirectory, TrainingLoop, TrainResult, make_trainer, mode_flags, run_from_cli, take_pair
 
-# TrainConfig keys that name one run and so are replaced by the experiment's own.
+# TrainConfig keys that name one run and so are replaced by the experiment's own; the
+# other TrainConfig fields are shared by every pair.
 _PER_RUN_KEYS = ("missingness", "seed", "out")
+_SHARED_FIELDS = [field for field in dataclasses.fields(TrainConfig) if field.name not in _PER_RUN_KEYS]
 
 
 def _experiment_fields() -> list[tuple]:
@@ -44,8 +47,7 @@ def _experiment_fields() -> list[tuple]:
     ]
     shared = [
         (field.name, field.type, dataclasses.field(default=field.default, metadata=field.metadata))
-        for field in dataclasses.fields(TrainConfig)
-        if field.name not in _PER_RUN_KEYS
+        for field in _SHARED_FIELDS
     ]
     return own + shared
 
@@ -64,15 +66,13 @@ def pair_configs(config) -> list[TrainConfig]:
         raise ValueError(f"modes repeats a mode: {config.modes!r}")
     if config.seeds < 1 or config.first_seed < 0:
         raise ValueError(f"seeds must be >= 1 and first_seed >= 0, got seeds={config.seeds}, first_seed={config.first_seed}")
-    shared = {name: getattr(config, name) for name in (f.name for f in dataclasses.fields(TrainConfig)) if name not in _PER_RUN_KEYS}
-    out = config.out or f"runs/fig1-{TrainConfig(env=config.env).resolved().env}"
-    pairs = []
-    for mode in modes:
-        for seed in range(config.first_seed, config.first_seed + config.seeds):
-            pair = TrainConfig(**shared, missingness=mode, seed=seed, out=os.path.join(out, f"{mode}-s{seed}"))
-            validate(pair)
-            pairs.append(pair.resolved())
-    return pairs
+    shared = {field.name: getattr(config, field.name) for field in _SHARED_FIELDS}
+    out = config.out or f"runs/fig1-{canonical_env_name(config.env)}"
+    return [
+        TrainConfig(**shared, missingness=mode, seed=seed, out=os.path.join(out, f"{mode}-s{seed}")).resolved()
+        for mode in modes
+        for seed in range(config.first_seed, config.first_seed + config.seeds)
+    ]
 
 
 def experiment_dir(pairs: list[TrainConfig]) -> str:
@@ -92,21 +92,15 @@ def run_experiment(config) -> list[TrainResult]:
 
     seeds = jnp.array([pair.seed for pair in pairs])
     adversarial, masking = (jnp.array(flags) for flags in zip(*(mode_flags(pair.missingness) for pair in pairs)))
-    loop = TrainingLoop(
-        trainer, first, runs, Checkpoints(checkpoint_dir),
-        init=lambda: jax.vmap(trainer.init)(seeds, adversarial, masking),
-        run_chunk=jax.vmap(lambda state: trainer.run_chunk(state, trainer.iterations_per_scoring)),
-        score_and_update=jax.vmap(lambda state: trainer.score_and_update(state, first.score_episodes)),
-        select_pair=lambda tree, pair: jax.tree.map(lambda leaf: leaf[pair], tree),
-    )
+    init = lambda: jax.vmap(trainer.init)(seeds, adversarial, masking)
+    loop = TrainingLoop(trainer, first, runs, Checkpoints(checkpoint_dir), init, batched=True)
     if config.budget_only:
         print(f"{len(pairs)} pairs x {first.num_envs} envs, {first.env}: {loop.compile().describe()}")
         loop.checkpoints.close()
         return []
     state = loop.run()
     return [
-        TrainResult(pair, trainer, jax.tree.map(lambda leaf: leaf[index], state),
-                    run.read("scores.jsonl"), run.read("metrics.jsonl"))
+        TrainResult(pair, trainer, take_pair(state, index), run.read("scores.jsonl"), run.read("metrics.jsonl"))
         for index, (pair, run) in enumerate(zip(pairs, runs))
     ]
 

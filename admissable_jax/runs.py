@@ -28,6 +28,7 @@ from omegaconf import OmegaConf
 from tqdm.auto import tqdm
 
 from admissable_jax.checkpointing import CheckpointError, Checkpoints
+from admissable_jax.cli import USAGE_ERROR
 from admissable_jax.config import TrainConfig, validate
 from admissable_jax.envs import make_env
 from admissable_jax.missingness import describe_set
@@ -54,7 +55,7 @@ def run_from_cli(function: Callable[[Any], Any], config: Any) -> tuple[Any, int]
         return function(config), 0
     except (ValueError, TypeError, FileExistsError) as error:
         print(f"error: {error}", file=sys.stderr)
-        return None, 2
+        return None, USAGE_ERROR
     except (CheckpointError, TrainingDiverged, MemoryBudgetExceeded) as error:
         print(f"error: {error}", file=sys.stderr)
         return None, 1
@@ -99,14 +100,8 @@ def train_fn(config: TrainConfig) -> TrainResult:
     checkpoint_dir = os.path.join(config.out, "checkpoints")
     run = RunDirectory(config, checkpoint_dir)
     checkpoints = Checkpoints(checkpoint_dir)
-    loop = TrainingLoop(
-        trainer, config, [run], checkpoints,
-        init=lambda: trainer.init(config.seed, *mode_flags(config.missingness)),
-        run_chunk=lambda state: trainer.run_chunk(state, trainer.iterations_per_scoring),
-        score_and_update=lambda state: trainer.score_and_update(state, config.score_episodes),
-        select_pair=lambda tree, pair: tree,
-    )
-    state = loop.run()
+    init = lambda: trainer.init(config.seed, *mode_flags(config.missingness))
+    state = TrainingLoop(trainer, config, [run], checkpoints, init, batched=False).run()
     return TrainResult(config, trainer, state, run.read("scores.jsonl"), run.read("metrics.jsonl"))
 
 
@@ -150,12 +145,17 @@ def memory_budget(abstract_state, compiled_chunk, compiled_score) -> MemoryBudge
                         f"{device.platform}:{getattr(device, 'device_kind', '')}")
 
 
+def take_pair(tree: Any, index: int) -> Any:
+    """Run ``index``'s part of a pytree batched over runs (leading axis)."""
+    return jax.tree.map(lambda leaf: leaf[index], tree)
+
+
 class TrainingLoop:
     """The host loop over scorings for one run or a vmapped batch of runs.
 
-    ``init``, ``run_chunk`` and ``score_and_update`` are the pure functions of the training
-    state (vmapped already for a batch); ``select_pair(tree, i)`` takes run i's part of a
-    batched pytree (the identity for one run). ``runs[i]`` is run i's directory.
+    ``init()`` builds the training state (batched over runs along a leading axis when
+    ``batched``); the train chunk and the scoring round are the trainer's, vmapped over
+    that axis when ``batched``. ``runs[i]`` is run i's directory.
     """
 
     def __init__(
@@ -165,13 +165,18 @@ class TrainingLoop:
         runs: list["RunDirectory"],
         checkpoints: Checkpoints,
         init: Callable[[], TrainState],
-        run_chunk: Callable[[TrainState], tuple[TrainState, dict]],
-        score_and_update: Callable[[TrainState], tuple[TrainState, MissingnessScores]],
-        select_pair: Callable[[Any, int], Any],
+        batched: bool,
     ):
         self.trainer, self.config, self.runs, self.checkpoints = trainer, config, runs, checkpoints
-        self.init, self.select_pair = init, select_pair
-        self._run_chunk, self._score_and_update = run_chunk, score_and_update
+        self.init, self.batched = init, batched
+        run_chunk = lambda state: trainer.run_chunk(state, trainer.iterations_per_scoring)
+        score_and_update = lambda state: trainer.score_and_update(state, config.score_episodes)
+        self._run_chunk = jax.vmap(run_chunk) if batched else run_chunk
+        self._score_and_update = jax.vmap(score_and_update) if batched else score_and_update
+
+    def select_pair(self, tree: Any, pair: int) -> Any:
+        """Run ``pair``'s part of a pytree of the loop's (the tree itself for one run)."""
+        return take_pair(tree, pair) if self.batched else tree
 
     def compile(self) -> MemoryBudget:
         """Compile both programs without allocating the state; refuse if they won't fit."""
@@ -249,10 +254,10 @@ class TrainingLoop:
 
 
 def _score_row(env_steps: int, scores: MissingnessScores, p_miss, trainer: Trainer) -> dict[str, Any]:
-    argmin = int(np.argmin(scores.scores))
+    argmin = int(scores.argmin)
     return {
         "env_steps": env_steps,
-        "min_score": float(np.min(scores.scores)),
+        "min_score": float(scores.min_score),
         "argmin": argmin,
         "argmin_set": describe_set(np.asarray(trainer.hidden_sets[argmin])),
         "clean_score": float(scores.clean_score),
