@@ -27,6 +27,7 @@ class TrainConfig:
     include_empty_set: bool = _field(False, "also let the adversary pick 'nothing hidden'")
     score_every: int = _field(5000, "zeta: env steps (over all envs) between scorings")
     score_episodes: int = _field(10, "N: deterministic episodes per missing set")
+    score_envs: int = _field(0, "envs stepped at once in a scoring round; 0 = 32 on CPU, all (|U|+1)*N episodes on GPU")
     lower_bound: float = _field(0.0, "l: return lower bound; scores below are clipped to it")
     epsilon: float = _field(1e-8, "eps in p_miss = 1/(a_u - l + eps), normalised")
     # run
@@ -73,6 +74,14 @@ def default_num_envs(score_every: int) -> int:
     return max(n for n in range(1, min(target, score_every) + 1) if score_every % n == 0)
 
 
+def default_score_envs(num_episodes: int) -> int:
+    """Scoring envs stepped at once: on a CPU, where a batched MJX step costs about its
+    batch size times a per-env cost that is lowest at 16-32 envs (benchmarks/NOTES.md), a pool
+    of 32 whose slots start the next episode as theirs end; on an accelerator every episode
+    at once (a step costs nearly the same for any batch that fits)."""
+    return min(num_episodes, 32) if jax.default_backend() == "cpu" else num_episodes
+
+
 def validate(config: TrainConfig) -> None:
     """Raise ValueError/TypeError with a one-line message for any bad setting."""
     if not isinstance(config, TrainConfig):
@@ -90,8 +99,9 @@ def validate(config: TrainConfig) -> None:
     for name in positive:
         if getattr(config, name) < 1:
             raise ValueError(f"{name} must be >= 1, got {getattr(config, name)}")
-    if config.num_envs < 0:
-        raise ValueError(f"num_envs must be >= 0, got {config.num_envs}")
+    for name in ("num_envs", "score_envs"):
+        if getattr(config, name) < 0:
+            raise ValueError(f"{name} must be >= 0, got {getattr(config, name)}")
     if config.utd <= 0:
         raise ValueError(f"utd must be > 0, got {config.utd}")
     if config.epsilon <= 0:

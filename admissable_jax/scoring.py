@@ -2,10 +2,14 @@
 
 a_u = v̂_u^π(s_0): the mean undiscounted return of N episodes of the deterministic policy
 with the features in u hidden, run to termination or the env's step limit. All
-(|U| + 1) · N episodes (the +1 is the clean case, nothing hidden) run as one vmapped,
-jitted rollout: a ``lax.while_loop`` over time that stops once every episode is done;
-finished episodes stop accumulating reward. Episode i starts from the same initial state
-for every u (common random numbers), so differences between sets are not reset noise.
+(|U| + 1) · N episodes (the +1 is the clean case, nothing hidden) run in one jitted
+rollout: a ``lax.while_loop`` over time that steps a pool of ``num_slots`` environments
+at once (vmapped) and stops once every episode is done. With fewer slots than episodes, a
+slot whose episode ends starts the next unstarted one at the following step, so the pool
+stays full of live episodes instead of stepping finished ones until the longest ends.
+Episode i starts from the same initial state for every u (common random numbers), so
+differences between sets are not reset noise; which slot runs an episode does not change
+its return.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ class MissingnessScores:
     clean_score: jax.Array  # () mean return with nothing hidden
     returns: jax.Array  # (|U| + 1, N) per-episode returns; last row is the clean case
     lengths: jax.Array  # (|U| + 1, N) episode lengths
+    loop_steps: jax.Array  # () batched steps the rollout took (each steps every slot)
 
     @property
     def min_score(self) -> jax.Array:
@@ -48,44 +53,73 @@ def score_missingness(
     hidden_sets: jax.Array,
     n_episodes: int = 10,
     max_steps: int | None = None,
+    num_slots: int | None = None,
 ) -> MissingnessScores:
     """Score every u in ``hidden_sets`` ((|U|, d) 0/1 rows) and the clean case.
 
     ``policy_fn(params, masked_obs) -> action`` may be any JAX function of the 2·d masked
     observation (our SAC actor's mean action, or a hand-written controller). ``max_steps``
-    defaults to the env's limit (1000). Jit-able with ``env``, ``policy_fn``, ``n_episodes``
-    and ``max_steps`` static.
+    defaults to the env's limit (1000). ``num_slots`` is how many envs are stepped at once
+    (default: all (|U| + 1) · N episodes; fewer trades loop steps for a smaller batch, which
+    pays where a step's cost grows with the batch, as on a CPU). Jit-able with ``env``,
+    ``policy_fn``, ``n_episodes``, ``max_steps`` and ``num_slots`` static.
     """
     hidden_sets = jnp.asarray(hidden_sets, jnp.float32)
     num_sets, num_features = hidden_sets.shape
     chex.assert_equal(num_features, env.observation_size)
     max_steps = env.max_episode_steps if max_steps is None else max_steps
-    all_sets = jnp.concatenate([hidden_sets, jnp.zeros((1, num_features))])  # + clean case
     num_rows = num_sets + 1
-
+    num_episodes = num_rows * n_episodes  # episode e: set row e // N, initial state e % N
+    num_slots = num_episodes if num_slots is None else max(1, min(num_slots, num_episodes))
+    episode_hidden = jnp.repeat(jnp.concatenate([hidden_sets, jnp.zeros((1, num_features))]), n_episodes, axis=0)
     initial = jax.vmap(env.reset)(jax.random.split(rng, n_episodes))
-    states = jax.tree.map(lambda x: jnp.broadcast_to(x, (num_rows, *x.shape)), initial)
-    states = jax.tree.map(lambda x: x.reshape(num_rows * n_episodes, *x.shape[2:]), states)
-    hidden = jnp.repeat(all_sets, n_episodes, axis=0)  # row r * N + i: set r, episode i
-    batch = num_rows * n_episodes
     policy = jax.vmap(policy_fn, in_axes=(None, 0))
 
+    def initial_states(episode: jax.Array):
+        return jax.tree.map(lambda x: x[episode % n_episodes], initial)
+
+    def refilled(states, refill, episode):
+        fresh = initial_states(jnp.minimum(episode, num_episodes - 1))
+        return jax.tree.map(lambda new, old: jnp.where(_rows(refill, old), new, old), fresh, states)
+
     def cond(carry):
-        t, _, alive, _, _ = carry
-        return jnp.logical_and(t < max_steps, jnp.any(alive))
+        return jnp.any(carry["alive"])
 
     def body(carry):
-        t, states, alive, returns, lengths = carry
-        actions = policy(params, mask_observation(states.obs, hidden))
+        states, episode, alive = carry["states"], carry["episode"], carry["alive"]
+        actions = policy(params, mask_observation(states.obs, episode_hidden[episode]))
         states = jax.vmap(env.step)(states, actions)
-        returns = returns + jnp.where(alive, states.reward, 0.0)
-        lengths = lengths + alive.astype(jnp.int32)
-        alive = alive & ~states.terminated & (states.step_count < max_steps)
-        return t + 1, states, alive, returns, lengths
+        finished = alive & (states.terminated | (states.step_count >= max_steps))
+        record_at = jnp.where(finished, episode, num_episodes)  # out of range: dropped
+        returns = carry["returns"].at[record_at].set(states.episode_metrics["return"], mode="drop")
+        lengths = carry["lengths"].at[record_at].set(states.step_count, mode="drop")
+        # Finished slots take the next unstarted episodes, in slot order.
+        next_episode = carry["next_episode"] + jnp.cumsum(finished) - 1
+        refill = finished & (next_episode < num_episodes)
+        if num_slots < num_episodes:  # else every episode started at step 0: nothing to refill
+            episode = jnp.where(refill, next_episode, episode)
+            states = jax.lax.cond(jnp.any(refill), refilled, lambda states, *_: states, states, refill, episode)
+        return {
+            "states": states, "episode": episode, "alive": jnp.where(finished, refill, alive),
+            "next_episode": carry["next_episode"] + finished.sum(), "returns": returns,
+            "lengths": lengths, "loop_steps": carry["loop_steps"] + 1,
+        }
 
-    carry = (jnp.zeros((), jnp.int32), states, jnp.ones(batch, bool), jnp.zeros(batch), jnp.zeros(batch, jnp.int32))
-    _, _, _, returns, lengths = jax.lax.while_loop(cond, body, carry)
-    returns = returns.reshape(num_rows, n_episodes)
-    lengths = lengths.reshape(num_rows, n_episodes)
+    slots = jnp.arange(num_slots)
+    carry = {
+        "states": initial_states(slots), "episode": slots, "alive": jnp.ones(num_slots, bool),
+        "next_episode": jnp.asarray(num_slots, jnp.int32), "returns": jnp.zeros(num_episodes),
+        "lengths": jnp.zeros(num_episodes, jnp.int32), "loop_steps": jnp.zeros((), jnp.int32),
+    }
+    carry = jax.lax.while_loop(cond, body, carry)
+    returns = carry["returns"].reshape(num_rows, n_episodes)
+    lengths = carry["lengths"].reshape(num_rows, n_episodes)
     means = returns.mean(axis=1)
-    return MissingnessScores(scores=means[:-1], clean_score=means[-1], returns=returns, lengths=lengths)
+    return MissingnessScores(
+        scores=means[:-1], clean_score=means[-1], returns=returns, lengths=lengths, loop_steps=carry["loop_steps"]
+    )
+
+
+def _rows(mask: jax.Array, like: jax.Array) -> jax.Array:
+    """``mask`` (B,) broadcast against a batched leaf (B, ...)."""
+    return mask.reshape(mask.shape + (1,) * (like.ndim - 1))

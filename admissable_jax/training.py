@@ -19,7 +19,7 @@ from flax import struct
 from admissable_jax import replay
 from admissable_jax.adversary import update_p_miss, uniform_p_miss
 from admissable_jax.agent import SAC, SACBatch, SACHyperparams, SACState
-from admissable_jax.config import TrainConfig
+from admissable_jax.config import TrainConfig, default_score_envs
 from admissable_jax.envs import EnvState, reset_where_done
 from admissable_jax.missingness import candidate_sets, mask_observation, sample_set_indices
 from admissable_jax.scoring import MissingnessScores, score_missingness
@@ -61,6 +61,8 @@ class Trainer:
         self.updates_per_iteration = max(1, round(config.num_envs * config.utd))
         self.iterations_per_scoring = config.score_every // config.num_envs
         self.capacity = replay.buffer_capacity(config.buffer_size, config.num_envs)
+        score_episodes = (self.num_sets + 1) * config.score_episodes
+        self.score_envs = min(config.score_envs, score_episodes) or default_score_envs(score_episodes)
 
     # --- construction -------------------------------------------------------------------
     def init(self, seed: jax.Array, mode_adversarial: jax.Array, mode_masking: jax.Array) -> TrainState:
@@ -100,29 +102,38 @@ class Trainer:
         return jnp.where(state.env_steps < self.config.learning_starts, random_action, policy_action)
 
     def _learn(self, state: TrainState, rng: jax.Array) -> tuple[SACState, dict[str, jax.Array]]:
-        def one_update(sac_state, rng):
-            sample_rng, update_rng = jax.random.split(rng)
-            batch = replay.sample(state.buffer, sample_rng, self.config.batch_size)
-            hidden = self.hidden_rows(state, batch.set_index)
-            sac_batch = SACBatch(
-                obs=mask_observation(batch.obs, hidden),
-                action=batch.action,
-                reward=batch.reward,
-                next_obs=mask_observation(batch.next_obs, hidden),
-                terminated=batch.terminated,
-            )
-            return self.agent.update(sac_state, sac_batch, update_rng)
+        # All minibatches are drawn before the learning_starts branch, so the branch's operands
+        # are the SAC state and (n, batch) transitions, never the whole replay buffer.
+        sample_keys, update_keys = jnp.moveaxis(
+            jax.vmap(jax.random.split)(jax.random.split(rng, self.updates_per_iteration)), 1, 0
+        )
+        batches = jax.vmap(lambda key: self._minibatch(state, key))(sample_keys)
+
+        def one_update(sac_state, batch_and_key):
+            return self.agent.update(sac_state, *batch_and_key)
 
         def updates(sac_state):
-            sac_state, metrics = jax.lax.scan(one_update, sac_state, jax.random.split(rng, self.updates_per_iteration))
+            sac_state, metrics = jax.lax.scan(one_update, sac_state, (batches, update_keys))
             return sac_state, jax.tree.map(jnp.mean, metrics)
 
         def skip(sac_state):
-            _, metrics = jax.eval_shape(one_update, sac_state, rng)
+            _, metrics = jax.eval_shape(updates, sac_state)
             return sac_state, jax.tree.map(lambda m: jnp.zeros(m.shape, m.dtype), metrics)
 
         # As SB3: learn once more than learning_starts steps are collected.
         return jax.lax.cond(self._learning(state), updates, skip, state.sac)
+
+    def _minibatch(self, state: TrainState, rng: jax.Array) -> SACBatch:
+        """A uniform replay minibatch, masked with each transition's own missing set."""
+        batch = replay.sample(state.buffer, rng, self.config.batch_size)
+        hidden = self.hidden_rows(state, batch.set_index)
+        return SACBatch(
+            obs=mask_observation(batch.obs, hidden),
+            action=batch.action,
+            reward=batch.reward,
+            next_obs=mask_observation(batch.next_obs, hidden),
+            terminated=batch.terminated,
+        )
 
     def _learning(self, state: TrainState) -> jax.Array:
         return state.env_steps > self.config.learning_starts
@@ -179,7 +190,8 @@ class Trainer:
         """Score every u (one batched rollout) and update p_miss (adversarial mode only)."""
         rng, score_rng = jax.random.split(state.rng)
         scores = score_missingness(
-            self.env, self.policy, state.sac.actor_params, score_rng, self.hidden_sets, n_episodes
+            self.env, self.policy, state.sac.actor_params, score_rng, self.hidden_sets, n_episodes,
+            num_slots=self.score_envs,
         )
         p_miss = update_p_miss(
             state.p_miss, scores.scores, state.adversarial, self.config.lower_bound, self.config.epsilon

@@ -1,16 +1,22 @@
 """Time one full scoring round: every u ∈ U plus the clean case, N episodes each, as ONE
-batched rollout (``score_missingness``), with the SAC actor of a given run or a fresh one.
+batched rollout (``score_missingness``), with the SAC actor of a given run or a fresh one,
+against the pure-physics time of the same rollout.
 
     python benchmarks/scoring_round.py env=hopper n_episodes=10
     python benchmarks/scoring_round.py env=hopper run=runs/h100k   # the run's final actor
-    python benchmarks/scoring_round.py env=ant n_episodes=10 max_steps=50
+    python benchmarks/scoring_round.py env=hopper slots=0 n_episodes=5   # every episode at once
     python benchmarks/scoring_round.py env=hopper run=runs/h100k sequential=true
 
+``slots`` is the number of envs stepped at once (``score_envs`` of training; -1 = this
+backend's default, 0 = every episode at once). The pure-physics ceiling runs the same rollout
+(same slots, same refills, same early exit) with the policy replaced by a zero action: no
+network, no masking. Its cost per env step stepped, times the env steps the scoring round
+stepped, is the ceiling the round is compared with (``over_physics``; the target is ≤ 1.2).
 ``sequential=true`` also runs the paper's way for comparison: Gymnasium's C-MuJoCo env, one
 episode after another for every u, the same actor through a jitted forward per step.
 
-Prints compile and run time, env steps executed (episodes stop early when they end) and
-env steps/s, and appends a record to benchmarks/results/scoring_round.jsonl.
+Prints compile and run times, loop steps, env steps stepped and env steps/s, and appends a
+record to benchmarks/results/scoring_round.jsonl.
 """
 
 from __future__ import annotations
@@ -20,11 +26,12 @@ import sys
 import time
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.cli import parse_args
-from admissable_jax.config import TrainConfig
+from admissable_jax.config import TrainConfig, default_score_envs
 from admissable_jax.envs import make_env
 from admissable_jax.scoring import score_missingness
 from admissable_jax.training import Trainer
@@ -36,9 +43,23 @@ class ScoringBenchConfig:
     env: str = dataclasses.field(default="hopper", metadata={"help": "hopper, walker2d or ant"})
     n_episodes: int = dataclasses.field(default=10, metadata={"help": "N episodes per set"})
     max_steps: int = dataclasses.field(default=1000, metadata={"help": "episode step limit"})
+    slots: int = dataclasses.field(default=-1, metadata={"help": "envs stepped at once (-1 = this backend's default, 0 = all episodes)"})
     run: str = dataclasses.field(default="", metadata={"help": "run directory whose last checkpoint gives the actor ('' = untrained actor)"})
     seed: int = dataclasses.field(default=0, metadata={"help": "PRNG seed"})
+    ceiling: bool = dataclasses.field(default=True, metadata={"help": "also time the pure-physics ceiling (zero actions, no policy)"})
     sequential: bool = dataclasses.field(default=False, metadata={"help": "also time the paper-style sequential Gymnasium loop"})
+
+
+def _compile_and_run(env, policy_fn, params, bench, hidden_sets, slots) -> tuple[object, float, float]:
+    """(scores, compile seconds, run seconds) of one scoring rollout."""
+    score = jax.jit(score_missingness, static_argnums=(0, 1, 5, 6, 7))
+    args = (env, policy_fn, params, jax.random.key(bench.seed), hidden_sets, bench.n_episodes, bench.max_steps, slots)
+    start = time.perf_counter()
+    compiled = score.lower(*args).compile()
+    compile_s = time.perf_counter() - start
+    start = time.perf_counter()
+    result = jax.block_until_ready(compiled(*args[2:5]))
+    return result, compile_s, time.perf_counter() - start
 
 
 def main(argv: list[str]) -> None:
@@ -55,33 +76,42 @@ def main(argv: list[str]) -> None:
         trainer = Trainer(env, saved_config)
         step, state = checkpoints.restore(jax.jit(trainer.init)(0, True, True))
         label = f"actor of {bench.run} at {step} env steps"
-    score = jax.jit(score_missingness, static_argnums=(0, 1, 5))
-    args = (env, trainer.policy, state.sac.actor_params, jax.random.key(bench.seed), trainer.hidden_sets, bench.n_episodes)
-    start = time.perf_counter()
-    compiled = score.lower(*args).compile()
-    compile_s = time.perf_counter() - start
-    start = time.perf_counter()
-    result = jax.block_until_ready(compiled(*args[2:5]))
-    run_s = time.perf_counter() - start
+    episodes = (trainer.num_sets + 1) * bench.n_episodes
+    slots = {-1: default_score_envs(episodes), 0: episodes}.get(bench.slots, min(bench.slots, episodes))
+    result, compile_s, run_s = _compile_and_run(env, trainer.policy, state.sac.actor_params, bench, trainer.hidden_sets, slots)
     lengths = np.asarray(result.lengths)
-    batch = lengths.size
-    loop_steps = int(lengths.max())
+    loop_steps = int(result.loop_steps)
+    stepped = loop_steps * slots
     record = {
         "env": env.gymnasium_id, "n_episodes": bench.n_episodes, "sets": trainer.num_sets,
-        "batch_episodes": batch, "max_steps": bench.max_steps, "policy": label,
+        "batch_episodes": episodes, "slots": slots, "max_steps": bench.max_steps, "policy": label,
         "compile_s": round(compile_s, 2), "run_s": round(run_s, 3),
-        "loop_steps": loop_steps, "env_steps_stepped": batch * loop_steps,
+        "loop_steps": loop_steps, "env_steps_stepped": stepped,
         "env_steps_in_episodes": int(lengths.sum()),
-        "stepped_per_s": round(batch * loop_steps / run_s, 1),
+        "stepped_per_s": round(stepped / run_s, 1),
         "min_score": float(result.min_score), "clean_score": float(result.clean_score),
-        "peak_host_memory_mb": round(peak_host_memory_mb(), 1),
     }
     print(
-        f"{env.gymnasium_id}, {label}: {trainer.num_sets}+1 sets x {bench.n_episodes} episodes = {batch} "
-        f"envs in one rollout; {loop_steps} loop steps (longest episode), compile {compile_s:.1f} s, "
-        f"run {run_s:.2f} s, {batch * loop_steps / run_s:,.0f} env steps/s stepped; "
-        f"min_u a_u {record['min_score']:.1f}, clean {record['clean_score']:.1f}"
+        f"{env.gymnasium_id}, {label}: {trainer.num_sets}+1 sets x {bench.n_episodes} episodes = {episodes} "
+        f"episodes on {slots} slots; {loop_steps} loop steps, {stepped:,} env steps stepped for "
+        f"{record['env_steps_in_episodes']:,} in episodes; compile {compile_s:.1f} s, run {run_s:.2f} s, "
+        f"{stepped / run_s:,.0f} env steps/s stepped; min_u a_u {record['min_score']:.1f}, clean {record['clean_score']:.1f}"
     )
+    if bench.ceiling:
+        zero_action = jnp.zeros(env.action_size)
+        physics, _, physics_s = _compile_and_run(env, lambda params, obs: zero_action, None, bench, trainer.hidden_sets, slots)
+        physics_stepped = int(physics.loop_steps) * slots
+        ceiling_s = physics_s / physics_stepped * stepped
+        record.update({
+            "physics_run_s": round(physics_s, 3), "physics_env_steps_stepped": physics_stepped,
+            "physics_stepped_per_s": round(physics_stepped / physics_s, 1),
+            "ceiling_s": round(ceiling_s, 3), "over_physics": round(run_s / ceiling_s, 3),
+        })
+        print(
+            f"pure physics (zero actions, same slots and refills): {physics_stepped:,} env steps in {physics_s:.2f} s "
+            f"({physics_stepped / physics_s:,.0f}/s); ceiling for this round {ceiling_s:.2f} s; "
+            f"scoring / ceiling = {record['over_physics']:.2f}"
+        )
     if bench.sequential:
         record.update(_sequential_round(env, trainer, state.sac.actor_params, bench))
         record["sequential_over_batched"] = round(record["sequential_s"] / run_s, 3)
@@ -90,13 +120,13 @@ def main(argv: list[str]) -> None:
             f"{record['sequential_s']:.1f} s ({record['sequential_ms_per_step']:.3f} ms/step); "
             f"sequential time / batched time = {record['sequential_over_batched']:.2f}"
         )
+    record["peak_host_memory_mb"] = round(peak_host_memory_mb(), 1)
     append_record("scoring_round", record)
 
 
 def _sequential_round(env, trainer, actor_params, bench) -> dict:
     """Every set (and the clean case), N episodes each, one at a time on Gymnasium."""
     import gymnasium
-    import jax.numpy as jnp
 
     from admissable_jax.missingness import mask_observation
 

@@ -39,6 +39,7 @@ class TrainBenchConfig:
     iterations: int = dataclasses.field(default=100, metadata={"help": "timed iterations"})
     utd: float = dataclasses.field(default=1.0, metadata={"help": "gradient steps per env step"})
     batch_size: int = dataclasses.field(default=256, metadata={"help": "SAC minibatch"})
+    buffer_size: int = dataclasses.field(default=1_000_000, metadata={"help": "replay capacity (transitions)"})
     seeds: int = dataclasses.field(default=1, metadata={"help": "seeds vmapped in one program"})
     roofline: bool = dataclasses.field(default=False, metadata={"help": "also time the SAC update alone against the matmul roofline"})
 
@@ -91,7 +92,7 @@ def main(argv: list[str]) -> None:
     warmup_iterations = learning_starts // bench.num_envs + 1
     config = TrainConfig(
         env=bench.env, num_envs=bench.num_envs, utd=bench.utd, batch_size=bench.batch_size,
-        learning_starts=learning_starts, score_every=bench.num_envs, progress=False,
+        learning_starts=learning_starts, score_every=bench.num_envs, buffer_size=bench.buffer_size, progress=False,
     ).resolved()
     env = make_env(config.env)
     trainer = Trainer(env, config)

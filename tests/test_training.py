@@ -104,9 +104,14 @@ def test_score_missingness_equals_a_plain_loop_and_finds_the_used_feature():
     hidden_sets = candidate_sets(4, k=1)
     rng = jax.random.key(7)
     n_episodes = 3
-    scored = jax.jit(score_missingness, static_argnums=(0, 1, 5))(
-        env, _feature_zero_controller, 2.0, rng, hidden_sets, n_episodes
-    )
+    score = jax.jit(score_missingness, static_argnums=(0, 1, 5, 6, 7))
+    scored = score(env, _feature_zero_controller, 2.0, rng, hidden_sets, n_episodes, None, None)
+    # A pool of 4 slots for the 15 episodes: slots start unstarted episodes as theirs end.
+    pooled = score(env, _feature_zero_controller, 2.0, rng, hidden_sets, n_episodes, None, 4)
+    np.testing.assert_array_equal(pooled.lengths, scored.lengths)
+    np.testing.assert_allclose(pooled.returns, scored.returns, rtol=1e-6)
+    assert int(scored.loop_steps) == int(scored.lengths.max())
+    assert int(pooled.loop_steps) >= int(np.ceil(scored.lengths.sum() / 4))
 
     step = jax.jit(env.step)
     policy = jax.jit(_feature_zero_controller)
