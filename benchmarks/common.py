@@ -7,6 +7,7 @@ import json
 import os
 import platform
 import resource
+import subprocess
 import sys
 
 import jax
@@ -28,7 +29,17 @@ def environment_record() -> dict:
         "jax": jax.__version__,
         "mujoco": mujoco.__version__,
         "command": " ".join([os.path.basename(sys.executable), *sys.argv]),
+        "commit": _commit(),
     }
+
+
+def _commit() -> str:
+    """The repository's commit, marked ``+changes`` when the tree differs from it."""
+    def git(*args: str) -> str:
+        return subprocess.run(["git", *args], capture_output=True, text=True, cwd=RESULTS_DIR).stdout.strip()
+
+    commit = git("rev-parse", "--short", "HEAD") or "unknown"
+    return commit + ("+changes" if git("status", "--porcelain", "--untracked-files=no") else "")
 
 
 def peak_host_memory_mb() -> float:

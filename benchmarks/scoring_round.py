@@ -12,6 +12,9 @@ backend's default, 0 = every episode at once). The pure-physics ceiling runs the
 (same slots, same refills, same early exit) with the policy replaced by a zero action: no
 network, no masking. Its cost per env step stepped, times the env steps the scoring round
 stepped, is the ceiling the round is compared with (``over_physics``; the target is ≤ 1.2).
+Zero actions visit other states than the policy does (the solver's work depends on the
+contacts), so the policy's own work is also timed alone: its masked forwards of the batch
+for the round's loop steps (``policy_share`` of the round).
 ``sequential=true`` also runs the paper's way for comparison: Gymnasium's C-MuJoCo env, one
 episode after another for every u, the same actor through a jitted forward per step.
 
@@ -33,6 +36,7 @@ from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.cli import parse_args
 from admissable_jax.config import TrainConfig, default_score_envs
 from admissable_jax.envs import make_env
+from admissable_jax.missingness import mask_observation
 from admissable_jax.scoring import score_missingness
 from admissable_jax.training import Trainer
 from common import append_record, peak_host_memory_mb
@@ -60,6 +64,23 @@ def _compile_and_run(env, policy_fn, params, bench, hidden_sets, slots) -> tuple
     start = time.perf_counter()
     result = jax.block_until_ready(compiled(*args[2:5]))
     return result, compile_s, time.perf_counter() - start
+
+
+def _policy_seconds(policy_fn, params, hidden: jax.Array, loop_steps: int) -> float:
+    """Run seconds of the round's policy work alone: ``loop_steps`` masked forwards of the
+    batch (each step's observations depend on the last actions, so nothing is hoisted)."""
+    policy = jax.vmap(policy_fn, in_axes=(None, 0))
+
+    def forward(_, obs):
+        actions = policy(params, mask_observation(obs, hidden))
+        return obs + 1e-6 * actions.sum(axis=-1, keepdims=True)
+
+    run = jax.jit(lambda params, obs: jax.lax.fori_loop(0, loop_steps, forward, obs))
+    obs = jax.random.normal(jax.random.key(0), hidden.shape)
+    jax.block_until_ready(run(params, obs))
+    start = time.perf_counter()
+    jax.block_until_ready(run(params, obs))
+    return time.perf_counter() - start
 
 
 def main(argv: list[str]) -> None:
@@ -102,15 +123,19 @@ def main(argv: list[str]) -> None:
         physics, _, physics_s = _compile_and_run(env, lambda params, obs: zero_action, None, bench, trainer.hidden_sets, slots)
         physics_stepped = int(physics.loop_steps) * slots
         ceiling_s = physics_s / physics_stepped * stepped
+        hidden = jnp.concatenate([trainer.hidden_sets, jnp.zeros((1, env.observation_size))])
+        policy_s = _policy_seconds(trainer.policy, state.sac.actor_params, hidden[jnp.arange(slots) % len(hidden)], loop_steps)
         record.update({
             "physics_run_s": round(physics_s, 3), "physics_env_steps_stepped": physics_stepped,
             "physics_stepped_per_s": round(physics_stepped / physics_s, 1),
             "ceiling_s": round(ceiling_s, 3), "over_physics": round(run_s / ceiling_s, 3),
+            "policy_alone_s": round(policy_s, 3), "policy_share": round(policy_s / run_s, 4),
         })
         print(
             f"pure physics (zero actions, same slots and refills): {physics_stepped:,} env steps in {physics_s:.2f} s "
             f"({physics_stepped / physics_s:,.0f}/s); ceiling for this round {ceiling_s:.2f} s; "
-            f"scoring / ceiling = {record['over_physics']:.2f}"
+            f"scoring / ceiling = {record['over_physics']:.2f}; the policy's forwards alone take "
+            f"{policy_s:.3f} s ({record['policy_share']:.1%} of the round)"
         )
     if bench.sequential:
         record.update(_sequential_round(env, trainer, state.sac.actor_params, bench))
@@ -127,8 +152,6 @@ def main(argv: list[str]) -> None:
 def _sequential_round(env, trainer, actor_params, bench) -> dict:
     """Every set (and the clean case), N episodes each, one at a time on Gymnasium."""
     import gymnasium
-
-    from admissable_jax.missingness import mask_observation
 
     gym_env = gymnasium.make(env.gymnasium_id, max_episode_steps=bench.max_steps)
     act = jax.jit(lambda params, obs, hidden: trainer.policy(params, mask_observation(obs, hidden)))
