@@ -12,6 +12,13 @@ weights in each network's first layer, a few percent of an update's FLOPs (estim
 Brax times every training epoch; the first one includes compilation, so three evaluations
 are asked for and the second epoch's ``training/sps`` is reported. Appends a record to
 benchmarks/results/brax_sac.jsonl.
+
+``update_only=true`` times the two SAC updates alone instead, in one process: Brax's
+``sgd_step`` (entropy coefficient, critics, actor, targets, built from Brax's own losses and
+networks at their defaults) and our ``SAC.update``, each a scan of 200 updates on one fixed
+minibatch, with XLA's FLOP count of one update:
+
+    python benchmarks/brax_sac.py env=hopper update_only=true
 """
 
 from __future__ import annotations
@@ -22,6 +29,7 @@ import time
 
 import jax
 import jax.numpy as jnp
+import optax
 from brax.envs import base as brax_base
 from brax.training.agents.sac import train as brax_sac_train
 
@@ -75,12 +83,92 @@ class BraxBenchConfig:
     batch_size: int = dataclasses.field(default=256, metadata={"help": "SAC minibatch"})
     steps_per_epoch: int = dataclasses.field(default=50, metadata={"help": "training iterations per timed epoch"})
     num_eval_envs: int = dataclasses.field(default=8, metadata={"help": "Brax's evaluation envs (outside the timing)"})
+    update_only: bool = dataclasses.field(default=False, metadata={"help": "time Brax's SAC update alone against ours"})
+
+
+def _brax_update(obs_size: int, action_size: int):
+    """(initial state, update(state, transitions, key)) of Brax's SAC gradient step."""
+    from brax.training import gradients
+    from brax.training.acme import running_statistics, specs
+    from brax.training.agents.sac import losses as sac_losses
+    from brax.training.agents.sac import networks as sac_networks
+
+    network = sac_networks.make_sac_networks(obs_size, action_size)
+    alpha_loss, critic_loss, actor_loss = sac_losses.make_losses(network, reward_scaling=1.0, discounting=0.99, action_size=action_size)
+    optimizer = optax.adam(3e-4)
+    alpha_update, critic_update, actor_update = (
+        gradients.gradient_update_fn(loss, optimizer, pmap_axis_name=None) for loss in (alpha_loss, critic_loss, actor_loss)
+    )
+    policy_params = network.policy_network.init(jax.random.key(0))
+    q_params = network.q_network.init(jax.random.key(1))
+    log_alpha = jnp.zeros(())
+    state = {
+        "policy": policy_params, "q": q_params, "target_q": q_params, "log_alpha": log_alpha,
+        "policy_opt": optimizer.init(policy_params), "q_opt": optimizer.init(q_params), "alpha_opt": optimizer.init(log_alpha),
+        "normalizer": running_statistics.init_state(specs.Array((obs_size,), jnp.dtype("float32"))),
+    }
+
+    def update(state, transitions, key):  # brax/training/agents/sac/train.py: sgd_step
+        key_alpha, key_critic, key_actor = jax.random.split(key, 3)
+        _, log_alpha, alpha_opt = alpha_update(state["log_alpha"], state["policy"], state["normalizer"], transitions, key_alpha, optimizer_state=state["alpha_opt"])
+        alpha = jnp.exp(state["log_alpha"])
+        _, q_params, q_opt = critic_update(state["q"], state["policy"], state["normalizer"], state["target_q"], alpha, transitions, key_critic, optimizer_state=state["q_opt"])
+        _, policy_params, policy_opt = actor_update(state["policy"], state["normalizer"], q_params, alpha, transitions, key_actor, optimizer_state=state["policy_opt"])
+        target_q = jax.tree.map(lambda target, new: target * (1 - 0.005) + new * 0.005, state["target_q"], q_params)
+        return {**state, "policy": policy_params, "q": q_params, "target_q": target_q, "log_alpha": log_alpha,
+                "policy_opt": policy_opt, "q_opt": q_opt, "alpha_opt": alpha_opt}
+
+    return state, update
+
+
+def _time_updates(update, state, batch, updates: int = 200) -> dict:
+    """Updates/s of a scan of ``updates`` updates on one batch, and XLA's FLOPs of one."""
+    flops = float(jax.jit(update).lower(state, batch, jax.random.key(0)).compile().cost_analysis()["flops"])
+    many = jax.jit(lambda state, key: jax.lax.scan(lambda s, k: (update(s, batch, k), None), state, jax.random.split(key, updates))[0])
+    jax.block_until_ready(many(state, jax.random.key(1)))
+    start = time.perf_counter()
+    jax.block_until_ready(many(state, jax.random.key(2)))
+    seconds = time.perf_counter() - start
+    return {"updates_per_s": round(updates / seconds, 1), "update_gflop": round(flops / 1e9, 4)}
+
+
+def compare_updates(bench: BraxBenchConfig) -> None:
+    """Brax's SAC update and ours, alone, on random minibatches of the same size."""
+    from brax.training.types import Transition
+
+    from admissable_jax.agent import SACBatch
+    from admissable_jax.config import TrainConfig
+    from admissable_jax.training import Trainer
+
+    env = make_env(bench.env)
+    d, a, b = env.observation_size, env.action_size, bench.batch_size
+    keys = jax.random.split(jax.random.key(3), 4)
+    obs, next_obs = jax.random.normal(keys[0], (b, d)), jax.random.normal(keys[1], (b, d))
+    action = jax.random.uniform(keys[2], (b, a), minval=-1, maxval=1)
+    reward = jax.random.normal(keys[3], (b,))
+    brax_state, brax_update = _brax_update(d, a)
+    transitions = Transition(observation=obs, action=action, reward=reward, discount=jnp.ones(b), next_observation=next_obs,
+                             extras={"state_extras": {"truncation": jnp.zeros(b)}, "policy_extras": {}})
+    brax = _time_updates(brax_update, brax_state, transitions)
+    trainer = Trainer(env, TrainConfig(env=bench.env, num_envs=8, batch_size=b, buffer_size=8, learning_starts=b).resolved())
+    hidden = jnp.zeros((b, d))
+    ours_batch = SACBatch(obs=jnp.concatenate([obs, hidden], -1), action=action, reward=reward,
+                          next_obs=jnp.concatenate([next_obs, hidden], -1), terminated=jnp.zeros(b, bool))
+    ours_update = lambda state, batch, key: trainer.agent.update(state, batch, key)[0]  # noqa: E731 (drop metrics)
+    ours = _time_updates(ours_update, trainer.agent.init(jax.random.key(4)), ours_batch)
+    record = {"env": env.gymnasium_id, "mode": "update_only", "batch_size": b, "brax_obs_size": d, "ours_obs_size": 2 * d,
+              "brax": brax, "ours": ours, "ours_over_brax": round(ours["updates_per_s"] / brax["updates_per_s"], 3)}
+    print(f"{env.gymnasium_id}, batch {b}: Brax's update {brax['updates_per_s']:,.1f}/s ({brax['update_gflop']} GFLOP, input {d}); "
+          f"ours {ours['updates_per_s']:,.1f}/s ({ours['update_gflop']} GFLOP, input {2 * d}): ours / Brax = {record['ours_over_brax']:.2f}")
+    append_record("brax_sac", record)
 
 
 def main(argv: list[str]) -> None:
     bench = parse_args(BraxBenchConfig, argv, "benchmarks/brax_sac.py", __doc__.splitlines()[0])
     if len(jax.local_devices()) != 1:
         raise SystemExit("run on one device (Brax would pmap over all of them; ours uses one)")
+    if bench.update_only:
+        return compare_updates(bench)
     jax.device_put_replicated = _device_put_replicated
     env = BraxEnv(make_env(bench.env))
     grad_updates = max(1, round(bench.num_envs * bench.utd))
