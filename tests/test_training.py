@@ -178,6 +178,7 @@ def test_corrupt_checkpoint_and_divergence_keep_finished_work(tmp_path):
         (["env=cheetah"], "unknown env 'cheetah'"),
         (["missingness=sometimes"], "missingness must be one of"),
         (["env=hopper", "k=11"], "k must satisfy 1 <= k < d = 11"),
+        (["score_envs=-1"], "score_envs must be >= 0"),
     ],
 )
 def test_cli_rejects_bad_input_with_one_line(args, message, tmp_path):
@@ -218,10 +219,11 @@ def test_short_hopper_run_through_train_fn(tmp_path):
 
 
 def test_train_step_vmaps_over_seeds_and_modes():
-    """Two (seed, mode) pairs in one vmapped program give each pair's unbatched result."""
+    """Two (seed, mode) pairs in one vmapped program give each pair's unbatched result
+    (scoring on a pool of 3 slots for the 10 episodes, so refills run under vmap too)."""
     env = make_env("point_mass")
     env.max_episode_steps = 20
-    config = dataclasses.replace(POINT_MASS, learning_starts=64, batch_size=32, episode_length=20).resolved()
+    config = dataclasses.replace(POINT_MASS, learning_starts=64, batch_size=32, episode_length=20, score_envs=3).resolved()
     trainer = Trainer(env, config)
 
     def run(seed, adversarial):
