@@ -3,6 +3,7 @@
     python benchmarks/train_throughput.py env=hopper num_envs=8 iterations=100
     python benchmarks/train_throughput.py env=hopper num_envs=8 iterations=50 seeds=5
     python benchmarks/train_throughput.py env=hopper num_envs=128 iterations=50 roofline=true
+    python benchmarks/train_throughput.py env=hopper num_envs=8 iterations=100 breakdown=true
 
 A warm-up chunk (which compiles) passes learning_starts; the timed chunk then runs
 ``iterations`` iterations in which every iteration learns (UTD as configured). With
@@ -11,6 +12,8 @@ all seeds). With ``roofline=true`` it also times the SAC update alone (a scan of
 one fixed minibatch), takes its FLOPs from XLA's cost analysis, and measures the matmul
 roofline of this device in the same run (a square float32 matmul at the default
 precision), so the update's share of the device's matmul rate is measured, not guessed.
+With ``breakdown=true`` it also times the parts of an iteration alone (physics with resets,
+the iteration with learning switched off, the updates) and prints what is left over.
 Prints env steps/s and gradient steps/s and appends a record to
 benchmarks/results/train_throughput.jsonl.
 """
@@ -28,6 +31,7 @@ from admissable_jax.agent import SACBatch
 from admissable_jax.cli import parse_args
 from admissable_jax.config import TrainConfig
 from admissable_jax.envs import make_env
+from admissable_jax.rollout import random_rollout
 from admissable_jax.training import Trainer
 from common import append_record, peak_host_memory_mb
 
@@ -42,6 +46,7 @@ class TrainBenchConfig:
     buffer_size: int = dataclasses.field(default=1_000_000, metadata={"help": "replay capacity (transitions)"})
     seeds: int = dataclasses.field(default=1, metadata={"help": "seeds vmapped in one program"})
     roofline: bool = dataclasses.field(default=False, metadata={"help": "also time the SAC update alone against the matmul roofline"})
+    breakdown: bool = dataclasses.field(default=False, metadata={"help": "also split an iteration: physics alone, the iteration without learning, the updates alone (one seed)"})
 
 
 def _timed(function, *args) -> tuple[object, float]:
@@ -86,6 +91,25 @@ def update_alone(trainer: Trainer, state, updates: int) -> dict:
     }
 
 
+def iteration_breakdown(trainer: Trainer, state, iterations: int, updates_per_s: float) -> dict:
+    """Milliseconds per iteration of its parts, each timed alone in this process: the batched
+    env step with auto-reset under random actions (``rollout.random_rollout``), the whole
+    iteration with learning switched off (acting, physics, resets, replay insert and
+    sampling, set draws), and the iteration's updates (from ``updates_per_s``)."""
+    no_learning = Trainer(trainer.env, dataclasses.replace(trainer.config, learning_starts=2**30))
+    chunk = jax.jit(no_learning.run_chunk, static_argnums=1)
+    _timed(chunk, state, iterations)
+    _, no_learning_s = _timed(chunk, state, iterations)
+    physics = jax.jit(random_rollout, static_argnums=(0, 1, 2))
+    _timed(physics, trainer.env, trainer.num_envs, iterations, jax.random.key(5))
+    _, physics_s = _timed(physics, trainer.env, trainer.num_envs, iterations, jax.random.key(6))
+    return {
+        "physics_ms_per_iteration": round(1000 * physics_s / iterations, 2),
+        "no_learning_ms_per_iteration": round(1000 * no_learning_s / iterations, 2),
+        "updates_ms_per_iteration": round(1000 * trainer.updates_per_iteration / updates_per_s, 2),
+    }
+
+
 def main(argv: list[str]) -> None:
     bench = parse_args(TrainBenchConfig, argv, "benchmarks/train_throughput.py", __doc__.splitlines()[0])
     learning_starts = max(bench.batch_size, bench.num_envs)
@@ -123,13 +147,23 @@ def main(argv: list[str]) -> None:
         f"{env_steps / run_s:,.1f} env steps/s, {grad_steps / run_s:,.1f} gradient steps/s over all seeds "
         f"(timed {bench.iterations} iterations in {run_s:.1f} s; compile {compile_s:.1f} s)"
     )
-    if bench.roofline:
-        single = jax.tree.map(lambda leaf: leaf[0], state)
+    single = jax.tree.map(lambda leaf: leaf[0], state)
+    if bench.roofline or bench.breakdown:
         record.update(update_alone(trainer, single, updates=max(200, trainer.updates_per_iteration)))
         print(
             f"SAC update alone: {record['update_flops'] / 1e9:.3f} GFLOP, {record['updates_per_s']:,.1f} updates/s "
             f"= {record['update_gflops_per_s']:.1f} GFLOP/s; matmul roofline {record['matmul_roofline_gflops_per_s']:.1f} "
             f"GFLOP/s -> {record['update_share_of_roofline']:.1%} of it (roofline bound {record['roofline_updates_per_s']:,.0f} updates/s)"
+        )
+    if bench.breakdown:
+        record["full_ms_per_iteration"] = round(1000 * run_s / bench.iterations / bench.seeds, 2)
+        record.update(iteration_breakdown(trainer, single, bench.iterations, record["updates_per_s"]))
+        rest = record["full_ms_per_iteration"] - record["no_learning_ms_per_iteration"] - record["updates_ms_per_iteration"]
+        print(
+            f"per iteration: {record['full_ms_per_iteration']:.1f} ms in all; without learning "
+            f"{record['no_learning_ms_per_iteration']:.1f} ms (of which the batched env step with resets alone "
+            f"{record['physics_ms_per_iteration']:.1f} ms); {trainer.updates_per_iteration} updates alone "
+            f"{record['updates_ms_per_iteration']:.1f} ms; left over {rest:.1f} ms"
         )
     append_record("train_throughput", record)
 
