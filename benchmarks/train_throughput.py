@@ -12,8 +12,9 @@ all seeds). With ``roofline=true`` it also times the SAC update alone (a scan of
 one fixed minibatch), takes its FLOPs from XLA's cost analysis, and measures the matmul
 roofline of this device in the same run (a square float32 matmul at the default
 precision), so the update's share of the device's matmul rate is measured, not guessed.
-With ``breakdown=true`` it also times the parts of an iteration alone (physics with resets,
-the iteration with learning switched off, the updates) and prints what is left over.
+With ``breakdown=true`` it also times the whole iteration and its parts alone, in turn
+(physics with resets, the iteration with learning switched off, the updates), and prints
+what is left over (one seed).
 Prints env steps/s and gradient steps/s and appends a record to
 benchmarks/results/train_throughput.jsonl.
 """
@@ -64,17 +65,22 @@ def matmul_gflops(size: int = 4096, repeats: int = 10) -> float:
     return 2 * size**3 / best / 1e9
 
 
-def update_alone(trainer: Trainer, state, updates: int) -> dict:
-    """Time ``updates`` SAC updates on one fixed minibatch; FLOPs from XLA's cost analysis."""
+def _random_batch(trainer: Trainer) -> SACBatch:
+    """A fixed random minibatch of the trainer's shapes (masked inputs: 2·d)."""
     obs_size = 2 * trainer.env.observation_size
     keys = jax.random.split(jax.random.key(2), 4)
-    batch = SACBatch(
+    return SACBatch(
         obs=jax.random.normal(keys[0], (trainer.config.batch_size, obs_size)),
         action=jax.random.uniform(keys[1], (trainer.config.batch_size, trainer.env.action_size), minval=-1, maxval=1),
         reward=jax.random.normal(keys[2], (trainer.config.batch_size,)),
         next_obs=jax.random.normal(keys[3], (trainer.config.batch_size, obs_size)),
         terminated=jnp.zeros(trainer.config.batch_size, bool),
     )
+
+
+def update_alone(trainer: Trainer, state, updates: int) -> dict:
+    """Time ``updates`` SAC updates on one fixed minibatch; FLOPs from XLA's cost analysis."""
+    batch = _random_batch(trainer)
     one = jax.jit(trainer.agent.update).lower(state.sac, batch, jax.random.key(0)).compile()
     flops = float(one.cost_analysis()["flops"])
     many = jax.jit(lambda sac, rng: jax.lax.scan(
@@ -91,23 +97,34 @@ def update_alone(trainer: Trainer, state, updates: int) -> dict:
     }
 
 
-def iteration_breakdown(trainer: Trainer, state, iterations: int, updates_per_s: float) -> dict:
-    """Milliseconds per iteration of its parts, each timed alone in this process: the batched
-    env step with auto-reset under random actions (``rollout.random_rollout``), the whole
-    iteration with learning switched off (acting, physics, resets, replay insert and
-    sampling, set draws), and the iteration's updates (from ``updates_per_s``)."""
+def iteration_breakdown(trainer: Trainer, state, iterations: int, rounds: int = 3) -> dict:
+    """Milliseconds per iteration of the whole iteration and of its parts, each timed alone:
+    the iteration with learning switched off (acting, physics, resets, replay insert and
+    sampling, set draws), the batched env step with auto-reset under random actions
+    (``rollout.random_rollout``), and the iteration's updates (a scan on one minibatch).
+    All four run in turn, ``rounds`` times, each keeping its best round, so that drifts of
+    the machine's speed hit them alike."""
     no_learning = Trainer(trainer.env, dataclasses.replace(trainer.config, learning_starts=2**30))
-    chunk = jax.jit(no_learning.run_chunk, static_argnums=1)
-    _timed(chunk, state, iterations)
-    _, no_learning_s = _timed(chunk, state, iterations)
+    full_chunk = jax.jit(trainer.run_chunk, static_argnums=1)
+    quiet_chunk = jax.jit(no_learning.run_chunk, static_argnums=1)
     physics = jax.jit(random_rollout, static_argnums=(0, 1, 2))
-    _timed(physics, trainer.env, trainer.num_envs, iterations, jax.random.key(5))
-    _, physics_s = _timed(physics, trainer.env, trainer.num_envs, iterations, jax.random.key(6))
-    return {
-        "physics_ms_per_iteration": round(1000 * physics_s / iterations, 2),
-        "no_learning_ms_per_iteration": round(1000 * no_learning_s / iterations, 2),
-        "updates_ms_per_iteration": round(1000 * trainer.updates_per_iteration / updates_per_s, 2),
+    batch = _random_batch(trainer)
+    num_updates = iterations * trainer.updates_per_iteration
+    updates = jax.jit(lambda sac, rng: jax.lax.scan(
+        lambda s, k: trainer.agent.update(s, batch, k), sac, jax.random.split(rng, num_updates)))
+    parts = {
+        "full": lambda: full_chunk(state, iterations),
+        "no_learning": lambda: quiet_chunk(state, iterations),
+        "physics": lambda: physics(trainer.env, trainer.num_envs, iterations, jax.random.key(6)),
+        "updates": lambda: updates(state.sac, jax.random.key(7)),
     }
+    best = dict.fromkeys(parts, float("inf"))
+    for round_index in range(rounds + 1):  # round 0 compiles
+        for name, part in parts.items():
+            seconds = _timed(part)[1]
+            if round_index:
+                best[name] = min(best[name], seconds)
+    return {f"{name}_ms_per_iteration": round(1000 * seconds / iterations, 2) for name, seconds in best.items()}
 
 
 def main(argv: list[str]) -> None:
@@ -148,7 +165,7 @@ def main(argv: list[str]) -> None:
         f"(timed {bench.iterations} iterations in {run_s:.1f} s; compile {compile_s:.1f} s)"
     )
     single = jax.tree.map(lambda leaf: leaf[0], state)
-    if bench.roofline or bench.breakdown:
+    if bench.roofline:
         record.update(update_alone(trainer, single, updates=max(200, trainer.updates_per_iteration)))
         print(
             f"SAC update alone: {record['update_flops'] / 1e9:.3f} GFLOP, {record['updates_per_s']:,.1f} updates/s "
@@ -156,14 +173,14 @@ def main(argv: list[str]) -> None:
             f"GFLOP/s -> {record['update_share_of_roofline']:.1%} of it (roofline bound {record['roofline_updates_per_s']:,.0f} updates/s)"
         )
     if bench.breakdown:
-        record["full_ms_per_iteration"] = round(1000 * run_s / bench.iterations / bench.seeds, 2)
-        record.update(iteration_breakdown(trainer, single, bench.iterations, record["updates_per_s"]))
-        rest = record["full_ms_per_iteration"] - record["no_learning_ms_per_iteration"] - record["updates_ms_per_iteration"]
+        parts = iteration_breakdown(trainer, single, bench.iterations)
+        record.update(parts)
+        rest = parts["full_ms_per_iteration"] - parts["no_learning_ms_per_iteration"] - parts["updates_ms_per_iteration"]
         print(
-            f"per iteration: {record['full_ms_per_iteration']:.1f} ms in all; without learning "
-            f"{record['no_learning_ms_per_iteration']:.1f} ms (of which the batched env step with resets alone "
-            f"{record['physics_ms_per_iteration']:.1f} ms); {trainer.updates_per_iteration} updates alone "
-            f"{record['updates_ms_per_iteration']:.1f} ms; left over {rest:.1f} ms"
+            f"per iteration, best of 3 rounds each: {parts['full_ms_per_iteration']:.1f} ms in all; without learning "
+            f"{parts['no_learning_ms_per_iteration']:.1f} ms (of which the batched env step with resets alone "
+            f"{parts['physics_ms_per_iteration']:.1f} ms); {trainer.updates_per_iteration} updates alone "
+            f"{parts['updates_ms_per_iteration']:.1f} ms; left over {rest:.1f} ms"
         )
     append_record("train_throughput", record)
 
