@@ -47,7 +47,7 @@ class TrainBenchConfig:
     buffer_size: int = dataclasses.field(default=1_000_000, metadata={"help": "replay capacity (transitions)"})
     seeds: int = dataclasses.field(default=1, metadata={"help": "seeds vmapped in one program"})
     roofline: bool = dataclasses.field(default=False, metadata={"help": "also time the SAC update alone against the matmul roofline"})
-    breakdown: bool = dataclasses.field(default=False, metadata={"help": "also split an iteration: physics alone, the iteration without learning, the updates alone (one seed)"})
+    breakdown: bool = dataclasses.field(default=False, metadata={"help": "also time the iteration and its parts alone, in turn, best of 3: physics, the iteration without learning, the updates (one seed)"})
 
 
 def _timed(function, *args) -> tuple[object, float]:
