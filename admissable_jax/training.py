@@ -61,8 +61,7 @@ class Trainer:
         self.updates_per_iteration = max(1, round(config.num_envs * config.utd))
         self.iterations_per_scoring = config.score_every // config.num_envs
         self.capacity = replay.buffer_capacity(config.buffer_size, config.num_envs)
-        score_episodes = (self.num_sets + 1) * config.score_episodes
-        self.score_envs = min(config.score_envs, score_episodes) or default_score_envs(score_episodes)
+        self.score_envs = config.score_envs or default_score_envs((self.num_sets + 1) * config.score_episodes)
 
     # --- construction -------------------------------------------------------------------
     def init(self, seed: jax.Array, mode_adversarial: jax.Array, mode_masking: jax.Array) -> TrainState:

@@ -36,7 +36,7 @@ from brax.training.agents.sac import train as brax_sac_train
 
 from admissable_jax.cli import parse_args
 from admissable_jax.envs import MjxEnv, make_env
-from common import append_record, peak_host_memory_mb
+from common import append_record, compiled_updates, peak_host_memory_mb, update_flops
 
 
 def _device_put_replicated(tree, devices):
@@ -122,14 +122,6 @@ def _brax_update(obs_size: int, action_size: int):
     return state, update
 
 
-def _update_runner(update, state, batch, updates: int = 200) -> tuple[float, object]:
-    """(XLA's FLOPs of one update, a function that runs a scan of ``updates`` updates)."""
-    flops = float(jax.jit(update).lower(state, batch, jax.random.key(0)).compile().cost_analysis()["flops"])
-    many = jax.jit(lambda state, key: jax.lax.scan(lambda s, k: (update(s, batch, k), None), state, jax.random.split(key, updates))[0])
-    jax.block_until_ready(many(state, jax.random.key(1)))
-    return flops, lambda: jax.block_until_ready(many(state, jax.random.key(2)))
-
-
 def compare_updates(bench: BraxBenchConfig, updates: int = 200, rounds: int = 4) -> None:
     """Brax's SAC update and ours (on the 2·d masked input, and on the d raw features as
     Brax sees them), alone, on random minibatches of the same size. The three are timed in
@@ -148,11 +140,13 @@ def compare_updates(bench: BraxBenchConfig, updates: int = 200, rounds: int = 4)
     brax_state, brax_update = _brax_update(d, a)
     transitions = Transition(observation=obs[:, :d], action=action, reward=reward, discount=jnp.ones(b),
                              next_observation=next_obs[:, :d], extras={"state_extras": {"truncation": jnp.zeros(b)}, "policy_extras": {}})
-    runners = {"brax": _update_runner(brax_update, brax_state, transitions, updates)}
+    runners = {"brax": (update_flops(brax_update, brax_state, transitions),
+                        compiled_updates(brax_update, brax_state, transitions, updates))}
     for name, width in (("ours", 2 * d), ("ours_raw_input", d)):
         agent = SAC(width, env.action_low, env.action_high, SACHyperparams(batch_size=b))
         batch = SACBatch(obs=obs[:, :width], action=action, reward=reward, next_obs=next_obs[:, :width], terminated=jnp.zeros(b, bool))
-        runners[name] = _update_runner(lambda s, bt, k, agent=agent: agent.update(s, bt, k)[0], agent.init(jax.random.key(4)), batch, updates)
+        update, state = (lambda s, bt, k, agent=agent: agent.update(s, bt, k)[0]), agent.init(jax.random.key(4))
+        runners[name] = (update_flops(update, state, batch), compiled_updates(update, state, batch, updates))
     best = dict.fromkeys(runners, float("inf"))
     for _ in range(rounds):
         for name, (_, run) in runners.items():

@@ -9,6 +9,7 @@ import platform
 import resource
 import subprocess
 import sys
+from typing import Any, Callable
 
 import jax
 import mujoco
@@ -54,3 +55,18 @@ def append_record(name: str, record: dict) -> str:
     with open(path, "a") as file:
         file.write(json.dumps({**environment_record(), **record}) + "\n")
     return path
+
+
+def update_flops(update: Callable, state: Any, batch: Any) -> float:
+    """XLA's FLOP count of one ``update(state, batch, key)``."""
+    return float(jax.jit(update).lower(state, batch, jax.random.key(0)).compile().cost_analysis()["flops"])
+
+
+def compiled_updates(update: Callable, state: Any, batch: Any, count: int) -> Callable[[], Any]:
+    """A function that runs ``count`` updates ``update(state, batch, key) -> state`` (a scan,
+    from ``state``, on the fixed ``batch``) and waits for them; compiled and run once here,
+    so timing it times the updates alone."""
+    many = jax.jit(lambda state, key: jax.lax.scan(
+        lambda s, k: (update(s, batch, k), None), state, jax.random.split(key, count))[0])
+    jax.block_until_ready(many(state, jax.random.key(1)))
+    return lambda: jax.block_until_ready(many(state, jax.random.key(2)))

@@ -33,8 +33,9 @@ from admissable_jax.cli import parse_args
 from admissable_jax.config import TrainConfig
 from admissable_jax.envs import make_env
 from admissable_jax.rollout import random_rollout
+from admissable_jax.runs import take_pair
 from admissable_jax.training import Trainer
-from common import append_record, peak_host_memory_mb
+from common import append_record, compiled_updates, peak_host_memory_mb, update_flops
 
 
 @dataclasses.dataclass
@@ -78,15 +79,16 @@ def _random_batch(trainer: Trainer) -> SACBatch:
     )
 
 
+def _sac_update(trainer: Trainer):
+    """The trainer's SAC update as ``(state, batch, key) -> state`` (metrics dropped)."""
+    return lambda state, batch, key: trainer.agent.update(state, batch, key)[0]
+
+
 def update_alone(trainer: Trainer, state, updates: int) -> dict:
     """Time ``updates`` SAC updates on one fixed minibatch; FLOPs from XLA's cost analysis."""
     batch = _random_batch(trainer)
-    one = jax.jit(trainer.agent.update).lower(state.sac, batch, jax.random.key(0)).compile()
-    flops = float(one.cost_analysis()["flops"])
-    many = jax.jit(lambda sac, rng: jax.lax.scan(
-        lambda s, k: trainer.agent.update(s, batch, k), sac, jax.random.split(rng, updates)))
-    _timed(many, state.sac, jax.random.key(3))
-    _, seconds = _timed(many, state.sac, jax.random.key(4))
+    flops = update_flops(trainer.agent.update, state.sac, batch)
+    _, seconds = _timed(compiled_updates(_sac_update(trainer), state.sac, batch, updates))
     roof = matmul_gflops()
     achieved = flops * updates / seconds / 1e9
     return {
@@ -108,15 +110,12 @@ def iteration_breakdown(trainer: Trainer, state, iterations: int, rounds: int = 
     full_chunk = jax.jit(trainer.run_chunk, static_argnums=1)
     quiet_chunk = jax.jit(no_learning.run_chunk, static_argnums=1)
     physics = jax.jit(random_rollout, static_argnums=(0, 1, 2))
-    batch = _random_batch(trainer)
-    num_updates = iterations * trainer.updates_per_iteration
-    updates = jax.jit(lambda sac, rng: jax.lax.scan(
-        lambda s, k: trainer.agent.update(s, batch, k), sac, jax.random.split(rng, num_updates)))
+    updates = compiled_updates(_sac_update(trainer), state.sac, _random_batch(trainer), iterations * trainer.updates_per_iteration)
     parts = {
         "full": lambda: full_chunk(state, iterations),
         "no_learning": lambda: quiet_chunk(state, iterations),
         "physics": lambda: physics(trainer.env, trainer.num_envs, iterations, jax.random.key(6)),
-        "updates": lambda: updates(state.sac, jax.random.key(7)),
+        "updates": updates,
     }
     best = dict.fromkeys(parts, float("inf"))
     for round_index in range(rounds + 1):  # round 0 compiles
@@ -164,7 +163,7 @@ def main(argv: list[str]) -> None:
         f"{env_steps / run_s:,.1f} env steps/s, {grad_steps / run_s:,.1f} gradient steps/s over all seeds "
         f"(timed {bench.iterations} iterations in {run_s:.1f} s; compile {compile_s:.1f} s)"
     )
-    single = jax.tree.map(lambda leaf: leaf[0], state)
+    single = take_pair(state, 0)
     if bench.roofline:
         record.update(update_alone(trainer, single, updates=max(200, trainer.updates_per_iteration)))
         print(
