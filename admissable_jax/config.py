@@ -11,7 +11,8 @@ import dataclasses
 import jax
 
 from admissable_jax.adversary import MODES
-from admissable_jax.envs import canonical_env_name
+from admissable_jax.envs import PHYSICS_CHOICES, EnvOptions, canonical_env_name, observation_size, resolve_physics
+from admissable_jax.missingness import num_candidate_sets
 
 
 def _field(default, help_text: str):
@@ -28,6 +29,7 @@ class TrainConfig:
     score_every: int = _field(5000, "zeta: env steps (over all envs) between scorings")
     score_episodes: int = _field(10, "N: deterministic episodes per missing set")
     score_envs: int = _field(0, "envs stepped at once in a scoring round; 0 = 32 on CPU, all (|U|+1)*N episodes on GPU")
+    physics: str = _field("auto", "physics backend: auto (warp on an NVIDIA GPU with warp-lang, else jax) | jax | warp")
     lower_bound: float = _field(0.0, "l: return lower bound; scores below are clipped to it")
     epsilon: float = _field(1e-8, "eps in p_miss = 1/(a_u - l + eps), normalised")
     # run
@@ -52,10 +54,15 @@ class TrainConfig:
     progress: bool = _field(True, "show a progress bar")
 
     def resolved(self) -> "TrainConfig":
-        """A copy with the env name canonical, ``num_envs`` and ``out`` filled in, validated."""
+        """A copy with the env name and physics backend canonical, ``num_envs``,
+        ``score_envs`` and ``out`` filled in, validated."""
         config = dataclasses.replace(self)
         validate(config)
         config.env = canonical_env_name(config.env)
+        config.physics = resolve_physics(config.physics)
+        if config.score_envs == 0:
+            num_sets = num_candidate_sets(observation_size(config.env), config.k, config.include_empty_set)
+            config.score_envs = default_score_envs((num_sets + 1) * config.score_episodes)
         if config.num_envs == 0:
             config.num_envs = default_num_envs(config.score_every)
         if config.score_every % config.num_envs:
@@ -65,6 +72,17 @@ class TrainConfig:
         if not config.out:
             config.out = f"runs/{config.env}-{config.missingness}-s{config.seed}"
         return config
+
+
+def env_options(config: TrainConfig, num_runs: int = 1) -> EnvOptions:
+    """The env a resolved config trains on: its episode limit and physics backend, sized for
+    ``num_runs`` runs vmapped together, each stepping ``num_envs`` (training) or
+    ``score_envs`` (scoring) envs at once."""
+    return EnvOptions(
+        episode_length=config.episode_length,
+        physics=config.physics,
+        max_batch=num_runs * max(config.num_envs, config.score_envs),
+    )
 
 
 def default_num_envs(score_every: int) -> int:
@@ -92,6 +110,8 @@ def validate(config: TrainConfig) -> None:
         if not isinstance(value, expected) or (field.type == "int" and isinstance(value, bool)):
             raise TypeError(f"{field.name} must be {field.type}, got {value!r}")
     canonical_env_name(config.env)
+    if config.physics not in PHYSICS_CHOICES:
+        raise ValueError(f"physics must be one of {', '.join(PHYSICS_CHOICES)}, got {config.physics!r}")
     if config.missingness not in MODES:
         raise ValueError(f"missingness must be one of {', '.join(MODES)}, got {config.missingness!r}")
     positive = ("k", "score_every", "score_episodes", "total_steps", "episode_length",

@@ -83,7 +83,7 @@ def run_experiment(config) -> list[TrainResult]:
     """Train every (seed, mode) pair of ``config`` in one vmapped program; one result per pair."""
     pairs = pair_configs(config)
     first = pairs[0]
-    trainer = make_trainer(first)
+    trainer = make_trainer(first, num_runs=len(pairs))
     root = experiment_dir(pairs)
     os.makedirs(root, exist_ok=True)
     checkpoint_dir = os.path.join(root, "checkpoints")

@@ -19,9 +19,8 @@ import numpy as np
 MAX_CANDIDATE_SETS = 100_000  # more subsets than this cannot be scored in one batched rollout
 
 
-def candidate_sets(num_features: int, k: int = 1, include_empty: bool = False) -> np.ndarray:
-    """U as a (|U|, d) 0/1 float32 matrix: every subset of exactly ``k`` features, in
-    lexicographic order (k = 1 gives row i = {i}), optionally preceded by the empty set."""
+def num_candidate_sets(num_features: int, k: int = 1, include_empty: bool = False) -> int:
+    """|U| = C(d, k) (+ 1 with the empty set); TypeError/ValueError for a bad ``k``."""
     if not isinstance(k, int) or isinstance(k, bool):
         raise TypeError(f"k must be an int, got {type(k).__name__}")
     if not 1 <= k < num_features:
@@ -31,6 +30,13 @@ def candidate_sets(num_features: int, k: int = 1, include_empty: bool = False) -
         raise ValueError(
             f"C({num_features}, {k}) = {count} candidate sets exceed {MAX_CANDIDATE_SETS}"
         )
+    return count + int(include_empty)
+
+
+def candidate_sets(num_features: int, k: int = 1, include_empty: bool = False) -> np.ndarray:
+    """U as a (|U|, d) 0/1 float32 matrix: every subset of exactly ``k`` features, in
+    lexicographic order (k = 1 gives row i = {i}), optionally preceded by the empty set."""
+    num_candidate_sets(num_features, k, include_empty)
     rows = [np.zeros(num_features, np.float32)] if include_empty else []
     for subset in itertools.combinations(range(num_features), k):
         row = np.zeros(num_features, np.float32)

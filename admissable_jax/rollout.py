@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 
 from admissable_jax.cli import parse_args
-from admissable_jax.envs import MjxEnv, canonical_env_name, make_env, reset_where_done
+from admissable_jax.envs import MjxEnv, canonical_env_name, make_env, reset_where_done, resolve_physics
 
 
 @dataclasses.dataclass
@@ -24,10 +24,12 @@ class RolloutConfig:
     num_envs: int = dataclasses.field(default=64, metadata={"help": "parallel environments"})
     steps: int = dataclasses.field(default=100, metadata={"help": "steps per environment"})
     seed: int = dataclasses.field(default=0, metadata={"help": "PRNG seed"})
+    physics: str = dataclasses.field(default="auto", metadata={"help": "auto | jax | warp"})
 
 
 def _validate(config: RolloutConfig) -> None:
     canonical_env_name(config.env)
+    resolve_physics(config.physics)
     if config.num_envs < 1 or config.steps < 1:
         raise ValueError("num_envs and steps must be >= 1")
 
@@ -58,7 +60,7 @@ def main(argv: list[str]) -> None:
     config = parse_args(
         RolloutConfig, argv, "admissable_jax.rollout", __doc__.strip().splitlines()[0], _validate
     )
-    env = make_env(config.env)
+    env = make_env(config.env, physics=config.physics, max_batch=config.num_envs)
     rollout = jax.jit(random_rollout, static_argnums=(0, 1, 2))
     rng = jax.random.key(config.seed)
     start = time.perf_counter()
@@ -69,7 +71,7 @@ def main(argv: list[str]) -> None:
     run_s = time.perf_counter() - start
     env_steps = config.num_envs * config.steps
     print(
-        f"{env.gymnasium_id} on {jax.devices()[0].platform}: {config.num_envs} envs x "
+        f"{env.gymnasium_id} on {jax.devices()[0].platform} ({env.physics_name} physics): {config.num_envs} envs x "
         f"{config.steps} steps, compile {compile_s:.1f} s, run {run_s:.2f} s, "
         f"{env_steps / run_s:,.0f} env steps/s, mean reward {float(total_reward) / env_steps:.3f}"
     )

@@ -29,14 +29,15 @@ from tqdm.auto import tqdm
 
 from admissable_jax.checkpointing import CheckpointError, Checkpoints
 from admissable_jax.cli import USAGE_ERROR
-from admissable_jax.config import TrainConfig, validate
-from admissable_jax.envs import make_env
+from admissable_jax.config import TrainConfig, env_options, validate
+from admissable_jax.envs import make_env, resolve_physics
 from admissable_jax.missingness import describe_set
 from admissable_jax.scoring import MissingnessScores
 from admissable_jax.training import Trainer, TrainState
 
 # Settings that may change when a run is resumed; any other difference is refused.
-RESUMABLE_CHANGES = ("resume", "total_steps", "progress", "checkpoint_every")
+# (score_envs only changes how many episodes a scoring round steps at once, not its scores.)
+RESUMABLE_CHANGES = ("resume", "total_steps", "progress", "checkpoint_every", "score_envs")
 
 
 class TrainingDiverged(RuntimeError):
@@ -45,6 +46,10 @@ class TrainingDiverged(RuntimeError):
 
 class MemoryBudgetExceeded(RuntimeError):
     """The compiled programs and the training state would not fit in this device's memory."""
+
+
+class PhysicsCapacityExceeded(RuntimeError):
+    """The env's physics ran out of a fixed-size buffer; the last checkpoint is kept."""
 
 
 def run_from_cli(function: Callable[[Any], Any], config: Any) -> tuple[Any, int]:
@@ -56,7 +61,7 @@ def run_from_cli(function: Callable[[Any], Any], config: Any) -> tuple[Any, int]
     except (ValueError, TypeError, FileExistsError) as error:
         print(f"error: {error}", file=sys.stderr)
         return None, USAGE_ERROR
-    except (CheckpointError, TrainingDiverged, MemoryBudgetExceeded) as error:
+    except (CheckpointError, TrainingDiverged, MemoryBudgetExceeded, PhysicsCapacityExceeded) as error:
         print(f"error: {error}", file=sys.stderr)
         return None, 1
 
@@ -85,11 +90,9 @@ def mode_flags(missingness: str) -> tuple[bool, bool]:
     return missingness == "adversarial", missingness != "none"
 
 
-def make_trainer(config: TrainConfig) -> Trainer:
-    """The env (with the config's episode limit) and the trainer for a resolved config."""
-    env = make_env(config.env)
-    env.max_episode_steps = config.episode_length
-    return Trainer(env, config)
+def make_trainer(config: TrainConfig, num_runs: int = 1) -> Trainer:
+    """The env and the trainer for a resolved config, sized for ``num_runs`` vmapped runs."""
+    return Trainer(make_env(config.env, env_options(config, num_runs)), config)
 
 
 def train_fn(config: TrainConfig) -> TrainResult:
@@ -194,7 +197,8 @@ class TrainingLoop:
         config = self.config
         budget = self.compile()
         if config.progress:
-            tqdm.write(f"{len(self.runs)} run(s) x {config.num_envs} envs: {budget.describe()}")
+            tqdm.write(f"{len(self.runs)} run(s) x {config.num_envs} envs of {config.env} on "
+                       f"{self.trainer.env.physics_name} physics: {budget.describe()}")
         state = jax.jit(self.init)()
         start_step = 0
         if config.resume:
@@ -212,10 +216,12 @@ class TrainingLoop:
                 train_seconds = time.perf_counter() - started
                 env_steps = int(np.max(state.env_steps))
                 self._check_finite(chunk_metrics, env_steps)
+                self._check_physics(np.any(chunk_metrics["capacity_exceeded"]), env_steps)
 
                 started = time.perf_counter()
                 state, scores = self.score_and_update(state)
                 scores = jax.device_get(scores)
+                self._check_physics(np.any(scores.capacity_exceeded), env_steps)
                 score_seconds = time.perf_counter() - started
                 rows = []
                 for pair, run in enumerate(self.runs):
@@ -239,17 +245,26 @@ class TrainingLoop:
             self.checkpoints.close()
         return state
 
+    def _kept_checkpoint(self) -> str:
+        kept = self.checkpoints.latest_step()
+        where = f"last checkpoint (step {kept}) kept" if kept is not None else "no checkpoint yet"
+        return f"{where} in {self.checkpoints.directory}"
+
+    def _check_physics(self, exceeded: bool, env_steps: int) -> None:
+        if exceeded:
+            raise PhysicsCapacityExceeded(
+                f"at env step {env_steps}: {self.trainer.env.capacity_message()}; {self._kept_checkpoint()}"
+            )
+
     def _check_finite(self, chunk_metrics: dict[str, np.ndarray], env_steps: int) -> None:
         for pair, run in enumerate(self.runs):
             metrics = self.select_pair(chunk_metrics, pair)
             learned = metrics["learned"].astype(bool)
             for name in ("critic_loss", "actor_loss", "alpha"):
                 if not np.all(np.isfinite(metrics[name][learned])):
-                    kept = self.checkpoints.latest_step()
-                    where = f"last checkpoint (step {kept}) kept" if kept is not None else "no checkpoint yet"
                     raise TrainingDiverged(
                         f"{name} became non-finite before env step {env_steps} in {run.path}; "
-                        f"{where} in {self.checkpoints.directory}"
+                        f"{self._kept_checkpoint()}"
                     )
 
 
@@ -314,6 +329,7 @@ class RunDirectory:
     @staticmethod
     def _check_same_run(config: TrainConfig, config_path: str) -> None:
         saved = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(TrainConfig), OmegaConf.load(config_path)))
+        saved.physics = resolve_physics(saved.physics)  # runs saved before the key read "auto"
         for field in dataclasses.fields(TrainConfig):
             if field.name in RESUMABLE_CHANGES:
                 continue

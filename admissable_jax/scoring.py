@@ -35,6 +35,7 @@ class MissingnessScores:
     returns: jax.Array  # (|U| + 1, N) per-episode returns; last row is the clean case
     lengths: jax.Array  # (|U| + 1, N) episode lengths
     loop_steps: jax.Array  # () batched steps the rollout took (each steps every slot)
+    capacity_exceeded: jax.Array  # () bool: the env's physics ran out of a fixed buffer
 
     @property
     def min_score(self) -> jax.Array:
@@ -60,9 +61,10 @@ def score_missingness(
     ``policy_fn(params, masked_obs) -> action`` may be any JAX function of the 2·d masked
     observation (our SAC actor's mean action, or a hand-written controller). ``max_steps``
     defaults to the env's limit (1000). ``num_slots`` is how many envs are stepped at once
-    (default: all (|U| + 1) · N episodes; fewer trades loop steps for a smaller batch, which
-    pays where a step's cost grows with the batch, as on a CPU). Jit-able with ``env``,
-    ``policy_fn``, ``n_episodes``, ``max_steps`` and ``num_slots`` static.
+    (default: all (|U| + 1) · N episodes, or the env's ``max_batch`` if that is smaller;
+    fewer trades loop steps for a smaller batch, which pays where a step's cost grows with
+    the batch, as on a CPU). Jit-able with ``env``, ``policy_fn``, ``n_episodes``,
+    ``max_steps`` and ``num_slots`` static.
     """
     hidden_sets = jnp.asarray(hidden_sets, jnp.float32)
     num_sets, num_features = hidden_sets.shape
@@ -70,7 +72,10 @@ def score_missingness(
     max_steps = env.max_episode_steps if max_steps is None else max_steps
     num_rows = num_sets + 1
     num_episodes = num_rows * n_episodes  # episode e: set row e // N, initial state e % N
-    num_slots = num_episodes if num_slots is None else max(1, min(num_slots, num_episodes))
+    max_batch = env.options.max_batch
+    if num_slots is not None and num_slots > max_batch:
+        raise ValueError(f"num_slots={num_slots} exceeds the env's max_batch={max_batch}; build the env with a larger max_batch")
+    num_slots = min(num_episodes, max_batch) if num_slots is None else max(1, min(num_slots, num_episodes))
     episode_hidden = jnp.repeat(jnp.concatenate([hidden_sets, jnp.zeros((1, num_features))]), n_episodes, axis=0)
     initial = jax.vmap(env.reset)(jax.random.split(rng, n_episodes))
     policy = jax.vmap(policy_fn, in_axes=(None, 0))
@@ -103,6 +108,7 @@ def score_missingness(
             "states": states, "episode": episode, "alive": jnp.where(finished, refill, alive),
             "next_episode": carry["next_episode"] + finished.sum(), "returns": returns,
             "lengths": lengths, "loop_steps": carry["loop_steps"] + 1,
+            "capacity_exceeded": carry["capacity_exceeded"] | env.capacity_exceeded(states),
         }
 
     slots = jnp.arange(num_slots)
@@ -110,13 +116,15 @@ def score_missingness(
         "states": initial_states(slots), "episode": slots, "alive": jnp.ones(num_slots, bool),
         "next_episode": jnp.asarray(num_slots, jnp.int32), "returns": jnp.zeros(num_episodes),
         "lengths": jnp.zeros(num_episodes, jnp.int32), "loop_steps": jnp.zeros((), jnp.int32),
+        "capacity_exceeded": jnp.zeros((), bool),
     }
     carry = jax.lax.while_loop(cond, body, carry)
     returns = carry["returns"].reshape(num_rows, n_episodes)
     lengths = carry["lengths"].reshape(num_rows, n_episodes)
     means = returns.mean(axis=1)
     return MissingnessScores(
-        scores=means[:-1], clean_score=means[-1], returns=returns, lengths=lengths, loop_steps=carry["loop_steps"]
+        scores=means[:-1], clean_score=means[-1], returns=returns, lengths=lengths,
+        loop_steps=carry["loop_steps"], capacity_exceeded=carry["capacity_exceeded"],
     )
 
 

@@ -19,7 +19,7 @@ from flax import struct
 from admissable_jax import replay
 from admissable_jax.adversary import update_p_miss, uniform_p_miss
 from admissable_jax.agent import SAC, SACBatch, SACHyperparams, SACState
-from admissable_jax.config import TrainConfig, default_score_envs
+from admissable_jax.config import TrainConfig
 from admissable_jax.envs import EnvState, reset_where_done
 from admissable_jax.missingness import candidate_sets, mask_observation, sample_set_indices
 from admissable_jax.scoring import MissingnessScores, score_missingness
@@ -61,7 +61,9 @@ class Trainer:
         self.updates_per_iteration = max(1, round(config.num_envs * config.utd))
         self.iterations_per_scoring = config.score_every // config.num_envs
         self.capacity = replay.buffer_capacity(config.buffer_size, config.num_envs)
-        self.score_envs = config.score_envs or default_score_envs((self.num_sets + 1) * config.score_episodes)
+        if config.score_envs < 1:
+            raise ValueError("Trainer needs a resolved config (TrainConfig.resolved()): score_envs is 0")
+        self.score_envs = config.score_envs
 
     # --- construction -------------------------------------------------------------------
     def init(self, seed: jax.Array, mode_adversarial: jax.Array, mode_masking: jax.Array) -> TrainState:
@@ -178,6 +180,7 @@ class Trainer:
             "episodes": done.sum(),
             "episode_return_sum": jnp.sum(jnp.where(done, finished_returns, 0.0)),
             "episode_length_sum": jnp.sum(jnp.where(done, stepped.step_count, 0)),
+            "capacity_exceeded": self.env.capacity_exceeded(stepped),
         }
         return state, metrics
 

@@ -50,8 +50,7 @@ class BraxEnv(brax_base.Env):
     EpisodeWrapper adds the 1000-step truncation (and bootstraps through it, as we do)."""
 
     def __init__(self, env: MjxEnv):
-        self.env = env
-        env.max_episode_steps = 10**9  # the wrapper truncates
+        self.env = env  # its own 1000-step truncation flag is not read: Brax's wrapper truncates
 
     def reset(self, rng: jax.Array) -> brax_base.State:
         state = self.env.reset(rng)
@@ -85,6 +84,7 @@ class BraxBenchConfig:
     steps_per_epoch: int = dataclasses.field(default=50, metadata={"help": "training iterations per timed epoch"})
     num_eval_envs: int = dataclasses.field(default=8, metadata={"help": "Brax's evaluation envs (outside the timing)"})
     update_only: bool = dataclasses.field(default=False, metadata={"help": "time Brax's SAC update alone against ours"})
+    physics: str = dataclasses.field(default="auto", metadata={"help": "auto | jax | warp (the env's physics backend)"})
 
 
 def _brax_update(obs_size: int, action_size: int):
@@ -171,7 +171,7 @@ def main(argv: list[str]) -> None:
     if bench.update_only:
         return compare_updates(bench)
     jax.device_put_replicated = _device_put_replicated
-    env = BraxEnv(make_env(bench.env))
+    env = BraxEnv(make_env(bench.env, physics=bench.physics, max_batch=max(bench.num_envs, bench.num_eval_envs)))
     grad_updates = max(1, round(bench.num_envs * bench.utd))
     min_replay = max(bench.batch_size, bench.num_envs) * 4
     # Brax: num_timesteps covers the prefill plus (num_evals - 1) epochs.
@@ -191,7 +191,7 @@ def main(argv: list[str]) -> None:
         raise SystemExit(f"Brax reported {len(timed)} timed epochs; need 2 (raise steps_per_epoch)")
     env_sps = float(timed[1]["training/sps"])
     record = {
-        "env": env.env.gymnasium_id, "trainer": "brax.training.agents.sac", "num_envs": bench.num_envs,
+        "env": env.env.gymnasium_id, "physics": env.env.physics_name, "trainer": "brax.training.agents.sac", "num_envs": bench.num_envs,
         "utd": bench.utd, "grad_updates_per_iteration": grad_updates, "batch_size": bench.batch_size,
         "hidden_sizes": [256, 256], "steps_per_epoch": bench.steps_per_epoch,
         "env_steps_per_s": round(env_sps, 1), "grad_steps_per_s": round(env_sps * grad_updates / bench.num_envs, 1),

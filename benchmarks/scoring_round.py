@@ -35,7 +35,8 @@ import numpy as np
 from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.cli import parse_args
 from admissable_jax.config import TrainConfig, default_score_envs
-from admissable_jax.envs import make_env
+from admissable_jax.envs import make_env, observation_size
+from admissable_jax.missingness import num_candidate_sets
 from admissable_jax.missingness import mask_observation
 from admissable_jax.scoring import score_missingness
 from admissable_jax.training import Trainer
@@ -50,6 +51,7 @@ class ScoringBenchConfig:
     slots: int = dataclasses.field(default=-1, metadata={"help": "envs stepped at once (-1 = this backend's default, 0 = all episodes)"})
     run: str = dataclasses.field(default="", metadata={"help": "run directory whose last checkpoint gives the actor ('' = untrained actor)"})
     seed: int = dataclasses.field(default=0, metadata={"help": "PRNG seed"})
+    physics: str = dataclasses.field(default="auto", metadata={"help": "auto | jax | warp (the env's physics backend)"})
     ceiling: bool = dataclasses.field(default=True, metadata={"help": "also time the pure-physics ceiling (zero actions, no policy)"})
     sequential: bool = dataclasses.field(default=False, metadata={"help": "also time the paper-style sequential Gymnasium loop"})
 
@@ -85,9 +87,11 @@ def _policy_seconds(policy_fn, params, hidden: jax.Array, loop_steps: int) -> fl
 
 def main(argv: list[str]) -> None:
     bench = parse_args(ScoringBenchConfig, argv, "benchmarks/scoring_round.py", __doc__.splitlines()[0])
-    env = make_env(bench.env)
-    env.max_episode_steps = bench.max_steps
-    config = TrainConfig(env=bench.env, num_envs=8, buffer_size=8, learning_starts=256, progress=False).resolved()
+    config = TrainConfig(env=bench.env, num_envs=8, buffer_size=8, learning_starts=256, progress=False,
+                         physics=bench.physics).resolved()
+    episodes = (num_candidate_sets(observation_size(config.env), config.k) + 1) * bench.n_episodes
+    slots = {-1: default_score_envs(episodes), 0: episodes}.get(bench.slots, min(bench.slots, episodes))
+    env = make_env(config.env, episode_length=bench.max_steps, physics=config.physics, max_batch=slots)
     trainer = Trainer(env, config)
     state = jax.jit(trainer.init)(0, True, True)
     label = "untrained actor"
@@ -97,14 +101,12 @@ def main(argv: list[str]) -> None:
         trainer = Trainer(env, saved_config)
         step, state = checkpoints.restore(jax.jit(trainer.init)(0, True, True))
         label = f"actor of {bench.run} at {step} env steps"
-    episodes = (trainer.num_sets + 1) * bench.n_episodes
-    slots = {-1: default_score_envs(episodes), 0: episodes}.get(bench.slots, min(bench.slots, episodes))
     result, compile_s, run_s = _compile_and_run(env, trainer.policy, state.sac.actor_params, bench, trainer.hidden_sets, slots)
     lengths = np.asarray(result.lengths)
     loop_steps = int(result.loop_steps)
     stepped = loop_steps * slots
     record = {
-        "env": env.gymnasium_id, "n_episodes": bench.n_episodes, "sets": trainer.num_sets,
+        "env": env.gymnasium_id, "physics": env.physics_name, "n_episodes": bench.n_episodes, "sets": trainer.num_sets,
         "batch_episodes": episodes, "slots": slots, "max_steps": bench.max_steps, "policy": label,
         "compile_s": round(compile_s, 2), "run_s": round(run_s, 3),
         "loop_steps": loop_steps, "env_steps_stepped": stepped,
@@ -113,7 +115,7 @@ def main(argv: list[str]) -> None:
         "min_score": float(result.min_score), "clean_score": float(result.clean_score),
     }
     print(
-        f"{env.gymnasium_id}, {label}: {trainer.num_sets}+1 sets x {bench.n_episodes} episodes = {episodes} "
+        f"{env.gymnasium_id} ({env.physics_name} physics), {label}: {trainer.num_sets}+1 sets x {bench.n_episodes} episodes = {episodes} "
         f"episodes on {slots} slots; {loop_steps} loop steps, {stepped:,} env steps stepped for "
         f"{record['env_steps_in_episodes']:,} in episodes; compile {compile_s:.1f} s, run {run_s:.2f} s, "
         f"{stepped / run_s:,.0f} env steps/s stepped; min_u a_u {record['min_score']:.1f}, clean {record['clean_score']:.1f}"

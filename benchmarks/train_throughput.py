@@ -31,9 +31,8 @@ import jax.numpy as jnp
 from admissable_jax.agent import SACBatch
 from admissable_jax.cli import parse_args
 from admissable_jax.config import TrainConfig
-from admissable_jax.envs import make_env
 from admissable_jax.rollout import random_rollout
-from admissable_jax.runs import take_pair
+from admissable_jax.runs import make_trainer, take_pair
 from admissable_jax.training import Trainer
 from common import append_record, compiled_updates, peak_host_memory_mb, update_flops
 
@@ -47,6 +46,7 @@ class TrainBenchConfig:
     batch_size: int = dataclasses.field(default=256, metadata={"help": "SAC minibatch"})
     buffer_size: int = dataclasses.field(default=1_000_000, metadata={"help": "replay capacity (transitions)"})
     seeds: int = dataclasses.field(default=1, metadata={"help": "seeds vmapped in one program"})
+    physics: str = dataclasses.field(default="auto", metadata={"help": "auto | jax | warp (the env's physics backend)"})
     roofline: bool = dataclasses.field(default=False, metadata={"help": "also time the SAC update alone against the matmul roofline"})
     breakdown: bool = dataclasses.field(default=False, metadata={"help": "also time the iteration and its parts alone, in turn, best of 3: physics, the iteration without learning, the updates (one seed)"})
 
@@ -133,9 +133,10 @@ def main(argv: list[str]) -> None:
     config = TrainConfig(
         env=bench.env, num_envs=bench.num_envs, utd=bench.utd, batch_size=bench.batch_size,
         learning_starts=learning_starts, score_every=bench.num_envs, buffer_size=bench.buffer_size, progress=False,
+        physics=bench.physics,
     ).resolved()
-    env = make_env(config.env)
-    trainer = Trainer(env, config)
+    trainer = make_trainer(config, num_runs=bench.seeds)
+    env = trainer.env
     seeds = jnp.arange(bench.seeds)
     state = jax.jit(jax.vmap(trainer.init, (0, None, None)))(seeds, True, True)
     run_chunk = jax.jit(jax.vmap(trainer.run_chunk, (0, None)), static_argnums=1, donate_argnums=0)
@@ -149,7 +150,7 @@ def main(argv: list[str]) -> None:
     env_steps = bench.iterations * bench.num_envs * bench.seeds
     grad_steps = bench.iterations * trainer.updates_per_iteration * bench.seeds
     record = {
-        "env": env.gymnasium_id, "num_envs": bench.num_envs, "seeds": bench.seeds, "utd": bench.utd,
+        "env": env.gymnasium_id, "physics": env.physics_name, "num_envs": bench.num_envs, "seeds": bench.seeds, "utd": bench.utd,
         "batch_size": bench.batch_size, "hidden_sizes": [config.hidden_size] * config.hidden_layers,
         "buffer_size": trainer.capacity, "iterations": bench.iterations,
         "warmup_with_compile_s": round(warmup_s, 1), "compile_s": round(compile_s, 1), "run_s": round(run_s, 2),
@@ -159,7 +160,7 @@ def main(argv: list[str]) -> None:
     if jax.devices()[0].platform != "cpu":
         record["peak_device_memory_mb"] = round(jax.devices()[0].memory_stats().get("peak_bytes_in_use", 0) / 2**20, 1)
     print(
-        f"{env.gymnasium_id}: {bench.seeds} seed(s) x {bench.num_envs} envs, UTD {bench.utd}, batch {bench.batch_size}: "
+        f"{env.gymnasium_id} ({env.physics_name} physics): {bench.seeds} seed(s) x {bench.num_envs} envs, UTD {bench.utd}, batch {bench.batch_size}: "
         f"{env_steps / run_s:,.1f} env steps/s, {grad_steps / run_s:,.1f} gradient steps/s over all seeds "
         f"(timed {bench.iterations} iterations in {run_s:.1f} s; compile {compile_s:.1f} s)"
     )

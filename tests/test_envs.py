@@ -1,8 +1,9 @@
-"""Our MJX envs against Gymnasium's C-MuJoCo v5 envs.
+"""Our MJX envs against Gymnasium's C-MuJoCo v5 envs, on both physics backends.
 
 Parity: from (qpos, qvel) visited by Gymnasium under random actions, one of our steps and
 one of Gymnasium's, with the same action, give the same obs, reward and termination. We
 run in float32 and Gymnasium in float64, so we allow small absolute errors (per env below).
+Every parity test runs on MJX's JAX implementation and on MuJoCo Warp (on the CPU here).
 """
 
 from __future__ import annotations
@@ -20,6 +21,8 @@ from admissable_jax.envs import MAX_EPISODE_STEPS, contact_frames
 from admissable_jax.envs.parity import gymnasium_transitions, step_from_states
 
 ENV_NAMES = ("hopper", "walker2d", "ant")
+BACKENDS = ("jax", "warp")
+ENV_BACKENDS = [(name, physics) for physics in BACKENDS for name in ENV_NAMES]
 N_TRANSITIONS = 120
 
 # Largest |ours - Gymnasium| allowed on an observation entry. Measured maxima over 100
@@ -31,10 +34,12 @@ OBS_TOLERANCE = {"hopper": 1e-4, "walker2d": 5e-4, "ant": 5e-4}
 REWARD_TOLERANCE = 1e-4  # measured maxima 4e-6 (Hopper), 4e-6 (Walker2d), 7e-6 (Ant)
 
 
-@pytest.fixture(scope="module", params=ENV_NAMES)
+@pytest.fixture(scope="module", params=ENV_BACKENDS, ids=lambda p: "-".join(p))
 def parity_case(request):
     """(env, Gymnasium transitions, our batched step from the same states)."""
-    env = make_env(request.param)
+    name, physics = request.param
+    env = make_env(name, physics=physics, max_batch=N_TRANSITIONS)
+    assert env.physics_name == physics
     gym = gymnasium_transitions(env.gymnasium_id, N_TRANSITIONS)
     # Step counts spread so that some transitions reach the 1000-step limit.
     step_counts = np.arange(N_TRANSITIONS, dtype=np.int32) % 4 + (MAX_EPISODE_STEPS - 3)
@@ -80,13 +85,20 @@ def test_step_parity_with_gymnasium(parity_case):
     assert np.asarray(ours.truncated).any() and not np.asarray(ours.truncated).all()
 
 
-def test_ant_needs_c_contact_frames():
-    assert contact_frames.is_installed()
+def test_contact_frame_patches_are_installed_and_current():
+    """Both backends' plane–capsule colliders are ours, and the upstream code they replace is
+    the code they were written against: a MuJoCo upgrade that changes it fails here."""
+    assert contact_frames.is_installed() and contact_frames.is_installed_warp()
+    assert contact_frames.upstream_source_hashes() == contact_frames.PATCHED_SOURCES, (
+        "MuJoCo changed the plane-capsule collider our contact_frames patch replaces: re-check "
+        "Ant parity without the patch, then drop or update it and PATCHED_SOURCES"
+    )
 
 
-@pytest.fixture(scope="module", params=ENV_NAMES)
+@pytest.fixture(scope="module", params=ENV_BACKENDS, ids=lambda p: "-".join(p))
 def reset_case(request):
-    env = make_env(request.param)
+    name, physics = request.param
+    env = make_env(name, physics=physics, max_batch=4096)
     keys = jax.random.split(jax.random.key(0), 4096)
     states = jax.jit(jax.vmap(env.reset))(keys)
     return env, states
@@ -181,7 +193,7 @@ def test_health_rules_match_gymnasium_at_their_boundaries(name):
 def test_batched_step_equals_unbatched(parity_case):
     env, gym, batched, _ = parity_case
     if env.name != "hopper":
-        pytest.skip("compiled once, on Hopper: the vmap semantics do not depend on the env")
+        pytest.skip("compiled once per backend, on Hopper: the vmap semantics do not depend on the env")
     step = jax.jit(lambda q, v, a: env.step(env.state_from_qpos_qvel(q, v), a))
     for i in (0, 7, 31):
         single = step(gym["qpos"][i], gym["qvel"][i], gym["action"][i])

@@ -70,8 +70,7 @@ def test_run_directory_contents(point_mass_run):
 
 
 def test_missing_set_fixed_within_episode_and_drawn_from_p_miss():
-    env = make_env("point_mass")
-    env.max_episode_steps = 5  # many episode starts
+    env = make_env("point_mass", episode_length=5)  # many episode starts
     config = dataclasses.replace(POINT_MASS, num_envs=20, episode_length=5).resolved()
     trainer = Trainer(env, config)
     p_miss = jnp.array([0.55, 0.25, 0.15, 0.05])
@@ -99,8 +98,7 @@ def _feature_zero_controller(gain, masked_obs):
 
 
 def test_score_missingness_equals_a_plain_loop_and_finds_the_used_feature():
-    env = make_env("point_mass")
-    env.max_episode_steps = 60
+    env = make_env("point_mass", episode_length=60)
     hidden_sets = candidate_sets(4, k=1)
     rng = jax.random.key(7)
     n_episodes = 3
@@ -221,8 +219,7 @@ def test_short_hopper_run_through_train_fn(tmp_path):
 def test_train_step_vmaps_over_seeds_and_modes():
     """Two (seed, mode) pairs in one vmapped program give each pair's unbatched result
     (scoring on a pool of 3 slots for the 10 episodes, so refills run under vmap too)."""
-    env = make_env("point_mass")
-    env.max_episode_steps = 20
+    env = make_env("point_mass", episode_length=20)
     config = dataclasses.replace(POINT_MASS, learning_starts=64, batch_size=32, episode_length=20, score_envs=3).resolved()
     trainer = Trainer(env, config)
 

@@ -1,17 +1,28 @@
 """MJX ports of Gymnasium's Hopper-v5, Walker2d-v5 and Ant-v5, and :func:`make_env`.
 
-``point_mass`` is a pure-JAX toy with the same interface, for tests and smoke runs.
+``point_mass`` is a pure-JAX toy with the same interface, for tests and smoke runs. Which
+physics backend steps an env (MJX's JAX implementation or MuJoCo Warp) is decided here,
+from :class:`EnvOptions`; nothing outside this package needs to know.
 """
 
 from __future__ import annotations
 
+import dataclasses
+
 from admissable_jax.envs import contact_frames
 from admissable_jax.envs.ant import Ant
-from admissable_jax.envs.base import MAX_EPISODE_STEPS, EnvState, MjxEnv, reset_where_done
+from admissable_jax.envs.base import EnvState, MjxEnv, reset_where_done
+from admissable_jax.envs.options import MAX_EPISODE_STEPS, PHYSICS_CHOICES, EnvOptions, resolve_physics, warp_installed
 from admissable_jax.envs.planar_walkers import Hopper, Walker2d
 from admissable_jax.envs.point_mass import PointMass
 
 contact_frames.install()
+if warp_installed():
+    import warp
+
+    warp.config.quiet = True  # no banner in users' output
+    warp.config.log_level = max(warp.config.log_level, warp.LOG_WARNING)  # nor a line per kernel module
+    contact_frames.install_warp()  # before the first Warp collision kernel is built
 
 ENV_CLASSES: dict[str, type] = {cls.name: cls for cls in (Hopper, Walker2d, Ant, PointMass)}
 _ALIASES = {cls.gymnasium_id.lower(): cls.name for cls in ENV_CLASSES.values() if cls.gymnasium_id}
@@ -29,22 +40,31 @@ def canonical_env_name(name: str) -> str:
     return key
 
 
-def make_env(
-    name: str, *, solver_iterations: int | None = None, ls_iterations: int | None = None
-) -> MjxEnv:
-    """The MJX env called ``name`` (``hopper``, ``walker2d``, ``ant`` or a Gymnasium id).
+def observation_size(name: str) -> int:
+    """d, the observation size of env ``name``, without building it."""
+    return ENV_CLASSES[canonical_env_name(name)].observation_size
 
-    The defaults reproduce Gymnasium v5 (the XML's solver settings); see
-    :class:`~admissable_jax.envs.base.MjxEnv` for the faster, non-parity overrides.
+
+def make_env(name: str, options: EnvOptions | None = None, **option_overrides) -> MjxEnv:
+    """The env called ``name`` (``hopper``, ``walker2d``, ``ant``, a Gymnasium id, or
+    ``point_mass``), built with ``options`` (an :class:`EnvOptions`; keyword arguments
+    override its fields), e.g. ``make_env("ant", physics="warp", max_batch=4096)``.
+
+    The defaults reproduce Gymnasium v5 (the XML's solver settings, 1000-step episodes) on
+    the best backend for this machine (``physics="auto"``).
     """
-    return ENV_CLASSES[canonical_env_name(name)](
-        solver_iterations=solver_iterations, ls_iterations=ls_iterations
-    )
+    if options is None:
+        options = EnvOptions(**option_overrides)
+    elif option_overrides:
+        options = dataclasses.replace(options, **option_overrides)
+    return ENV_CLASSES[canonical_env_name(name)](options)
 
 
 __all__ = [
     "MAX_EPISODE_STEPS",
+    "PHYSICS_CHOICES",
     "Ant",
+    "EnvOptions",
     "EnvState",
     "Hopper",
     "MjxEnv",
@@ -52,5 +72,7 @@ __all__ = [
     "Walker2d",
     "canonical_env_name",
     "make_env",
+    "observation_size",
     "reset_where_done",
+    "resolve_physics",
 ]

@@ -31,6 +31,7 @@ class Ant(MjxEnv):
     name = "ant"
     gymnasium_id = "Ant-v5"
     xml_file = "ant.xml"
+    observation_size = 105
     frame_skip = 5
     reset_noise_scale = 0.1
     reads_contact_forces = True

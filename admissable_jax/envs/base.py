@@ -1,11 +1,10 @@
 """The MJX environment base shared by our Gymnasium v5 ports.
 
-An environment is a plain Python object holding the compiled MuJoCo model; its
-``reset`` and ``step`` are pure functions of arrays and an :class:`EnvState` pytree, so
-they can be jitted and vmapped. Physics is MJX with the XML's own solver settings, stepped
-exactly as Gymnasium's ``MujocoEnv.do_simulation`` does: ``frame_skip`` calls of
-``mj_step`` with the action as ``ctrl`` (MuJoCo clamps it to ``ctrlrange``), followed by
-``mj_rnePostConstraint`` where the env reads contact forces.
+An environment is a plain Python object built from a frozen :class:`EnvOptions` bundle and
+holding the compiled MuJoCo model; its ``reset`` and ``step`` are pure functions of arrays
+and an :class:`EnvState` pytree, so they can be jitted and vmapped. Physics is MJX with the
+XML's own solver settings on the backend the options name (:mod:`.physics`), stepped exactly
+as Gymnasium's ``MujocoEnv.do_simulation`` does.
 """
 
 from __future__ import annotations
@@ -22,7 +21,8 @@ import mujoco
 from flax import struct
 from mujoco import mjx
 
-MAX_EPISODE_STEPS = 1000  # Gymnasium's TimeLimit for Hopper-v5, Walker2d-v5 and Ant-v5.
+from admissable_jax.envs.options import MAX_EPISODE_STEPS, EnvOptions
+from admissable_jax.envs.physics import Physics
 
 
 def gymnasium_asset_path(xml_file: str) -> str:
@@ -63,31 +63,44 @@ class MjxEnv(abc.ABC):
     reset_noise_scale: ClassVar[float]
     reward_terms: ClassVar[tuple[str, ...]]
     info_keys: ClassVar[tuple[str, ...]]
+    observation_size: ClassVar[int]
     reads_contact_forces: ClassVar[bool] = False
 
-    def __init__(self, solver_iterations: int | None = None, ls_iterations: int | None = None):
-        """Load the XML from gymnasium. Solver settings default to the XML's (Gymnasium parity);
-        ``solver_iterations``/``ls_iterations`` override them for faster, non-parity physics."""
+    def __init__(self, options: EnvOptions | None = None):
+        """Load the XML from gymnasium and put it on the backend ``options.physics`` resolves
+        to. Solver settings default to the XML's (Gymnasium parity)."""
+        self.options = options or EnvOptions()
         self.mj_model = mujoco.MjModel.from_xml_path(gymnasium_asset_path(self.xml_file))
-        if solver_iterations is not None:
-            self.mj_model.opt.iterations = solver_iterations
-        if ls_iterations is not None:
-            self.mj_model.opt.ls_iterations = ls_iterations
-        self.mjx_model = mjx.put_model(self.mj_model)
+        if self.options.solver_iterations is not None:
+            self.mj_model.opt.iterations = self.options.solver_iterations
+        if self.options.ls_iterations is not None:
+            self.mj_model.opt.ls_iterations = self.options.ls_iterations
+        self.physics = Physics(self.mj_model, self.options.resolved_physics, self.frame_skip,
+                               self.options.max_batch, contact_forces=self.reads_contact_forces)
         self.dt = float(self.mj_model.opt.timestep) * self.frame_skip
-        self.max_episode_steps = MAX_EPISODE_STEPS
         self.init_qpos = jnp.asarray(self.mj_model.qpos0, dtype=jnp.float32)
         self.init_qvel = jnp.zeros(self.mj_model.nv, dtype=jnp.float32)
         ctrl_range = self.mj_model.actuator_ctrlrange
         self.action_low = jnp.asarray(ctrl_range[:, 0], dtype=jnp.float32)
         self.action_high = jnp.asarray(ctrl_range[:, 1], dtype=jnp.float32)
         self.action_size = int(self.mj_model.nu)
-        self.observation_size = int(self._observation(mjx.make_data(self.mj_model)).shape[-1])
+        observed = int(self._observation(self.physics.data_template).shape[-1])
+        assert observed == self.observation_size, (observed, self.observation_size)
+
+    @property
+    def max_episode_steps(self) -> int:
+        return self.options.episode_length
+
+    @property
+    def physics_name(self) -> str:
+        """``"jax"`` or ``"warp"``: the backend this env steps on."""
+        return self.physics.impl
 
     def __repr__(self) -> str:
         return (
             f"{type(self).__name__}({self.gymnasium_id}: obs {self.observation_size}, "
-            f"actions {self.action_size}, frame_skip {self.frame_skip}, dt {self.dt})"
+            f"actions {self.action_size}, frame_skip {self.frame_skip}, dt {self.dt}, "
+            f"physics {self.physics_name})"
         )
 
     # --- task hooks -------------------------------------------------------------------
@@ -129,11 +142,7 @@ class MjxEnv(abc.ABC):
         """
         chex.assert_shape(qpos, (self.mj_model.nq,))
         chex.assert_shape(qvel, (self.mj_model.nv,))
-        qpos = jnp.asarray(qpos, jnp.float32)
-        data = mjx.make_data(self.mjx_model).replace(qpos=qpos, qvel=jnp.asarray(qvel, jnp.float32))
-        # MJX's kinematics writes normalized free-joint quaternions back into qpos; C MuJoCo
-        # normalizes a copy, so Gymnasium's reset observation holds the raw quaternion.
-        data = mjx.forward(self.mjx_model, data).replace(qpos=qpos)
+        data = self.physics.data(jnp.asarray(qpos, jnp.float32), jnp.asarray(qvel, jnp.float32))
         zero = jnp.zeros((), jnp.float32)
         return EnvState(
             data=data,
@@ -154,10 +163,7 @@ class MjxEnv(abc.ABC):
         """
         chex.assert_shape(action, (self.action_size,))
         action = jnp.asarray(action, jnp.float32)
-        data = state.data.replace(ctrl=action)
-        data = jax.lax.fori_loop(0, self.frame_skip, lambda _, d: mjx.step(self.mjx_model, d), data)
-        if self.reads_contact_forces:
-            data = mjx.rne_postconstraint(self.mjx_model, data)
+        data = self.physics.step(state.data, action)
         healthy = self._is_healthy(data.qpos, data.qvel)
         terms, info = self._reward_terms(state.data, data, action, healthy)
         reward = sum(terms.values())
@@ -176,7 +182,16 @@ class MjxEnv(abc.ABC):
         )
 
 
-def reset_where_done(env: MjxEnv, state: EnvState, rng: jax.Array) -> EnvState:
+    def capacity_exceeded(self, state: EnvState) -> jax.Array:
+        """Whether the physics ran out of a fixed buffer in any of ``state``'s worlds (batched
+        or not); :meth:`capacity_message` says which setting to raise."""
+        return jnp.any(self.physics.capacity_exceeded(state.data))
+
+    def capacity_message(self) -> str:
+        return self.physics.capacity_message()
+
+
+def reset_where_done(env, state: EnvState, rng: jax.Array) -> EnvState:
     """Start a new episode in ``state`` if it is done (terminated or truncated), else keep it.
 
     Unbatched; vmap it for a batch. Both branches are computed (as under any ``where``),

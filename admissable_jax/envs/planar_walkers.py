@@ -73,6 +73,7 @@ class Hopper(PlanarWalker):
     name = "hopper"
     gymnasium_id = "Hopper-v5"
     xml_file = "hopper.xml"
+    observation_size = 11
     healthy_z_range = (0.7, math.inf)
     healthy_angle_range = (-0.2, 0.2)
     healthy_state_range = (-100.0, 100.0)
@@ -89,5 +90,6 @@ class Walker2d(PlanarWalker):
     name = "walker2d"
     gymnasium_id = "Walker2d-v5"
     xml_file = "walker2d_v5.xml"
+    observation_size = 17
     healthy_z_range = (0.8, 2.0)
     healthy_angle_range = (-1.0, 1.0)

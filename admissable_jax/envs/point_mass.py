@@ -12,7 +12,8 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from admissable_jax.envs.base import MAX_EPISODE_STEPS, EnvState
+from admissable_jax.envs.base import EnvState
+from admissable_jax.envs.options import EnvOptions
 
 _DT = 0.1
 _ESCAPE_RADIUS = 3.0
@@ -31,15 +32,30 @@ class PointMass:
     observation_size = 4
     action_size = 2
 
-    def __init__(self, solver_iterations: int | None = None, ls_iterations: int | None = None):
-        del solver_iterations, ls_iterations  # no solver: accepted for make_env's signature
+    def __init__(self, options: EnvOptions | None = None):
+        """Only ``options.episode_length`` applies: there is no MuJoCo model or solver."""
+        self.options = options or EnvOptions()
         self.dt = _DT
-        self.max_episode_steps = MAX_EPISODE_STEPS
         self.action_low = -jnp.ones(2, jnp.float32)
         self.action_high = jnp.ones(2, jnp.float32)
 
+    @property
+    def max_episode_steps(self) -> int:
+        return self.options.episode_length
+
+    @property
+    def physics_name(self) -> str:
+        return "jax"  # pure JAX, no MuJoCo
+
     def __repr__(self) -> str:
         return "PointMass(obs 4, actions 2)"
+
+    def capacity_exceeded(self, state: EnvState) -> jax.Array:
+        """Never: the point mass has no fixed-size physics buffers."""
+        return jnp.zeros((), bool)
+
+    def capacity_message(self) -> str:
+        return "the point mass has no physics buffers"
 
     def _state(self, data: PointMassData, reward, terminated, step_count, episode_metrics) -> EnvState:
         return EnvState(

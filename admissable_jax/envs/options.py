@@ -1,0 +1,90 @@
+"""An environment's construction options: one frozen bundle, fixed for the env's life.
+
+The env layer alone decides how physics runs: ``physics="auto"`` picks MuJoCo Warp
+(``mjx.put_model(..., impl="warp")``) on an NVIDIA GPU when ``warp-lang`` is importable and
+MJX's JAX implementation everywhere else. Code above :mod:`admissable_jax.envs` passes the
+option through and never branches on it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import jax
+
+PHYSICS_CHOICES = ("auto", "jax", "warp")
+MAX_EPISODE_STEPS = 1000  # Gymnasium's TimeLimit for Hopper-v5, Walker2d-v5 and Ant-v5.
+DEFAULT_MAX_BATCH = 1024
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvOptions:
+    """How an env is built. All fields are validated at construction.
+
+    Attributes:
+        episode_length: the step limit after which an episode is truncated (v5: 1000;
+            shorter only for tests and smoke runs).
+        physics: ``"auto"``, ``"jax"`` (MJX's JAX implementation) or ``"warp"`` (MuJoCo
+            Warp through MJX). ``"auto"`` resolves to warp on an NVIDIA GPU when warp-lang
+            is importable, else jax; :attr:`resolved_physics` says which.
+        solver_iterations, ls_iterations: override the XML's solver iterations (``None``:
+            the XML's own, which Gymnasium parity needs). Faster, not Gymnasium-exact.
+        max_batch: the most environments stepped at once by one compiled program, over all
+            vmapped axes together (e.g. runs × envs). Warp keeps the contacts of every
+            world in one shared buffer, sized from this and the model's largest possible
+            contact count; a step that would exceed it stops the run with an error
+            naming this setting. The JAX backend does not need it.
+    """
+
+    episode_length: int = MAX_EPISODE_STEPS
+    physics: str = "auto"
+    solver_iterations: int | None = None
+    ls_iterations: int | None = None
+    max_batch: int = DEFAULT_MAX_BATCH
+
+    def __post_init__(self) -> None:
+        for name in ("episode_length", "max_batch"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ValueError(f"{name} must be an int >= 1, got {value!r}")
+        if self.episode_length > MAX_EPISODE_STEPS:
+            raise ValueError(f"episode_length must be <= {MAX_EPISODE_STEPS} (the v5 limit), got {self.episode_length}")
+        if self.physics not in PHYSICS_CHOICES:
+            raise ValueError(f"physics must be one of {', '.join(PHYSICS_CHOICES)}, got {self.physics!r}")
+        for name in ("solver_iterations", "ls_iterations"):
+            value = getattr(self, name)
+            if value is not None and (not isinstance(value, int) or isinstance(value, bool) or value < 1):
+                raise ValueError(f"{name} must be None or an int >= 1, got {value!r}")
+
+    @property
+    def resolved_physics(self) -> str:
+        """``"jax"`` or ``"warp"``: what ``physics`` means on this machine."""
+        return resolve_physics(self.physics)
+
+
+def resolve_physics(physics: str) -> str:
+    """``"warp"`` or ``"jax"`` for a ``physics`` choice; RuntimeError if warp is asked for
+    and ``warp-lang`` is not installed."""
+    if physics not in PHYSICS_CHOICES:
+        raise ValueError(f"physics must be one of {', '.join(PHYSICS_CHOICES)}, got {physics!r}")
+    if physics == "warp" and not warp_installed():
+        raise ValueError("physics=warp needs the warp-lang package (pip install warp-lang, or the 'cuda' extra)")
+    if physics == "auto":
+        return "warp" if _on_nvidia_gpu() and warp_installed() else "jax"
+    return physics
+
+
+@functools.cache
+def warp_installed() -> bool:
+    from mujoco.mjx import warp as mjx_warp
+
+    return bool(mjx_warp.WARP_INSTALLED)
+
+
+def _on_nvidia_gpu() -> bool:
+    """Whether JAX's default device is a CUDA GPU (as MJX itself tests for Warp)."""
+    try:
+        return jax.devices()[0] in jax.devices("cuda")
+    except RuntimeError:  # no CUDA backend
+        return False
