@@ -11,7 +11,7 @@ import dataclasses
 import jax
 
 from admissable_jax.adversary import MODES
-from admissable_jax.envs import PHYSICS_CHOICES, EnvOptions, canonical_env_name, observation_size, resolve_physics
+from admissable_jax.envs import EnvOptions, canonical_env_name, observation_size, resolve_physics
 from admissable_jax.missingness import num_candidate_sets
 
 
@@ -110,8 +110,7 @@ def validate(config: TrainConfig) -> None:
         if not isinstance(value, expected) or (field.type == "int" and isinstance(value, bool)):
             raise TypeError(f"{field.name} must be {field.type}, got {value!r}")
     canonical_env_name(config.env)
-    if config.physics not in PHYSICS_CHOICES:
-        raise ValueError(f"physics must be one of {', '.join(PHYSICS_CHOICES)}, got {config.physics!r}")
+    resolve_physics(config.physics)
     if config.missingness not in MODES:
         raise ValueError(f"missingness must be one of {', '.join(MODES)}, got {config.missingness!r}")
     positive = ("k", "score_every", "score_episodes", "total_steps", "episode_length",

@@ -54,8 +54,8 @@ class PhysicsCapacityExceeded(RuntimeError):
 
 def run_from_cli(function: Callable[[Any], Any], config: Any) -> tuple[Any, int]:
     """(result, exit status) of ``function(config)`` for a command line: bad settings exit 2,
-    a corrupt checkpoint, a diverged run or one too large for memory exit 1, each with one
-    line on stderr (finished work stays in the run directory)."""
+    a corrupt checkpoint, a diverged run, or one too large for memory or for the physics
+    buffers exit 1, each with one line on stderr (finished work stays in the run directory)."""
     try:
         return function(config), 0
     except (ValueError, TypeError, FileExistsError) as error:

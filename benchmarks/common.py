@@ -29,9 +29,18 @@ def environment_record() -> dict:
         "python": platform.python_version(),
         "jax": jax.__version__,
         "mujoco": mujoco.__version__,
+        "warp": _warp_version(),
         "command": " ".join([os.path.basename(sys.executable), *sys.argv]),
         "commit": _commit(),
     }
+
+
+def _warp_version() -> str | None:
+    try:
+        import warp
+    except ImportError:
+        return None
+    return warp.__version__
 
 
 def _commit() -> str:

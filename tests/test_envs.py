@@ -8,6 +8,7 @@ Every parity test runs on MJX's JAX implementation and on MuJoCo Warp (on the CP
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import gymnasium
@@ -17,7 +18,7 @@ import numpy as np
 import pytest
 
 from admissable_jax import make_env
-from admissable_jax.envs import MAX_EPISODE_STEPS, contact_frames
+from admissable_jax.envs import MAX_EPISODE_STEPS, EnvOptions, contact_frames
 from admissable_jax.envs.parity import gymnasium_transitions, step_from_states
 
 ENV_NAMES = ("hopper", "walker2d", "ant")
@@ -218,5 +219,16 @@ def test_make_env_names_and_spaces():
         gym_env.close()
     with pytest.raises(ValueError, match="valid names: hopper, walker2d, ant"):
         make_env("cheetah")
+    # Options are one frozen bundle, checked when it is built.
+    options = EnvOptions(episode_length=7, physics="jax")
+    env = make_env("point_mass", options)
+    assert env.max_episode_steps == 7 and env.options is options
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        options.episode_length = 8
+    for bad, message in ((dict(episode_length=0), "episode_length"), (dict(episode_length=1001), "v5 limit"),
+                         (dict(physics="cuda"), "physics must be one of"), (dict(max_batch=0), "max_batch"),
+                         (dict(solver_iterations=0), "solver_iterations")):
+        with pytest.raises(ValueError, match=message):
+            make_env("hopper", **bad)
     with pytest.raises(TypeError):
         make_env(3)

@@ -177,6 +177,7 @@ def test_corrupt_checkpoint_and_divergence_keep_finished_work(tmp_path):
         (["missingness=sometimes"], "missingness must be one of"),
         (["env=hopper", "k=11"], "k must satisfy 1 <= k < d = 11"),
         (["score_envs=-1"], "score_envs must be >= 0"),
+        (["physics=cuda"], "physics must be one of auto, jax, warp"),
     ],
 )
 def test_cli_rejects_bad_input_with_one_line(args, message, tmp_path):

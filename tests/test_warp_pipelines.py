@@ -11,10 +11,11 @@ from __future__ import annotations
 import dataclasses
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from admissable_jax import TrainConfig, make_env, runs
+from admissable_jax import TrainConfig, make_env
 from admissable_jax.experiment import ExperimentConfig, run_experiment
 from admissable_jax.runs import PhysicsCapacityExceeded, make_trainer, train_fn
 
@@ -73,9 +74,9 @@ def test_experiment_on_warp_vmaps_pairs_and_resumes_exactly(tmp_path):
     np.testing.assert_allclose(straight[1].scores[-1]["p_miss"], 1 / 11, rtol=1e-6)
 
 
-def test_warp_capacity_overflow_stops_the_run_in_one_line(tmp_path, monkeypatch):
-    """A batch larger than the env's max_batch overflows Warp's shared contact buffer; the
-    step says so, and a run stops with an error naming the setting, keeping its work."""
+def test_capacity_overflow_is_detected_and_stops_the_run_in_one_line(tmp_path, monkeypatch):
+    """A batch larger than the env's max_batch overflows Warp's shared contact buffer and the
+    env says so; a run whose env says so stops with an error naming the setting."""
     def overflowed(max_batch: int) -> bool:
         env = make_env("hopper", physics="warp", max_batch=max_batch)
         actions = np.zeros((8, env.action_size), np.float32)
@@ -89,12 +90,15 @@ def test_warp_capacity_overflow_stops_the_run_in_one_line(tmp_path, monkeypatch)
 
     assert overflowed(max_batch=1) and not overflowed(max_batch=8)
 
-    sized = runs.env_options
-    undersized = lambda config, num_runs=1: dataclasses.replace(sized(config, num_runs), max_batch=1)
-    monkeypatch.setattr(runs, "env_options", undersized)
-    with pytest.raises(PhysicsCapacityExceeded, match="max_batch=1 worlds.*raise max_batch") as error:
-        # Ant: its legs reach the floor within an episode's first steps, in every world.
-        train_fn(dataclasses.replace(HOPPER, env="ant", physics="warp", num_envs=8, score_envs=1,
-                                     episode_length=50, score_every=160, total_steps=160,
-                                     out=str(tmp_path / "overflow")))
+    # The loop's side, on the point mass (seconds): an env that reports an overflow
+    # mid-run stops it with one line naming the setting and the kept checkpoint.
+    from admissable_jax.envs import PointMass
+
+    monkeypatch.setattr(PointMass, "capacity_exceeded", lambda self, state: jnp.any(state.step_count >= 40))
+    monkeypatch.setattr(PointMass, "capacity_message", lambda self: "contacts (naconmax) sized for max_batch=1 worlds; raise max_batch")
+    config = TrainConfig(env="point_mass", total_steps=3000, score_every=500, num_envs=4, learning_starts=1000,
+                         episode_length=100, score_episodes=2, batch_size=32, buffer_size=5000, checkpoint_every=1,
+                         progress=False, out=str(tmp_path / "overflow"))
+    with pytest.raises(PhysicsCapacityExceeded, match="at env step 500: .*raise max_batch; no checkpoint yet") as error:
+        train_fn(config)
     assert "\n" not in str(error.value)

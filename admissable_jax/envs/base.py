@@ -21,7 +21,7 @@ import mujoco
 from flax import struct
 from mujoco import mjx
 
-from admissable_jax.envs.options import MAX_EPISODE_STEPS, EnvOptions
+from admissable_jax.envs.options import EnvOptions
 from admissable_jax.envs.physics import Physics
 
 
@@ -181,7 +181,6 @@ class MjxEnv(abc.ABC):
             episode_metrics=episode_metrics,
         )
 
-
     def capacity_exceeded(self, state: EnvState) -> jax.Array:
         """Whether the physics ran out of a fixed buffer in any of ``state``'s worlds (batched
         or not); :meth:`capacity_message` says which setting to raise."""
@@ -191,7 +190,7 @@ class MjxEnv(abc.ABC):
         return self.physics.capacity_message()
 
 
-def reset_where_done(env, state: EnvState, rng: jax.Array) -> EnvState:
+def reset_where_done(env: MjxEnv, state: EnvState, rng: jax.Array) -> EnvState:
     """Start a new episode in ``state`` if it is done (terminated or truncated), else keep it.
 
     Unbatched; vmap it for a batch. Both branches are computed (as under any ``where``),
