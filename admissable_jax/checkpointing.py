@@ -10,6 +10,7 @@ from the run's own freshly built state on restore.
 from __future__ import annotations
 
 import os
+import shutil
 
 import jax
 import orbax.checkpoint as ocp
@@ -35,22 +36,67 @@ class Checkpoints:
         self._manager.save(step, args=ocp.args.StandardSave(_non_empty_leaves(state)), force=True)
         self._manager.wait_until_finished()
 
-    def restore(self, like) -> tuple[int, object]:
-        """(step, state) of the latest checkpoint, shaped like the pytree ``like``."""
-        step = self.latest_step()
-        if step is None:
+    @staticmethod
+    def steps_in(directory: str) -> list[int]:
+        """The checkpoint steps saved in ``directory`` (without opening any)."""
+        if not os.path.isdir(directory):
+            return []
+        return sorted(int(name) for name in os.listdir(directory) if name.isdigit())
+
+    def restore(self, like, step: int | None = None) -> tuple[int, object]:
+        """(step, state) of checkpoint ``step`` (default: the latest), shaped like ``like``.
+
+        A checkpoint that cannot be read raises a one-line CheckpointError naming it and the
+        newest older checkpoint that can (pass that as ``step`` to continue from it).
+        Checkpoints newer than a chosen older ``step`` are moved aside to
+        ``<directory>-superseded/`` (never deleted), since the run continues from ``step``.
+        """
+        steps = self._manager.all_steps()
+        if not steps:
             raise CheckpointError(f"no checkpoint to resume from in {self.directory}")
+        if step is None:
+            step = max(steps)
+        elif step not in steps:
+            raise CheckpointError(f"no checkpoint {step} in {self.directory}; saved: {sorted(steps)}")
+        try:
+            state = self._restore(like, step)
+        except CheckpointError as error:
+            intact = next((older for older in sorted(steps, reverse=True) if older < step and self._readable(like, older)), None)
+            offer = (f"checkpoint {intact} is intact: resume with resume_step={intact}" if intact is not None
+                     else "no older checkpoint is intact")
+            raise CheckpointError(f"{error}; {offer}") from error.__cause__
+        self._set_aside_newer_than(step)
+        return step, state
+
+    def _restore(self, like, step: int):
         abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, _non_empty_leaves(like))
         try:
             saved = self._manager.restore(step, args=ocp.args.StandardRestore(abstract))
         except Exception as error:  # orbax raises many types for unreadable data
-            first_line = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+            first_line = str(error).strip().splitlines()[0][:200] if str(error).strip() else type(error).__name__
             raise CheckpointError(
-                f"checkpoint {step} in {self.directory} cannot be restored: {first_line}"
+                f"checkpoint {step} in {self.directory} is corrupt or does not fit this run ({first_line})"
             ) from error
         leaves, treedef = jax.tree.flatten(like)
         leaves = [saved.get(str(i), leaf) for i, leaf in enumerate(leaves)]
-        return step, jax.tree.unflatten(treedef, leaves)
+        return jax.tree.unflatten(treedef, leaves)
+
+    def _readable(self, like, step: int) -> bool:
+        try:
+            self._restore(like, step)
+        except CheckpointError:
+            return False
+        return True
+
+    def _set_aside_newer_than(self, step: int) -> None:
+        newer = [later for later in self._manager.all_steps() if later > step]
+        if not newer:
+            return
+        aside = self.directory + "-superseded"
+        os.makedirs(aside, exist_ok=True)
+        for later in newer:
+            shutil.move(os.path.join(self.directory, str(later)), os.path.join(aside, str(later)))
+        self._manager.reload()
 
     def close(self) -> None:
         self._manager.close()

@@ -56,6 +56,8 @@ def parse_args(
     if malformed:
         fail(f"expected key=value, got {malformed[0]!r} (see --help)")
     schema = OmegaConf.structured(config_cls)
+    # "key=" means the empty string (OmegaConf would read None, which no key accepts).
+    argv = [f"{arg}''" if arg.endswith("=") else arg for arg in argv]
     try:
         merged = OmegaConf.merge(schema, OmegaConf.from_dotlist(argv))
         config = OmegaConf.to_object(merged)

@@ -51,6 +51,7 @@ class TrainConfig:
     out: str = _field("", "run directory; '' = runs/<env>-<missingness>-s<seed>")
     checkpoint_every: int = _field(10, "checkpoint every this many scorings (and at the end)")
     resume: bool = _field(False, "continue the run in 'out' from its last checkpoint")
+    resume_step: int = _field(-1, "with resume=true: the checkpoint (env step) to continue from; -1 = the latest")
     progress: bool = _field(True, "show a progress bar")
 
     def resolved(self) -> "TrainConfig":

@@ -16,6 +16,7 @@ the budget and stops there).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import sys
@@ -25,11 +26,11 @@ import jax.numpy as jnp
 from omegaconf import OmegaConf
 
 from admissable_jax.adversary import MODES
-from admissable_jax.checkpointing import Checkpoints
+from admissable_jax.checkpointing import CheckpointError, Checkpoints
 from admissable_jax.cli import enable_compilation_cache, parse_args
 from admissable_jax.config import TrainConfig
 from admissable_jax.envs import canonical_env_name
-from admissable_jax.runs import RunDirectory, TrainingLoop, TrainResult, make_trainer, mode_flags, run_from_cli, take_pair
+from admissable_jax.runs import RunDirectory, RunDirectoryError, TrainingLoop, TrainResult, make_trainer, mode_flags, run_from_cli, take_pair
 
 # TrainConfig keys that name one run and so are replaced by the experiment's own; the
 # other TrainConfig fields are shared by every pair.
@@ -85,20 +86,29 @@ def run_experiment(config) -> list[TrainResult]:
     first = pairs[0]
     trainer = make_trainer(first, num_runs=len(pairs))
     root = experiment_dir(pairs)
-    os.makedirs(root, exist_ok=True)
+    if config.resume and not os.path.isdir(root):  # checked before anything is created
+        raise CheckpointError(f"nothing to resume: {root} does not exist")
+    try:
+        os.makedirs(root, exist_ok=True)
+    except OSError as error:
+        raise RunDirectoryError(f"cannot create the experiment directory {root}: {error.strerror}") from None
     checkpoint_dir = os.path.join(root, "checkpoints")
-    runs = [RunDirectory(pair, checkpoint_dir) for pair in pairs]
-    OmegaConf.save(OmegaConf.structured(config), os.path.join(root, "experiment.yaml"))
+    with contextlib.ExitStack() as held:
+        runs = []
+        for pair in pairs:  # each pair's directory stays locked until the experiment ends
+            runs.append(RunDirectory(pair, checkpoint_dir))
+            held.callback(runs[-1].close)
+        OmegaConf.save(OmegaConf.structured(config), os.path.join(root, "experiment.yaml"))
 
-    seeds = jnp.array([pair.seed for pair in pairs])
-    adversarial, masking = (jnp.array(flags) for flags in zip(*(mode_flags(pair.missingness) for pair in pairs)))
-    init = lambda: jax.vmap(trainer.init)(seeds, adversarial, masking)
-    loop = TrainingLoop(trainer, first, runs, Checkpoints(checkpoint_dir), init, batched=True)
-    if config.budget_only:
-        print(f"{len(pairs)} pairs x {first.num_envs} envs, {first.env}: {loop.compile().describe()}")
-        loop.checkpoints.close()
-        return []
-    state = loop.run()
+        seeds = jnp.array([pair.seed for pair in pairs])
+        adversarial, masking = (jnp.array(flags) for flags in zip(*(mode_flags(pair.missingness) for pair in pairs)))
+        init = lambda: jax.vmap(trainer.init)(seeds, adversarial, masking)
+        loop = TrainingLoop(trainer, first, runs, Checkpoints(checkpoint_dir), init, batched=True)
+        if config.budget_only:
+            print(f"{len(pairs)} pairs x {first.num_envs} envs, {first.env}: {loop.compile().describe()}")
+            loop.checkpoints.close()
+            return []
+        state = loop.run()
     return [
         TrainResult(pair, trainer, take_pair(state, index), run.read("scores.jsonl"), run.read("metrics.jsonl"))
         for index, (pair, run) in enumerate(zip(pairs, runs))

@@ -13,6 +13,7 @@ message before it starts (:func:`memory_budget`).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
@@ -31,13 +32,15 @@ from admissable_jax.checkpointing import CheckpointError, Checkpoints
 from admissable_jax.cli import USAGE_ERROR
 from admissable_jax.config import TrainConfig, env_options, validate
 from admissable_jax.envs import make_env, resolve_physics
+from admissable_jax.locks import RunDirectoryLocked, RunLock
 from admissable_jax.missingness import describe_set
 from admissable_jax.scoring import MissingnessScores
 from admissable_jax.training import Trainer, TrainState
 
 # Settings that may change when a run is resumed; any other difference is refused.
-# (score_envs only changes how many episodes a scoring round steps at once, not its scores.)
-RESUMABLE_CHANGES = ("resume", "total_steps", "progress", "checkpoint_every", "score_envs")
+# score_envs only changes how many episodes a scoring round steps at once, not its scores;
+# out is wherever the run directory is now (it may have been moved or copied).
+RESUMABLE_CHANGES = ("resume", "resume_step", "total_steps", "progress", "checkpoint_every", "score_envs", "out")
 
 
 class TrainingDiverged(RuntimeError):
@@ -52,18 +55,36 @@ class PhysicsCapacityExceeded(RuntimeError):
     """The env's physics ran out of a fixed-size buffer; the last checkpoint is kept."""
 
 
+class Interrupted(RuntimeError):
+    """Ctrl-C during training; says where the last checkpoint is."""
+
+
+INTERRUPTED = 130  # the shell's status for a program ended by SIGINT
+
+
+class RunDirectoryError(RuntimeError):
+    """The run directory cannot be created where ``out`` says."""
+
+
 def run_from_cli(function: Callable[[Any], Any], config: Any) -> tuple[Any, int]:
     """(result, exit status) of ``function(config)`` for a command line: bad settings exit 2,
     a corrupt checkpoint, a diverged run, or one too large for memory or for the physics
-    buffers exit 1, each with one line on stderr (finished work stays in the run directory)."""
+    buffers exit 1, Ctrl-C exits 130 saying where to resume from, each with one line on
+    stderr (finished work stays in the run directory)."""
     try:
         return function(config), 0
-    except (ValueError, TypeError, FileExistsError) as error:
+    except (ValueError, TypeError, FileExistsError, RunDirectoryError, RunDirectoryLocked) as error:
         print(f"error: {error}", file=sys.stderr)
         return None, USAGE_ERROR
     except (CheckpointError, TrainingDiverged, MemoryBudgetExceeded, PhysicsCapacityExceeded) as error:
         print(f"error: {error}", file=sys.stderr)
         return None, 1
+    except Interrupted as error:
+        print(f"interrupted: {error}", file=sys.stderr)
+        return None, INTERRUPTED
+    except KeyboardInterrupt:
+        print("interrupted before training started; nothing to resume from", file=sys.stderr)
+        return None, INTERRUPTED
 
 
 @dataclasses.dataclass
@@ -102,9 +123,12 @@ def train_fn(config: TrainConfig) -> TrainResult:
     trainer = make_trainer(config)
     checkpoint_dir = os.path.join(config.out, "checkpoints")
     run = RunDirectory(config, checkpoint_dir)
-    checkpoints = Checkpoints(checkpoint_dir)
-    init = lambda: trainer.init(config.seed, *mode_flags(config.missingness))
-    state = TrainingLoop(trainer, config, [run], checkpoints, init, batched=False).run()
+    try:
+        checkpoints = Checkpoints(checkpoint_dir)
+        init = lambda: trainer.init(config.seed, *mode_flags(config.missingness))
+        state = TrainingLoop(trainer, config, [run], checkpoints, init, batched=False).run()
+    finally:
+        run.close()
     return TrainResult(config, trainer, state, run.read("scores.jsonl"), run.read("metrics.jsonl"))
 
 
@@ -148,6 +172,20 @@ def memory_budget(abstract_state, compiled_chunk, compiled_score) -> MemoryBudge
                         f"{device.platform}:{getattr(device, 'device_kind', '')}")
 
 
+def report(message: str) -> None:
+    """A status line on stderr, with or without the progress bar."""
+    tqdm.write(message, file=sys.stderr)
+
+
+@contextlib.contextmanager
+def _reporting(what: str):
+    """Say what is about to happen, then how long it took."""
+    report(f"{what}...")
+    started = time.perf_counter()
+    yield
+    report(f"{what}: done in {time.perf_counter() - started:.1f} s")
+
+
 def take_pair(tree: Any, index: int) -> Any:
     """Run ``index``'s part of a pytree batched over runs (leading axis)."""
     return jax.tree.map(lambda leaf: leaf[index], tree)
@@ -184,8 +222,12 @@ class TrainingLoop:
     def compile(self) -> MemoryBudget:
         """Compile both programs without allocating the state; refuse if they won't fit."""
         abstract_state = jax.eval_shape(self.init)
-        self.run_chunk = jax.jit(self._run_chunk, donate_argnums=0).lower(abstract_state).compile()
-        self.score_and_update = jax.jit(self._score_and_update, donate_argnums=0).lower(abstract_state).compile()
+        env = self.trainer.env
+        where = f"{self.config.env} ({env.physics_name} physics) on {jax.devices()[0].platform}"
+        with _reporting(f"compiling the training step for {where}"):
+            self.run_chunk = jax.jit(self._run_chunk, donate_argnums=0).lower(abstract_state).compile()
+        with _reporting(f"compiling the scoring round for {where}"):
+            self.score_and_update = jax.jit(self._score_and_update, donate_argnums=0).lower(abstract_state).compile()
         budget = memory_budget(abstract_state, self.run_chunk, self.score_and_update)
         if budget.needed_bytes > budget.available_bytes:
             raise MemoryBudgetExceeded(
@@ -196,13 +238,12 @@ class TrainingLoop:
     def run(self) -> TrainState:
         config = self.config
         budget = self.compile()
-        if config.progress:
-            tqdm.write(f"{len(self.runs)} run(s) x {config.num_envs} envs of {config.env} on "
-                       f"{self.trainer.env.physics_name} physics: {budget.describe()}")
+        report(f"{len(self.runs)} run(s) x {config.num_envs} envs of {config.env} on "
+               f"{self.trainer.env.physics_name} physics: {budget.describe()}")
         state = jax.jit(self.init)()
         start_step = 0
         if config.resume:
-            start_step, state = self.checkpoints.restore(state)
+            start_step, state = self.checkpoints.restore(state, None if config.resume_step < 0 else config.resume_step)
             for run in self.runs:
                 run.truncate_logs(start_step)
         num_scorings = math.ceil(config.total_steps / config.score_every)
@@ -240,6 +281,8 @@ class TrainingLoop:
                     clean=f"{np.mean([row['clean_score'] for row in rows]):.1f}",
                     train_sps=f"{config.score_every * len(self.runs) / train_seconds:.0f}",
                 )
+        except KeyboardInterrupt:
+            raise Interrupted(f"{self._kept_checkpoint()}; continue with resume=true") from None
         finally:
             bar.close()
             self.checkpoints.close()
@@ -309,13 +352,25 @@ class RunDirectory:
 
     def __init__(self, config: TrainConfig, checkpoint_dir: str):
         self.path = config.out
-        os.makedirs(self.path, exist_ok=True)
         config_path = os.path.join(self.path, "config.yaml")
+        if config.resume and not os.path.exists(config_path):  # checked before anything is created
+            raise CheckpointError(f"nothing to resume: {config_path} does not exist")
+        try:
+            os.makedirs(self.path, exist_ok=True)
+        except OSError as error:
+            raise RunDirectoryError(f"cannot create the run directory {self.path}: {error.strerror}") from None
+        self.lock = RunLock(self.path)
+        self.lock.acquire()
+        try:
+            self._prepare(config, config_path, checkpoint_dir)
+        except BaseException:
+            self.lock.release()
+            raise
+
+    def _prepare(self, config: TrainConfig, config_path: str, checkpoint_dir: str) -> None:
         has_checkpoints = os.path.isdir(checkpoint_dir) and bool(os.listdir(checkpoint_dir))
         if config.resume:
-            if not os.path.exists(config_path):
-                raise CheckpointError(f"nothing to resume: {config_path} does not exist")
-            self._check_same_run(config, config_path)
+            self._check_same_run(config, config_path, checkpoint_dir)
         elif has_checkpoints:
             raise FileExistsError(
                 f"{self.path} already holds a run; pass resume=true to continue it or choose another out"
@@ -326,8 +381,12 @@ class RunDirectory:
                     os.remove(os.path.join(self.path, name))
         OmegaConf.save(OmegaConf.structured(config), config_path)
 
+    def close(self) -> None:
+        """Give the directory back (remove the lock)."""
+        self.lock.release()
+
     @staticmethod
-    def _check_same_run(config: TrainConfig, config_path: str) -> None:
+    def _check_same_run(config: TrainConfig, config_path: str, checkpoint_dir: str) -> None:
         saved = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(TrainConfig), OmegaConf.load(config_path)))
         saved.physics = resolve_physics(saved.physics)  # runs saved before the key read "auto"
         for field in dataclasses.fields(TrainConfig):
@@ -338,6 +397,12 @@ class RunDirectory:
                     f"cannot resume with {field.name}={getattr(config, field.name)!r}: "
                     f"the run in {config.out} has {field.name}={getattr(saved, field.name)!r}"
                 )
+        reached = max(Checkpoints.steps_in(checkpoint_dir), default=0)
+        if config.total_steps < reached:
+            raise ValueError(
+                f"cannot resume with total_steps={config.total_steps}: the run in {config.out} "
+                f"already reached {reached} env steps"
+            )
 
     def append(self, name: str, row: dict[str, Any]) -> None:
         with open(os.path.join(self.path, name), "a") as file:
