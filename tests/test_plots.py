@@ -5,13 +5,17 @@ import os
 
 import numpy as np
 import pytest
+from matplotlib.image import imread
 from omegaconf import OmegaConf
 
 from admissable_jax.config import TrainConfig
-from admissable_jax.plots import find_runs, load_run, mean_and_interval, moving_average, plot_runs, summary_table
+from admissable_jax.plots import (
+    _cell_edges, _seeds, effective_window, find_runs, load_run, main, mean_and_interval, moving_average, plot_runs,
+    set_names, summary_table,
+)
 
 
-def _fake_run(root, mode, seed, records=12, sets=3):
+def _fake_run(root, mode, seed, records=12, sets=11):
     path = os.path.join(root, f"{mode}-s{seed}")
     os.makedirs(path)
     OmegaConf.save(OmegaConf.structured(TrainConfig(env="hopper", missingness=mode, seed=seed)), os.path.join(path, "config.yaml"))
@@ -19,7 +23,8 @@ def _fake_run(root, mode, seed, records=12, sets=3):
     with open(os.path.join(path, "scores.jsonl"), "w") as file:
         for t in range(records):
             scores = (rng.uniform(0, 100, sets) + 10 * t).tolist()
-            p_miss = (np.ones(sets) / sets).tolist()
+            inverse = 1 / np.asarray(scores)
+            p_miss = (inverse / inverse.sum() if mode == "adversarial" else np.ones(sets) / sets).tolist()
             file.write(json.dumps({"env_steps": 5000 * (t + 1), "scores": scores, "min_score": min(scores),
                                    "clean_score": max(scores) + 5, "p_miss": p_miss}) + "\n")
     return path
@@ -48,7 +53,10 @@ def test_plot_runs_writes_every_figure(tmp_path):
         f"{stem}.{ext}" for stem in ("min_score", "scores_adversarial", "scores_uniform", "p_miss_adversarial", "p_miss_uniform")
         for ext in ("png", "pdf")
     )
-    assert all(os.path.getsize(p) > 1000 for p in written)
+    # A p_miss that never left uniform is said in words (a short figure), not drawn as a
+    # flat colour block; the adversary's is a heatmap with a row per feature.
+    height = lambda name: imread(os.path.join(tmp_path, "figures", f"{name}.png")).shape[0]
+    assert height("p_miss_uniform") < 450 < height("p_miss_adversarial")
     with pytest.raises(FileNotFoundError):
         find_runs([str(tmp_path / "missing")])
 
@@ -66,3 +74,33 @@ def test_summary_table_reports_final_and_auc_per_mode(tmp_path):
         assert cells[:4] == ["hopper", mode, "2", "20000"]
         assert cells[4] == f"{mean[0]:.1f} ± {mean[0] - low[0]:.1f}"
         assert cells[5].startswith(f"{auc.mean():.1f} ± ")
+
+
+def test_plots_say_what_they_show(tmp_path, capsys):
+    """Window, cell positions, feature names, seed counts and the output folder."""
+    paths = [_fake_run(str(tmp_path / "runs"), "adversarial", seed, records=7) for seed in range(2)]
+    runs = [load_run(path) for path in paths]
+    # A window longer than the records is shortened visibly; a bad one is refused.
+    assert effective_window(runs, 40) == 7 and effective_window(runs, 3) == 3
+    for bad in (0, -3, 2.5):
+        with pytest.raises(ValueError, match="window must be an int >= 1"):
+            effective_window(runs, bad)
+    # Heatmap cells are centred on their scoring steps.
+    np.testing.assert_allclose(_cell_edges(np.array([5000.0, 10000.0, 15000.0])), [2500, 7500, 12500, 17500])
+    # Rows carry Gymnasium's observation names; one seed is "1 seed".
+    assert runs[0].set_names[:3] == ["torso z", "torso angle", "thigh joint angle"]
+    assert set_names("hopper", 2, True)[:2] == ["nothing hidden", "torso z + torso angle"]
+    assert set_names("ant", 1, False)[27:30] == ["torso contact torque x", "torso contact torque y", "torso contact torque z"]
+    assert _seeds(1) == "1 seed" and _seeds(5) == "5 seeds"
+
+    # The CLI writes into a new folder each time, never over earlier figures, and its
+    # summary says how the figure was smoothed.
+    root = str(tmp_path / "runs")
+    assert main([root]) == 0 and main([root]) == 0
+    assert sorted(name for name in os.listdir(root) if name.startswith("figures")) == ["figures", "figures-2"]
+    with open(os.path.join(root, "figures", "summary.md")) as file:
+        assert "moving average over 7 records (window=40 shortened: the runs have 7)" in file.read()
+    with pytest.raises(SystemExit) as exit_info:
+        main([root, "window=0"])
+    assert exit_info.value.code == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1] == "error: window must be an int >= 1, got 0"

@@ -45,6 +45,12 @@ def observation_size(name: str) -> int:
     return ENV_CLASSES[canonical_env_name(name)].observation_size
 
 
+def observation_names(name: str) -> list[str]:
+    """Readable names of env ``name``'s observation entries ("torso z", "thigh joint angle",
+    "aux_1 contact force z", ...), without building the env."""
+    return ENV_CLASSES[canonical_env_name(name)].observation_names()
+
+
 def make_env(name: str, options: EnvOptions | None = None, **option_overrides) -> MjxEnv:
     """The env called ``name`` (``hopper``, ``walker2d``, ``ant``, a Gymnasium id, or
     ``point_mass``), built with ``options`` (an :class:`EnvOptions`; keyword arguments
@@ -72,6 +78,7 @@ __all__ = [
     "Walker2d",
     "canonical_env_name",
     "make_env",
+    "observation_names",
     "observation_size",
     "reset_where_done",
     "resolve_physics",

@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 from mujoco import mjx
 
-from admissable_jax.envs.base import MjxEnv
+from admissable_jax.envs.base import MjxEnv, joint_label
 
 _MAIN_BODY = 1  # torso
 _CTRL_COST_WEIGHT = 0.5
@@ -41,6 +41,18 @@ class Ant(MjxEnv):
     def _observation(self, data: mjx.Data) -> jax.Array:
         contact_forces = _clipped_contact_forces(data)[1:].ravel()
         return jnp.concatenate([data.qpos[2:], data.qvel, contact_forces])
+
+    @classmethod
+    def _observation_names(cls, model):
+        joints = [joint_label(model, j) for j in range(1, model.njnt)]  # joint 0: the torso's free joint
+        positions = ["torso z", *(f"torso orientation {c}" for c in "wxyz"), *(f"{joint} angle" for joint in joints)]
+        velocities = [*(f"torso {c} velocity" for c in "xyz"), *(f"torso angular velocity {c}" for c in "xyz"),
+                      *(f"{joint} angular velocity" for joint in joints)]
+        forces = []
+        for body in range(1, model.nbody):  # cfrc_ext: (torque, force) per body, world left out
+            name = model.body(body).name or f"{model.body(model.body_parentid[body]).name} child"
+            forces += [f"{name} contact {kind} {c}" for kind in ("torque", "force") for c in "xyz"]
+        return positions + velocities + forces
 
     def _is_healthy(self, qpos: jax.Array, qvel: jax.Array) -> jax.Array:
         finite = jnp.logical_and(jnp.all(jnp.isfinite(qpos)), jnp.all(jnp.isfinite(qvel)))

@@ -103,6 +103,19 @@ class MjxEnv(abc.ABC):
             f"physics {self.physics_name})"
         )
 
+    @classmethod
+    def observation_names(cls) -> list[str]:
+        """A readable name per observation entry, as Gymnasium's docs describe them."""
+        model = mujoco.MjModel.from_xml_path(gymnasium_asset_path(cls.xml_file))
+        names = cls._observation_names(model)
+        assert len(names) == cls.observation_size, (len(names), cls.observation_size)
+        return names
+
+    @classmethod
+    @abc.abstractmethod
+    def _observation_names(cls, model: mujoco.MjModel) -> list[str]:
+        """:meth:`observation_names` from the model's joint and body names."""
+
     # --- task hooks -------------------------------------------------------------------
     @abc.abstractmethod
     def _observation(self, data: mjx.Data) -> jax.Array:
@@ -188,6 +201,11 @@ class MjxEnv(abc.ABC):
 
     def capacity_message(self) -> str:
         return self.physics.capacity_message()
+
+
+def joint_label(model: mujoco.MjModel, joint: int) -> str:
+    """``"thigh left joint"`` for the joint named ``thigh_left_joint``."""
+    return model.joint(joint).name.replace("_", " ")
 
 
 def reset_where_done(env: MjxEnv, state: EnvState, rng: jax.Array) -> EnvState:

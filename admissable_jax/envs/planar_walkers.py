@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 from mujoco import mjx
 
-from admissable_jax.envs.base import MjxEnv
+from admissable_jax.envs.base import MjxEnv, joint_label
 
 _QVEL_CLIP = 10.0
 _CTRL_COST_WEIGHT = 1e-3
@@ -38,6 +38,15 @@ class PlanarWalker(MjxEnv):
 
     def _observation(self, data: mjx.Data) -> jax.Array:
         return jnp.concatenate([data.qpos[1:], jnp.clip(data.qvel, -_QVEL_CLIP, _QVEL_CLIP)])
+
+    @classmethod
+    def _observation_names(cls, model):
+        # Joints 0-2 are the torso's slide x, slide z and hinge (rootx, rootz, rooty).
+        joints = [joint_label(model, j) for j in range(3, model.njnt)]
+        positions = ["torso z", "torso angle", *(f"{joint} angle" for joint in joints)]
+        velocities = ["torso x velocity", "torso z velocity", "torso angular velocity",
+                      *(f"{joint} angular velocity" for joint in joints)]
+        return positions + velocities
 
     def _is_healthy(self, qpos: jax.Array, qvel: jax.Array) -> jax.Array:
         z, angle = qpos[1], qpos[2]

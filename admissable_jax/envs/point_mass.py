@@ -39,6 +39,10 @@ class PointMass:
         self.action_low = -jnp.ones(2, jnp.float32)
         self.action_high = jnp.ones(2, jnp.float32)
 
+    @classmethod
+    def observation_names(cls) -> list[str]:
+        return ["x", "y", "x velocity", "y velocity"]
+
     @property
     def max_episode_steps(self) -> int:
         return self.options.episode_length
