@@ -3,7 +3,8 @@
 Tanh-squashed Gaussian actor (log-std clipped to [-20, 2]), twin Q critics with Polyak
 target copies, automatic entropy coefficient (target entropy -|A|), Adam for all three.
 The update follows SB3's order: entropy coefficient, critics, actor, target networks, with
-the entropy coefficient from before its own step used in the critic and actor losses.
+the entropy coefficient from before its own step used in the critic and actor losses. The
+objectives themselves are in :mod:`admissable_jax.sac_losses`, beside their equations.
 Inputs are the 2·d masked observations; the agent never sees which env it runs in.
 """
 
@@ -18,6 +19,8 @@ import jax
 import jax.numpy as jnp
 import optax
 from flax import struct
+
+from admissable_jax import sac_losses as losses
 
 LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0
 
@@ -152,34 +155,33 @@ class SAC:
         actor_rng, next_rng = jax.random.split(rng)
         hp = self.hp
 
-        # Entropy coefficient: -log α · (log π + target entropy), log π detached.
+        # Entropy coefficient (eq. 18), then α from before its own step, as SB3.
         _, log_prob = self.sample_action(state.actor_params, batch.obs, actor_rng)
-        entropy_gap = jax.lax.stop_gradient(log_prob + self.target_entropy)
-        alpha_loss, alpha_grad = jax.value_and_grad(lambda la: -jnp.mean(la * entropy_gap))(state.log_alpha)
+        alpha_loss, alpha_grad = jax.value_and_grad(losses.entropy_coefficient_loss)(
+            state.log_alpha, log_prob, self.target_entropy
+        )
         alpha_updates, alpha_opt_state = self.optimizer.update(alpha_grad, state.alpha_opt_state)
         log_alpha = optax.apply_updates(state.log_alpha, alpha_updates)
-        alpha = jnp.exp(state.log_alpha)  # the value before this step, as SB3
+        alpha = jnp.exp(state.log_alpha)
 
-        # Critics: soft Bellman target; truncations are not terminations (bootstrap).
+        # Critics (eqs. 2-5) toward the soft Bellman target from the target twins.
         next_action, next_log_prob = self.sample_action(state.actor_params, batch.next_obs, next_rng)
         next_q = jnp.min(self.critic.apply(state.target_critic_params, batch.next_obs, next_action), axis=0)
-        not_terminal = 1.0 - batch.terminated.astype(jnp.float32)
-        target = batch.reward + not_terminal * hp.gamma * (next_q - alpha * next_log_prob)
-        target = jax.lax.stop_gradient(target)
+        target = losses.soft_q_target(batch.reward, batch.terminated, next_q, next_log_prob, alpha, hp.gamma)
 
         def critic_loss_fn(params):
             q = self.critic.apply(params, batch.obs, batch.action)
-            return 0.5 * jnp.sum(jnp.mean((q - target) ** 2, axis=-1)), q
+            return losses.critic_loss(q, target), q
 
         (critic_loss, q), critic_grad = jax.value_and_grad(critic_loss_fn, has_aux=True)(state.critic_params)
         critic_updates, critic_opt_state = self.optimizer.update(critic_grad, state.critic_opt_state)
         critic_params = optax.apply_updates(state.critic_params, critic_updates)
 
-        # Actor: α log π − min Q, against the freshly updated critics (SB3 order).
+        # Actor (eq. 7) against the freshly updated critics (SB3's order).
         def actor_loss_fn(params):
             action, log_prob = self.sample_action(params, batch.obs, actor_rng)
             q_pi = jnp.min(self.critic.apply(critic_params, batch.obs, action), axis=0)
-            return jnp.mean(alpha * log_prob - q_pi), -jnp.mean(log_prob)
+            return losses.actor_loss(alpha, log_prob, q_pi), -jnp.mean(log_prob)
 
         (actor_loss, entropy), actor_grad = jax.value_and_grad(actor_loss_fn, has_aux=True)(state.actor_params)
         actor_updates, actor_opt_state = self.optimizer.update(actor_grad, state.actor_opt_state)
