@@ -20,10 +20,11 @@ def _field(default, help_text: str):
 
 
 @dataclasses.dataclass
-class TrainConfig:
+class RunSettings:
+    """The settings every run of an experiment shares: task, adversary, SAC, cadence."""
+
     # task and adversary (paper §3, Table of hyperparameters)
     env: str = _field("hopper", "hopper, walker2d or ant (or Hopper-v5, Walker2d-v5, Ant-v5)")
-    missingness: str = _field("adversarial", "adversarial | uniform | none")
     k: int = _field(1, "features hidden per episode (|u| = k)")
     include_empty_set: bool = _field(False, "also let the adversary pick 'nothing hidden'")
     score_every: int = _field(5000, "zeta: env steps (over all envs) between scorings")
@@ -35,7 +36,6 @@ class TrainConfig:
     # run
     total_steps: int = _field(1_000_000, "env steps to train, over all envs (rounded up to a multiple of score_every)")
     num_envs: int = _field(0, "parallel envs; 0 = the largest divisor of score_every up to 8 on CPU, 128 on GPU (125 for 5000)")
-    seed: int = _field(0, "PRNG seed")
     episode_length: int = _field(1000, "step limit of an episode (Gymnasium v5: 1000)")
     # SAC (Stable-Baselines3 defaults)
     learning_rate: float = _field(3e-4, "Adam learning rate (actor, critics, alpha)")
@@ -48,11 +48,19 @@ class TrainConfig:
     learning_starts: int = _field(10_000, "env steps of uniform random actions before learning")
     utd: float = _field(1.0, "gradient steps per env step")
     # output
-    out: str = _field("", "run directory; '' = runs/<env>-<missingness>-s<seed>")
     checkpoint_every: int = _field(10, "checkpoint every this many scorings (and at the end)")
     resume: bool = _field(False, "continue the run in 'out' from its last checkpoint")
     resume_step: int = _field(-1, "with resume=true: the checkpoint (env step) to continue from; -1 = the latest")
     progress: bool = _field(True, "show a progress bar")
+
+
+@dataclasses.dataclass
+class TrainConfig(RunSettings):
+    """One training run: the shared settings plus its mode, seed and directory."""
+
+    missingness: str = _field("adversarial", "adversarial | uniform | none")
+    seed: int = _field(0, "PRNG seed")
+    out: str = _field("", "run directory; '' = runs/<env>-<missingness>-s<seed>")
 
     def resolved(self) -> "TrainConfig":
         """A copy with the env name and physics backend canonical, ``num_envs``,

@@ -28,33 +28,20 @@ from omegaconf import OmegaConf
 from admissable_jax.adversary import MODES
 from admissable_jax.checkpointing import CheckpointError, Checkpoints
 from admissable_jax.cli import enable_compilation_cache, parse_args
-from admissable_jax.config import TrainConfig
+from admissable_jax.config import RunSettings, TrainConfig
 from admissable_jax.envs import canonical_env_name
 from admissable_jax.runs import RunDirectory, RunDirectoryError, TrainingLoop, TrainResult, make_trainer, mode_flags, run_from_cli, take_pair
 
-# TrainConfig keys that name one run and so are replaced by the experiment's own; the
-# other TrainConfig fields are shared by every pair.
-_PER_RUN_KEYS = ("missingness", "seed", "out")
-_SHARED_FIELDS = [field for field in dataclasses.fields(TrainConfig) if field.name not in _PER_RUN_KEYS]
+@dataclasses.dataclass
+class ExperimentConfig(RunSettings):
+    """An experiment: the settings every pair shares (``RunSettings``, as ``train`` takes
+    them), plus which seeds and modes make the pairs and where they go."""
 
-
-def _experiment_fields() -> list[tuple]:
-    own = [
-        ("seeds", "int", dataclasses.field(default=5, metadata={"help": "seeds per mode: first_seed .. first_seed + seeds - 1"})),
-        ("first_seed", "int", dataclasses.field(default=0, metadata={"help": "the first seed"})),
-        ("modes", "str", dataclasses.field(default="adversarial,uniform", metadata={"help": "comma-separated missingness modes (adversarial, uniform, none)"})),
-        ("out", "str", dataclasses.field(default="", metadata={"help": "experiment directory; '' = runs/fig1-<env>"})),
-        ("budget_only", "bool", dataclasses.field(default=False, metadata={"help": "print the memory budget and stop"})),
-    ]
-    shared = [
-        (field.name, field.type, dataclasses.field(default=field.default, metadata=field.metadata))
-        for field in _SHARED_FIELDS
-    ]
-    return own + shared
-
-
-ExperimentConfig = dataclasses.make_dataclass("ExperimentConfig", _experiment_fields())
-ExperimentConfig.__doc__ = "An experiment: TrainConfig's settings shared by every pair, plus seeds and modes."
+    seeds: int = dataclasses.field(default=5, metadata={"help": "seeds per mode: first_seed .. first_seed + seeds - 1"})
+    first_seed: int = dataclasses.field(default=0, metadata={"help": "the first seed"})
+    modes: str = dataclasses.field(default="adversarial,uniform", metadata={"help": "comma-separated missingness modes (adversarial, uniform, none)"})
+    out: str = dataclasses.field(default="", metadata={"help": "experiment directory; '' = runs/fig1-<env>"})
+    budget_only: bool = dataclasses.field(default=False, metadata={"help": "print the memory budget and stop"})
 
 
 def pair_configs(config) -> list[TrainConfig]:
@@ -67,7 +54,7 @@ def pair_configs(config) -> list[TrainConfig]:
         raise ValueError(f"modes repeats a mode: {config.modes!r}")
     if config.seeds < 1 or config.first_seed < 0:
         raise ValueError(f"seeds must be >= 1 and first_seed >= 0, got seeds={config.seeds}, first_seed={config.first_seed}")
-    shared = {field.name: getattr(config, field.name) for field in _SHARED_FIELDS}
+    shared = {field.name: getattr(config, field.name) for field in dataclasses.fields(RunSettings)}
     out = config.out or f"runs/fig1-{canonical_env_name(config.env)}"
     return [
         TrainConfig(**shared, missingness=mode, seed=seed, out=os.path.join(out, f"{mode}-s{seed}")).resolved()
