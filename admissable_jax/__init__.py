@@ -12,7 +12,18 @@ from admissable_jax.config import TrainConfig  # noqa: E402
 from admissable_jax.envs import make_env  # noqa: E402
 from admissable_jax.missingness import candidate_sets, mask_observation  # noqa: E402
 from admissable_jax.scoring import MissingnessScores, score_missingness  # noqa: E402
-from admissable_jax.runs import TrainResult, train_fn  # noqa: E402
+
+
+
+def __getattr__(name: str):
+    """``train_fn`` and ``TrainResult`` live in :mod:`admissable_jax.train`, imported on first
+    use, so that ``python -m admissable_jax.train`` does not import its own module twice."""
+    if name in ("train_fn", "TrainResult"):
+        from admissable_jax import train
+
+        return getattr(train, name)
+    raise AttributeError(f"module 'admissable_jax' has no attribute {name!r}")
+
 
 __all__ = [
     "MissingnessScores",

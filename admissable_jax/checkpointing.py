@@ -15,8 +15,10 @@ import shutil
 import jax
 import orbax.checkpoint as ocp
 
+from admissable_jax.errors import RunFailed
 
-class CheckpointError(RuntimeError):
+
+class CheckpointError(RunFailed):
     """A checkpoint that is missing, unreadable or does not fit the run's state."""
 
 

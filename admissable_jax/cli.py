@@ -10,14 +10,14 @@ from __future__ import annotations
 import dataclasses
 import os
 import sys
-from typing import Callable, TypeVar
+from typing import Any, Callable, TypeVar
 
 from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-ConfigT = TypeVar("ConfigT")
+from admissable_jax.errors import INTERRUPTED, USAGE_ERROR, RunFailed
 
-USAGE_ERROR = 2
+ConfigT = TypeVar("ConfigT")
 
 
 def _type_name(field: dataclasses.Field) -> str:
@@ -77,6 +77,25 @@ def _one_line(error: OmegaConfBaseException) -> str:
     if "not in struct" in message or "Key '" in message and "not" in message:
         return f"unknown key {key!r} (see --help for the valid keys)"
     return f"bad value for {key!r}: {message}" if key else message
+
+
+def run_from_cli(function: Callable[[Any], Any], config: Any) -> tuple[Any, int]:
+    """(result, exit status) of ``function(config)`` for a command line: bad settings exit 2;
+    a run that fails (:class:`~admissable_jax.errors.RunFailed`: a corrupt checkpoint, a
+    diverged run, one too large for memory or for the physics buffers, an unusable run
+    directory, Ctrl-C) exits with its own status; each prints one line on stderr, and
+    finished work stays in the run directory."""
+    try:
+        return function(config), 0
+    except (ValueError, TypeError, FileExistsError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return None, USAGE_ERROR
+    except RunFailed as error:
+        print(f"{error.label}: {error}", file=sys.stderr)
+        return None, error.exit_status
+    except KeyboardInterrupt:
+        print("interrupted before training started; nothing to resume from", file=sys.stderr)
+        return None, INTERRUPTED
 
 
 def enable_compilation_cache() -> None:

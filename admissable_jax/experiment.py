@@ -27,10 +27,13 @@ from omegaconf import OmegaConf
 
 from admissable_jax.adversary import MODES
 from admissable_jax.checkpointing import CheckpointError, Checkpoints
-from admissable_jax.cli import enable_compilation_cache, parse_args
+from admissable_jax.cli import enable_compilation_cache, parse_args, run_from_cli
 from admissable_jax.config import RunSettings, TrainConfig
 from admissable_jax.envs import canonical_env_name
-from admissable_jax.runs import RunDirectory, RunDirectoryError, TrainingLoop, TrainResult, make_trainer, mode_flags, run_from_cli, take_pair
+from admissable_jax.errors import UnusableRunDirectory
+from admissable_jax.host_loop import TrainingLoop, make_trainer, mode_flags, take_pair
+from admissable_jax.run_directory import RunDirectory
+from admissable_jax.train import TrainResult
 
 @dataclasses.dataclass
 class ExperimentConfig(RunSettings):
@@ -78,7 +81,7 @@ def run_experiment(config) -> list[TrainResult]:
     try:
         os.makedirs(root, exist_ok=True)
     except OSError as error:
-        raise RunDirectoryError(f"cannot create the experiment directory {root}: {error.strerror}") from None
+        raise UnusableRunDirectory(f"cannot create the experiment directory {root}: {error.strerror}") from None
     checkpoint_dir = os.path.join(root, "checkpoints")
     with contextlib.ExitStack() as held:
         runs = []

@@ -13,10 +13,12 @@ import json
 import os
 import socket
 
+from admissable_jax.errors import UnusableRunDirectory
+
 LOCK_NAME = ".lock"
 
 
-class RunDirectoryLocked(RuntimeError):
+class RunDirectoryLocked(UnusableRunDirectory):
     """Another live process owns the run directory."""
 
 

@@ -1,8 +1,288 @@
-"""``python -m admissable_jax.plot RUN_DIR ... [window=40] [out=DIR]``: see :mod:`admissable_jax.plots`."""
+"""Figures from run directories: the paper's Figure 1 and what explains it.
 
+``python -m admissable_jax.plot RUN_DIR ... [window=40] [out=DIR]`` from a shell,
+``plot_runs`` and ``summary_table`` from Python.
+
+``plot_runs(run_dirs, out_dir)`` groups runs by (env, missingness mode) and draws, as PNG
+and PDF:
+
+* ``min_score.*`` — the paper's Figure 1: min_u a_u against env steps, one line per mode
+  (adversarial blue, uniform red, as in the paper; none grey), the mean over seeds of the
+  moving average over ``window`` records, shaded with a 95% t-interval over seeds; a
+  second panel shows the clean return (nothing hidden) the same way;
+* ``scores_<mode>.*`` — a_u for every missing set over time (mean over seeds), a heatmap
+  whose rows are named after Gymnasium's observation entries ("torso z", ...) and whose
+  cells are centred on their scoring steps;
+* ``p_miss_<mode>.*`` — the adversary's distribution over time (mean over seeds), or a
+  note that it stayed uniform;
+* ``summary.md`` (CLI) — :func:`summary_table`: final and AUC min_u a_u per mode.
+
+A window longer than the runs' records is shortened to their length, and the figures and
+the summary say so. ``python -m admissable_jax.plot runs/fig1-hopper [window=40] [out=DIR]``
+finds every run directory (one holding ``scores.jsonl``) under the given paths and writes
+into a new folder (``<first path>/figures``, or ``figures-2``, ... if that exists).
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import json
+import os
 import sys
 
-from admissable_jax.plots import main
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from omegaconf import OmegaConf  # noqa: E402
+from scipy import stats  # noqa: E402
+
+from admissable_jax.cli import fail, parse_args  # noqa: E402
+from admissable_jax.envs import observation_names  # noqa: E402
+from admissable_jax.missingness import candidate_sets  # noqa: E402
+
+MODE_COLORS = {"adversarial": "tab:blue", "uniform": "tab:red", "none": "tab:gray"}
+
+
+@dataclasses.dataclass
+class Run:
+    path: str
+    env: str
+    mode: str
+    seed: int
+    env_steps: np.ndarray  # (T,)
+    scores: np.ndarray  # (T, |U|) a_u
+    min_score: np.ndarray  # (T,)
+    clean_score: np.ndarray  # (T,)
+    p_miss: np.ndarray  # (T, |U|)
+    set_names: list[str]  # (|U|,) the hidden features of each candidate set
+
+
+def set_names(env: str, k: int, include_empty: bool) -> list[str]:
+    """A name per candidate set u, in the runs' order: its hidden features' names."""
+    features = observation_names(env)
+    rows = candidate_sets(len(features), k, include_empty)
+    return [" + ".join(features[i] for i in np.flatnonzero(row)) or "nothing hidden" for row in rows]
+
+
+def load_run(path: str) -> Run:
+    """A run directory's config and scoring history."""
+    config = OmegaConf.load(os.path.join(path, "config.yaml"))
+    with open(os.path.join(path, "scores.jsonl")) as file:
+        rows = [json.loads(line) for line in file if line.strip()]
+    if not rows:
+        raise ValueError(f"{path} has no scoring rows yet")
+    column = lambda key: np.asarray([row[key] for row in rows], dtype=float)
+    return Run(
+        path=path, env=str(config.env), mode=str(config.missingness), seed=int(config.seed),
+        env_steps=column("env_steps"), scores=column("scores"), min_score=column("min_score"),
+        clean_score=column("clean_score"), p_miss=column("p_miss"),
+        set_names=set_names(str(config.env), int(config.k), bool(config.include_empty_set)),
+    )
+
+
+def find_runs(paths: list[str]) -> list[str]:
+    """Every directory at or under ``paths`` that holds a ``scores.jsonl``."""
+    found = []
+    for path in paths:
+        if not os.path.isdir(path):
+            raise FileNotFoundError(f"no such directory: {path}")
+        for root, _, files in os.walk(path):
+            if "scores.jsonl" in files and "config.yaml" in files:
+                found.append(root)
+    return sorted(found)
+
+
+def moving_average(values: np.ndarray, window: int) -> np.ndarray:
+    """Trailing mean over the last ``window`` records (fewer at the start), along axis -1."""
+    cumulative = np.cumsum(values, axis=-1)
+    shifted = np.concatenate([np.zeros_like(cumulative[..., :window]), cumulative[..., :-window]], axis=-1)
+    counts = np.minimum(np.arange(1, values.shape[-1] + 1), window)
+    return (cumulative - shifted[..., : values.shape[-1]]) / counts
+
+
+def mean_and_interval(curves: np.ndarray, confidence: float = 0.95) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean over seeds (axis 0) and a two-sided t-interval; the interval is the mean alone
+    for a single seed."""
+    mean = curves.mean(axis=0)
+    n = curves.shape[0]
+    if n < 2:
+        return mean, mean, mean
+    half = stats.t.ppf(0.5 + confidence / 2, n - 1) * curves.std(axis=0, ddof=1) / np.sqrt(n)
+    return mean, mean - half, mean + half
+
+
+def _aligned(runs: list[Run], attribute: str) -> tuple[np.ndarray, np.ndarray]:
+    """(env steps, stacked values) over the records all runs share."""
+    length = min(len(run.env_steps) for run in runs)
+    return runs[0].env_steps[:length], np.stack([getattr(run, attribute)[:length] for run in runs])
+
+
+def effective_window(runs: list[Run], window: int) -> int:
+    """The moving-average window the figures use: ``window``, shortened to the records the
+    runs share (a longer one would silently be a running mean)."""
+    if not isinstance(window, int) or isinstance(window, bool) or window < 1:
+        raise ValueError(f"window must be an int >= 1, got {window!r}")
+    return min(window, min(len(run.env_steps) for run in runs))
+
+
+def _window_note(window: int, used: int) -> str:
+    if used == window:
+        return f"moving average over {used} records"
+    return f"moving average over {used} records (window={window} shortened: the runs have {used})"
+
+
+def _seeds(n: int) -> str:
+    return f"{n} seed" if n == 1 else f"{n} seeds"
+
+
+def _cell_edges(steps: np.ndarray) -> np.ndarray:
+    """Edges of heatmap cells centred on each scoring step."""
+    if len(steps) == 1:
+        return np.array([steps[0] - 0.5, steps[0] + 0.5])
+    middles = (steps[1:] + steps[:-1]) / 2
+    return np.concatenate([[2 * steps[0] - middles[0]], middles, [2 * steps[-1] - middles[-1]]])
+
+
+def _heatmap(ax, figure, steps: np.ndarray, values: np.ndarray, names: list[str], label: str) -> None:
+    """Sets (rows, named) × scoring steps (columns, centred on their steps)."""
+    image = ax.pcolormesh(_cell_edges(steps), np.arange(len(names) + 1) - 0.5, values.T, cmap="viridis", shading="flat")
+    figure.colorbar(image, ax=ax, label=label)
+    every = max(1, int(np.ceil(len(names) / 40)))  # at most 40 row labels
+    ax.set_yticks(np.arange(0, len(names), every), [names[i] for i in range(0, len(names), every)],
+                  fontsize=8 if len(names) <= 40 else 6)
+    ax.set_ylim(-0.5, len(names) - 0.5)
+
+
+def _save(figure, out_dir: str, name: str) -> list[str]:
+    paths = [os.path.join(out_dir, f"{name}.{ext}") for ext in ("png", "pdf")]
+    for path in paths:
+        figure.savefig(path, dpi=150, bbox_inches="tight")
+    plt.close(figure)
+    return paths
+
+
+def plot_runs(run_dirs: list[str], out_dir: str, window: int = 40) -> list[str]:
+    """Draw the figures for these runs into ``out_dir``; returns the files written."""
+    runs = [load_run(path) for path in run_dirs]
+    if not runs:
+        raise ValueError("no runs to plot")
+    envs = sorted({run.env for run in runs})
+    if len(envs) > 1:
+        raise ValueError(f"runs of several envs ({', '.join(envs)}): plot one env at a time")
+    used = effective_window(runs, window)
+    by_mode: dict[str, list[Run]] = collections.defaultdict(list)
+    for run in runs:
+        by_mode[run.mode].append(run)
+    os.makedirs(out_dir, exist_ok=True)
+    written = []
+
+    figure, (ax_min, ax_clean) = plt.subplots(1, 2, figsize=(11, 4))
+    for mode, mode_runs in sorted(by_mode.items()):
+        for ax, attribute in ((ax_min, "min_score"), (ax_clean, "clean_score")):
+            steps, values = _aligned(mode_runs, attribute)
+            mean, low, high = mean_and_interval(moving_average(values, used))
+            color = MODE_COLORS.get(mode, "black")
+            ax.plot(steps, mean, color=color, label=f"{mode} ({_seeds(len(mode_runs))})")
+            ax.fill_between(steps, low, high, color=color, alpha=0.2, linewidth=0)
+    ax_min.set_title(f"{envs[0]}: adversarial performance $\\min_u a_u$")
+    ax_clean.set_title(f"{envs[0]}: clean return (nothing hidden)")
+    for ax in (ax_min, ax_clean):
+        ax.set_xlabel("env steps")
+        ax.set_ylabel("return")
+        ax.grid(alpha=0.3)
+        ax.legend()
+    figure.suptitle(f"mean over seeds of the {_window_note(window, used)}; shaded: 95% t-interval", fontsize=9, y=-0.04)
+    written += _save(figure, out_dir, "min_score")
+
+    for mode, mode_runs in sorted(by_mode.items()):
+        names = mode_runs[0].set_names
+        height = max(4.0, 0.12 * len(names) + 1.5)
+        for attribute, label, name in (("scores", "$a_u$ (mean over seeds)", "scores"), ("p_miss", "$p_{miss}(u)$ (mean over seeds)", "p_miss")):
+            steps, values = _aligned(mode_runs, attribute)
+            figure, ax = plt.subplots(figsize=(10, height))
+            ax.set_title(f"{envs[0]}, {mode} missingness ({_seeds(len(mode_runs))}): {label}")
+            if attribute == "p_miss" and np.allclose(values, 1.0 / values.shape[-1]):
+                ax.text(0.5, 0.5, f"$p_{{miss}}$ stayed uniform: 1/{values.shape[-1]} = {1.0 / values.shape[-1]:.4f} "
+                        f"for every u,\nat all {len(steps)} scorings ({int(steps[0])} to {int(steps[-1])} env steps)",
+                        ha="center", va="center", transform=ax.transAxes, fontsize=12)
+                ax.set_axis_off()
+                figure.set_size_inches(10, 2.5)
+            else:
+                _heatmap(ax, figure, steps, values.mean(axis=0), names, label)
+                ax.set_xlabel("env steps (each column one scoring)")
+                ax.set_ylabel("hidden features u")
+            written += _save(figure, out_dir, f"{name}_{mode}")
+    return written
+
+
+def _estimate(values: np.ndarray) -> str:
+    mean, low, _ = mean_and_interval(values[:, None])
+    return f"{mean[0]:.1f} ± {mean[0] - low[0]:.1f}" if len(values) > 1 else f"{mean[0]:.1f}"
+
+
+def summary_table(run_dirs: list[str]) -> str:
+    """Markdown table per mode: final and area-under-curve min_u a_u and the final clean
+    return, mean ± 95% t-interval half-width over seeds. The AUC is the mean of min_u a_u
+    over all records (the area under the curve divided by its length in records)."""
+    by_mode: dict[str, list[Run]] = collections.defaultdict(list)
+    for run in (load_run(path) for path in run_dirs):
+        by_mode[(run.env, run.mode)].append(run)
+    lines = [
+        "| env | mode | seeds | env steps | final min_u a_u | AUC min_u a_u (mean over records) | final clean return |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for (env, mode), runs in sorted(by_mode.items()):
+        steps, minimum = _aligned(runs, "min_score")
+        _, clean = _aligned(runs, "clean_score")
+        lines.append(
+            f"| {env} | {mode} | {len(runs)} | {int(steps[-1])} | {_estimate(minimum[:, -1])} | "
+            f"{_estimate(minimum.mean(axis=1))} | {_estimate(clean[:, -1])} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+@dataclasses.dataclass
+class PlotConfig:
+    window: int = dataclasses.field(default=40, metadata={"help": "moving-average window (records)"})
+    out: str = dataclasses.field(default="", metadata={"help": "output folder ('' = a new <first path>/figures, figures-2, ...)"})
+
+
+def new_folder(path: str) -> str:
+    """``path`` if it does not exist yet, else the first free ``path-2``, ``path-3``, ..."""
+    candidate, number = path, 1
+    while os.path.exists(candidate):
+        number += 1
+        candidate = f"{path}-{number}"
+    return candidate
+
+
+def main(argv: list[str]) -> int:
+    paths = [arg for arg in argv if "=" not in arg and not arg.startswith("-")]
+    options = [arg for arg in argv if arg not in paths]
+    config = parse_args(PlotConfig, options, "admissable_jax.plot RUN_DIR [RUN_DIR ...]", __doc__.splitlines()[0])
+    if not paths:
+        fail("give at least one run directory (or a folder of them)")
+    try:
+        runs = find_runs(paths)
+        if not runs:
+            raise ValueError(f"no run directories (config.yaml + scores.jsonl) under {', '.join(paths)}")
+        used = effective_window([load_run(path) for path in runs], config.window)
+        out_dir = config.out or new_folder(os.path.join(paths[0], "figures"))
+        written = plot_runs(runs, out_dir, config.window)
+        table = summary_table(runs)
+    except (ValueError, FileNotFoundError, KeyError) as error:
+        fail(str(error))
+    table += (f"\nFigures: mean over seeds of the {_window_note(config.window, used)}. Table: the last "
+              "record itself (final) and the mean over all records (AUC), unsmoothed.\n")
+    with open(os.path.join(out_dir, "summary.md"), "w") as file:
+        file.write(table)
+    print("\n".join([*written, os.path.join(out_dir, "summary.md")]))
+    print(table)
+    return 0
+
 
 if __name__ == "__main__":
     raise SystemExit(main(sys.argv[1:]))

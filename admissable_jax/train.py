@@ -1,17 +1,59 @@
-"""``python -m admissable_jax.train key=value ...``: train one agent from the command line.
+"""Train one agent: ``train_fn(config)`` in Python, ``python -m admissable_jax.train key=value ...``.
 
 ``--help`` lists every key with its default. Bad settings exit with status 2 and a one-line
 message; a corrupt checkpoint, a diverged run (NaN) or a run too large for the device's
-memory exits with status 1, and the run directory keeps everything finished before.
+memory exits with status 1, Ctrl-C with 130, and the run directory keeps everything
+finished before.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import os
 import sys
+from typing import Any
 
-from admissable_jax.cli import enable_compilation_cache, parse_args
-from admissable_jax.config import TrainConfig
-from admissable_jax.runs import run_from_cli, train_fn
+from admissable_jax.checkpointing import Checkpoints
+from admissable_jax.cli import enable_compilation_cache, parse_args, run_from_cli
+from admissable_jax.config import TrainConfig, validate
+from admissable_jax.host_loop import TrainingLoop, make_trainer, mode_flags
+from admissable_jax.run_directory import RunDirectory
+from admissable_jax.training import Trainer, TrainState
+
+
+@dataclasses.dataclass
+class TrainResult:
+    """What a run produced. ``scores`` and ``metrics`` are the rows of the JSONL files."""
+
+    config: TrainConfig
+    trainer: Trainer
+    state: TrainState
+    scores: list[dict[str, Any]]
+    metrics: list[dict[str, Any]]
+
+    @property
+    def actor_params(self):
+        return self.state.sac.actor_params
+
+    @property
+    def run_dir(self) -> str:
+        return self.config.out
+
+
+def train_fn(config: TrainConfig) -> TrainResult:
+    """Train SAC against missingness as ``config`` says; returns params and histories."""
+    validate(config)
+    config = config.resolved()
+    trainer = make_trainer(config)
+    checkpoint_dir = os.path.join(config.out, "checkpoints")
+    run = RunDirectory(config, checkpoint_dir)
+    try:
+        checkpoints = Checkpoints(checkpoint_dir)
+        init = lambda: trainer.init(config.seed, *mode_flags(config.missingness))
+        state = TrainingLoop(trainer, config, [run], checkpoints, init, batched=False).run()
+    finally:
+        run.close()
+    return TrainResult(config, trainer, state, run.read("scores.jsonl"), run.read("metrics.jsonl"))
 
 
 def main(argv: list[str]) -> int:

@@ -32,7 +32,7 @@ from admissable_jax.agent import SACBatch
 from admissable_jax.cli import parse_args
 from admissable_jax.config import TrainConfig
 from admissable_jax.rollout import random_rollout
-from admissable_jax.runs import make_trainer, take_pair
+from admissable_jax.host_loop import make_trainer, take_pair
 from admissable_jax.training import Trainer
 from common import append_record, compiled_updates, peak_host_memory_mb, update_flops
 

@@ -13,8 +13,8 @@ import pytest
 from nbclient import NotebookClient
 
 from admissable_jax.experiment import ExperimentConfig, pair_configs, run_experiment
-from admissable_jax.plots import find_runs, plot_runs
-from admissable_jax.runs import MemoryBudgetExceeded
+from admissable_jax.plot import find_runs, plot_runs
+from admissable_jax.memory import MemoryBudgetExceeded
 
 EXPERIMENT = dict(
     env="point_mass", seeds=2, modes="adversarial,uniform", score_every=1000, num_envs=4,
@@ -59,12 +59,12 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path):
 
 
 def test_experiment_refuses_what_does_not_fit_before_allocating(tmp_path, monkeypatch):
-    import admissable_jax.runs as runs
+    import admissable_jax.memory as memory
 
     class Tiny:
         available = 1024
 
-    monkeypatch.setattr(runs.psutil, "virtual_memory", lambda: Tiny())
+    monkeypatch.setattr(memory.psutil, "virtual_memory", lambda: Tiny())
     config = ExperimentConfig(**EXPERIMENT, total_steps=1000, out=str(tmp_path / "big"))
     with pytest.raises(MemoryBudgetExceeded, match="does not fit: memory on cpu\\S*: training state .* GiB available"):
         run_experiment(config)

@@ -9,7 +9,7 @@ from matplotlib.image import imread
 from omegaconf import OmegaConf
 
 from admissable_jax.config import TrainConfig
-from admissable_jax.plots import (
+from admissable_jax.plot import (
     _cell_edges, _seeds, effective_window, find_runs, load_run, main, mean_and_interval, moving_average, plot_runs,
     set_names, summary_table,
 )

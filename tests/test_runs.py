@@ -14,8 +14,10 @@ import pytest
 
 from admissable_jax import TrainConfig, train_fn
 from admissable_jax.checkpointing import CheckpointError
+from admissable_jax.cli import run_from_cli
+from admissable_jax.errors import INTERRUPTED
+from admissable_jax.host_loop import TrainingLoop
 from admissable_jax.locks import LOCK_NAME, RunDirectoryLocked
-from admissable_jax.runs import INTERRUPTED, TrainingLoop, run_from_cli
 
 RUN = TrainConfig(
     env="point_mass", total_steps=2000, score_every=500, num_envs=4, learning_starts=500, episode_length=50,

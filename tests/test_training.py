@@ -19,7 +19,7 @@ import pytest
 
 from admissable_jax import TrainConfig, candidate_sets, make_env, mask_observation, score_missingness, train_fn
 from admissable_jax.checkpointing import CheckpointError
-from admissable_jax.runs import TrainingDiverged
+from admissable_jax.host_loop import TrainingDiverged
 from admissable_jax.training import Trainer
 
 POINT_MASS = TrainConfig(

@@ -17,7 +17,8 @@ import pytest
 
 from admissable_jax import TrainConfig, make_env
 from admissable_jax.experiment import ExperimentConfig, run_experiment
-from admissable_jax.runs import PhysicsCapacityExceeded, make_trainer, train_fn
+from admissable_jax.host_loop import PhysicsCapacityExceeded, make_trainer
+from admissable_jax.train import train_fn
 
 HOPPER = TrainConfig(
     env="hopper", total_steps=80, score_every=40, num_envs=4, learning_starts=48, batch_size=32,

@@ -1,0 +1,187 @@
+"""The host loop over scorings, for one run or a vmapped batch of (seed, mode) pairs.
+
+It alternates two jitted functions: ``run_chunk`` (ζ env steps of SAC over the parallel
+envs, on the device) and ``score_and_update`` (every u scored in one batched rollout,
+then the adversary's p_miss update). After each scoring it appends one row to
+``scores.jsonl`` and one to ``metrics.jsonl`` of every run directory, and every
+``checkpoint_every`` scorings (and at the end) it saves an orbax checkpoint of the whole
+training state, from which ``resume=true`` continues. Both functions are compiled before
+the state is allocated, so a run that would not fit in memory stops before it starts.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import sys
+import time
+from typing import Any, Callable
+
+import jax
+import numpy as np
+from tqdm.auto import tqdm
+
+from admissable_jax.checkpointing import Checkpoints
+from admissable_jax.config import TrainConfig, env_options
+from admissable_jax.envs import make_env
+from admissable_jax.errors import Interrupted, RunFailed
+from admissable_jax.memory import MemoryBudget, MemoryBudgetExceeded, memory_budget
+from admissable_jax.run_directory import RunDirectory, metrics_row, score_row
+from admissable_jax.training import Trainer, TrainState
+
+
+class TrainingDiverged(RunFailed):
+    """A loss became NaN or infinite; the last checkpoint is kept."""
+
+
+class PhysicsCapacityExceeded(RunFailed):
+    """The env's physics ran out of a fixed-size buffer; the last checkpoint is kept."""
+
+
+def mode_flags(missingness: str) -> tuple[bool, bool]:
+    """(adversarial, masking) for a missingness mode."""
+    return missingness == "adversarial", missingness != "none"
+
+
+def make_trainer(config: TrainConfig, num_runs: int = 1) -> Trainer:
+    """The env and the trainer for a resolved config, sized for ``num_runs`` vmapped runs."""
+    return Trainer(make_env(config.env, env_options(config, num_runs)), config)
+
+
+def report(message: str) -> None:
+    """A status line on stderr, with or without the progress bar."""
+    tqdm.write(message, file=sys.stderr)
+
+
+@contextlib.contextmanager
+def _reporting(what: str):
+    """Say what is about to happen, then how long it took."""
+    report(f"{what}...")
+    started = time.perf_counter()
+    yield
+    report(f"{what}: done in {time.perf_counter() - started:.1f} s")
+
+
+def take_pair(tree: Any, index: int) -> Any:
+    """Run ``index``'s part of a pytree batched over runs (leading axis)."""
+    return jax.tree.map(lambda leaf: leaf[index], tree)
+
+
+class TrainingLoop:
+    """The host loop over scorings for one run or a vmapped batch of runs.
+
+    ``init()`` builds the training state (batched over runs along a leading axis when
+    ``batched``); the train chunk and the scoring round are the trainer's, vmapped over
+    that axis when ``batched``. ``runs[i]`` is run i's directory.
+    """
+
+    def __init__(
+        self,
+        trainer: Trainer,
+        config: TrainConfig,
+        runs: list["RunDirectory"],
+        checkpoints: Checkpoints,
+        init: Callable[[], TrainState],
+        batched: bool,
+    ):
+        self.trainer, self.config, self.runs, self.checkpoints = trainer, config, runs, checkpoints
+        self.init, self.batched = init, batched
+        run_chunk = lambda state: trainer.run_chunk(state, trainer.iterations_per_scoring)
+        score_and_update = lambda state: trainer.score_and_update(state, config.score_episodes)
+        self._run_chunk = jax.vmap(run_chunk) if batched else run_chunk
+        self._score_and_update = jax.vmap(score_and_update) if batched else score_and_update
+
+    def select_pair(self, tree: Any, pair: int) -> Any:
+        """Run ``pair``'s part of a pytree of the loop's (the tree itself for one run)."""
+        return take_pair(tree, pair) if self.batched else tree
+
+    def compile(self) -> MemoryBudget:
+        """Compile both programs without allocating the state; refuse if they won't fit."""
+        abstract_state = jax.eval_shape(self.init)
+        env = self.trainer.env
+        where = f"{self.config.env} ({env.physics_name} physics) on {jax.devices()[0].platform}"
+        with _reporting(f"compiling the training step for {where}"):
+            self.run_chunk = jax.jit(self._run_chunk, donate_argnums=0).lower(abstract_state).compile()
+        with _reporting(f"compiling the scoring round for {where}"):
+            self.score_and_update = jax.jit(self._score_and_update, donate_argnums=0).lower(abstract_state).compile()
+        budget = memory_budget(abstract_state, self.run_chunk, self.score_and_update)
+        if budget.needed_bytes > budget.available_bytes:
+            raise MemoryBudgetExceeded(
+                f"does not fit: {budget.describe()}; use fewer pairs, fewer num_envs or a smaller buffer_size"
+            )
+        return budget
+
+    def run(self) -> TrainState:
+        config = self.config
+        budget = self.compile()
+        report(f"{len(self.runs)} run(s) x {config.num_envs} envs of {config.env} on "
+               f"{self.trainer.env.physics_name} physics: {budget.describe()}")
+        state = jax.jit(self.init)()
+        start_step = 0
+        if config.resume:
+            start_step, state = self.checkpoints.restore(state, None if config.resume_step < 0 else config.resume_step)
+            for run in self.runs:
+                run.truncate_logs(start_step)
+        num_scorings = math.ceil(config.total_steps / config.score_every)
+        total = num_scorings * config.score_every
+        bar = tqdm(total=total, initial=start_step, unit="step", disable=not config.progress, dynamic_ncols=True)
+        try:
+            for scoring in range(start_step // config.score_every, num_scorings):
+                started = time.perf_counter()
+                state, chunk_metrics = self.run_chunk(state)
+                chunk_metrics = jax.device_get(chunk_metrics)
+                train_seconds = time.perf_counter() - started
+                env_steps = int(np.max(state.env_steps))
+                self._check_finite(chunk_metrics, env_steps)
+                self._check_physics(np.any(chunk_metrics["capacity_exceeded"]), env_steps)
+
+                started = time.perf_counter()
+                state, scores = self.score_and_update(state)
+                scores = jax.device_get(scores)
+                self._check_physics(np.any(scores.capacity_exceeded), env_steps)
+                score_seconds = time.perf_counter() - started
+                rows = []
+                for pair, run in enumerate(self.runs):
+                    pick = lambda tree: self.select_pair(tree, pair)
+                    rows.append(score_row(env_steps, pick(scores), pick(state.p_miss), self.trainer.hidden_sets))
+                    run.append("scores.jsonl", rows[-1])
+                    run.append("metrics.jsonl", metrics_row(
+                        env_steps, int(pick(state.grad_steps)), pick(chunk_metrics),
+                        train_seconds, score_seconds, config, len(self.runs)))
+
+                if (scoring + 1) % config.checkpoint_every == 0 or scoring == num_scorings - 1:
+                    self.checkpoints.save(env_steps, state)
+                bar.update(config.score_every)
+                bar.set_postfix(
+                    min_a_u=f"{np.mean([row['min_score'] for row in rows]):.1f}",
+                    clean=f"{np.mean([row['clean_score'] for row in rows]):.1f}",
+                    train_sps=f"{config.score_every * len(self.runs) / train_seconds:.0f}",
+                )
+        except KeyboardInterrupt:
+            raise Interrupted(f"{self._kept_checkpoint()}; continue with resume=true") from None
+        finally:
+            bar.close()
+            self.checkpoints.close()
+        return state
+
+    def _kept_checkpoint(self) -> str:
+        kept = self.checkpoints.latest_step()
+        where = f"last checkpoint (step {kept}) kept" if kept is not None else "no checkpoint yet"
+        return f"{where} in {self.checkpoints.directory}"
+
+    def _check_physics(self, exceeded: bool, env_steps: int) -> None:
+        if exceeded:
+            raise PhysicsCapacityExceeded(
+                f"at env step {env_steps}: {self.trainer.env.capacity_message()}; {self._kept_checkpoint()}"
+            )
+
+    def _check_finite(self, chunk_metrics: dict[str, np.ndarray], env_steps: int) -> None:
+        for pair, run in enumerate(self.runs):
+            metrics = self.select_pair(chunk_metrics, pair)
+            learned = metrics["learned"].astype(bool)
+            for name in ("critic_loss", "actor_loss", "alpha"):
+                if not np.all(np.isfinite(metrics[name][learned])):
+                    raise TrainingDiverged(
+                        f"{name} became non-finite before env step {env_steps} in {run.path}; "
+                        f"{self._kept_checkpoint()}"
+                    )

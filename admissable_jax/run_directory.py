@@ -1,0 +1,142 @@
+"""A run's directory: its files, their row formats, and the rules for starting and resuming.
+
+``config.yaml`` (the resolved config), ``scores.jsonl`` (one row per scoring),
+``metrics.jsonl`` (one row of training curves per scoring interval); checkpoints are kept
+by whoever drives the run. One process owns the directory at a time (:mod:`.locks`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from typing import Any
+
+import numpy as np
+from omegaconf import OmegaConf
+
+from admissable_jax.checkpointing import CheckpointError, Checkpoints
+from admissable_jax.config import TrainConfig
+from admissable_jax.envs import resolve_physics
+from admissable_jax.errors import UnusableRunDirectory
+from admissable_jax.locks import RunLock
+from admissable_jax.missingness import describe_set
+from admissable_jax.scoring import MissingnessScores
+
+# Settings that may change when a run is resumed; any other difference is refused.
+# score_envs only changes how many episodes a scoring round steps at once, not its scores;
+# out is wherever the run directory is now (it may have been moved or copied).
+RESUMABLE_CHANGES = ("resume", "resume_step", "total_steps", "progress", "checkpoint_every", "score_envs", "out")
+
+
+def score_row(env_steps: int, scores: MissingnessScores, p_miss, hidden_sets) -> dict[str, Any]:
+    """One ``scores.jsonl`` row: every a_u, the minimum and its set, the clean score, p_miss."""
+    argmin = int(scores.argmin)
+    return {
+        "env_steps": env_steps,
+        "min_score": float(scores.min_score),
+        "argmin": argmin,
+        "argmin_set": describe_set(np.asarray(hidden_sets[argmin])),
+        "clean_score": float(scores.clean_score),
+        "scores": np.asarray(scores.scores).round(4).tolist(),
+        "p_miss": np.asarray(p_miss).tolist(),
+        "mean_episode_length": float(np.asarray(scores.lengths).mean()),
+    }
+
+
+def metrics_row(env_steps, grad_steps, chunk, train_seconds, score_seconds, config, num_runs) -> dict[str, Any]:
+    """One run's training curves over the last chunk. Speeds are per run: a batch of
+    ``num_runs`` runs shares the wall-clock time."""
+    learned = chunk["learned"].astype(bool)
+    episodes = int(chunk["episodes"].sum())
+    row = {
+        "env_steps": env_steps,
+        "grad_steps": grad_steps,
+        "episodes": episodes,
+        "episode_return": float(chunk["episode_return_sum"].sum() / episodes) if episodes else None,
+        "episode_length": float(chunk["episode_length_sum"].sum() / episodes) if episodes else None,
+        "env_steps_per_s": config.score_every / train_seconds,
+        "grad_steps_per_s": float(learned.sum()) * max(1, round(config.num_envs * config.utd)) / train_seconds,
+        "score_seconds": score_seconds,
+        "runs_in_program": num_runs,
+    }
+    for name in ("critic_loss", "actor_loss", "alpha", "entropy", "q_mean"):
+        row[name] = float(chunk[name][learned].mean()) if learned.any() else None
+    return row
+
+
+class RunDirectory:
+    """A run's folder: config.yaml, scores.jsonl, metrics.jsonl (checkpoints are kept by
+    whoever drives the run: the run's own ``checkpoints/`` or the experiment's)."""
+
+    def __init__(self, config: TrainConfig, checkpoint_dir: str):
+        self.path = config.out
+        config_path = os.path.join(self.path, "config.yaml")
+        if config.resume and not os.path.exists(config_path):  # checked before anything is created
+            raise CheckpointError(f"nothing to resume: {config_path} does not exist")
+        try:
+            os.makedirs(self.path, exist_ok=True)
+        except OSError as error:
+            raise UnusableRunDirectory(f"cannot create the run directory {self.path}: {error.strerror}") from None
+        self.lock = RunLock(self.path)
+        self.lock.acquire()
+        try:
+            self._prepare(config, config_path, checkpoint_dir)
+        except BaseException:
+            self.lock.release()
+            raise
+
+    def _prepare(self, config: TrainConfig, config_path: str, checkpoint_dir: str) -> None:
+        has_checkpoints = os.path.isdir(checkpoint_dir) and bool(os.listdir(checkpoint_dir))
+        if config.resume:
+            self._check_same_run(config, config_path, checkpoint_dir)
+        elif has_checkpoints:
+            raise FileExistsError(
+                f"{self.path} already holds a run; pass resume=true to continue it or choose another out"
+            )
+        else:
+            for name in ("scores.jsonl", "metrics.jsonl"):
+                if os.path.exists(os.path.join(self.path, name)):
+                    os.remove(os.path.join(self.path, name))
+        OmegaConf.save(OmegaConf.structured(config), config_path)
+
+    def close(self) -> None:
+        """Give the directory back (remove the lock)."""
+        self.lock.release()
+
+    @staticmethod
+    def _check_same_run(config: TrainConfig, config_path: str, checkpoint_dir: str) -> None:
+        saved = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(TrainConfig), OmegaConf.load(config_path)))
+        saved.physics = resolve_physics(saved.physics)  # runs saved before the key read "auto"
+        for field in dataclasses.fields(TrainConfig):
+            if field.name in RESUMABLE_CHANGES:
+                continue
+            if getattr(saved, field.name) != getattr(config, field.name):
+                raise ValueError(
+                    f"cannot resume with {field.name}={getattr(config, field.name)!r}: "
+                    f"the run in {config.out} has {field.name}={getattr(saved, field.name)!r}"
+                )
+        reached = max(Checkpoints.steps_in(checkpoint_dir), default=0)
+        if config.total_steps < reached:
+            raise ValueError(
+                f"cannot resume with total_steps={config.total_steps}: the run in {config.out} "
+                f"already reached {reached} env steps"
+            )
+
+    def append(self, name: str, row: dict[str, Any]) -> None:
+        with open(os.path.join(self.path, name), "a") as file:
+            file.write(json.dumps(row) + "\n")
+
+    def read(self, name: str) -> list[dict[str, Any]]:
+        path = os.path.join(self.path, name)
+        if not os.path.exists(path):
+            return []
+        with open(path) as file:
+            return [json.loads(line) for line in file if line.strip()]
+
+    def truncate_logs(self, step: int) -> None:
+        """Drop rows written after checkpoint ``step`` (the resumed run writes them again)."""
+        for name in ("scores.jsonl", "metrics.jsonl"):
+            rows = [row for row in self.read(name) if row["env_steps"] <= step]
+            with open(os.path.join(self.path, name), "w") as file:
+                file.writelines(json.dumps(row) + "\n" for row in rows)
