@@ -62,6 +62,11 @@ class TrainConfig(RunSettings):
     seed: int = _field(0, "PRNG seed")
     out: str = _field("", "run directory; '' = runs/<env>-<missingness>-s<seed>")
 
+    @property
+    def updates_per_iteration(self) -> int:
+        """Gradient steps per iteration (one step of every env): num_envs · utd, at least 1."""
+        return max(1, round(self.num_envs * self.utd))
+
     def resolved(self) -> "TrainConfig":
         """A copy with the env name and physics backend canonical, ``num_envs``,
         ``score_envs`` and ``out`` filled in, validated."""

@@ -56,7 +56,7 @@ def metrics_row(env_steps, grad_steps, chunk, train_seconds, score_seconds, conf
         "episode_return": float(chunk["episode_return_sum"].sum() / episodes) if episodes else None,
         "episode_length": float(chunk["episode_length_sum"].sum() / episodes) if episodes else None,
         "env_steps_per_s": config.score_every / train_seconds,
-        "grad_steps_per_s": float(learned.sum()) * max(1, round(config.num_envs * config.utd)) / train_seconds,
+        "grad_steps_per_s": float(learned.sum()) * config.updates_per_iteration / train_seconds,
         "score_seconds": score_seconds,
         "runs_in_program": num_runs,
     }

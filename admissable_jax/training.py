@@ -58,7 +58,7 @@ class Trainer:
             hidden_sizes=(config.hidden_size,) * config.hidden_layers,
         )
         self.agent = SAC(2 * env.observation_size, env.action_low, env.action_high, hp)
-        self.updates_per_iteration = max(1, round(config.num_envs * config.utd))
+        self.updates_per_iteration = config.updates_per_iteration
         self.iterations_per_scoring = config.score_every // config.num_envs
         self.capacity = replay.buffer_capacity(config.buffer_size, config.num_envs)
         if config.score_envs < 1:

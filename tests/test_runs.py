@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -35,7 +36,7 @@ def _steps(run_dir: str) -> list[int]:
         return [json.loads(line)["env_steps"] for line in file]
 
 
-def test_a_run_directory_has_one_owner_and_a_stale_lock_is_taken_over(tmp_path):
+def test_a_run_directory_has_one_owner_and_a_stale_lock_is_taken_over(tmp_path, capsys):
     out = tmp_path / "locked"
     out.mkdir()
     owner = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
@@ -51,6 +52,10 @@ def test_a_run_directory_has_one_owner_and_a_stale_lock_is_taken_over(tmp_path):
     result = train_fn(dataclasses.replace(RUN, total_steps=500, out=str(out)))
     assert _steps(result.run_dir) == [500]
     assert LOCK_NAME not in os.listdir(out)
+    # With progress=false too, the run says what it compiles and how long that took.
+    said = capsys.readouterr().err
+    assert "compiling the training step for point_mass (jax physics) on cpu..." in said
+    assert re.search(r"compiling the scoring round for point_mass \(jax physics\) on cpu: done in \d+\.\d s", said)
 
 
 @pytest.mark.parametrize("out, message", [("/proc/x", "cannot create the run directory /proc/x"),
