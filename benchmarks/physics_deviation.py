@@ -1,6 +1,7 @@
 """How far a physics setting moves our env from Gymnasium's, and how much faster it runs.
 
     python benchmarks/physics_deviation.py env=hopper solver_iterations=4 ls_iterations=8
+    python benchmarks/physics_deviation.py env=ant physics=warp
 
 Steps ``transitions`` Gymnasium-visited states once with the given solver setting (the
 parity check of tests/test_envs.py) and reports the largest observation and reward errors
@@ -33,11 +34,13 @@ class DeviationConfig:
     transitions: int = dataclasses.field(default=200, metadata={"help": "Gymnasium transitions compared"})
     num_envs: int = dataclasses.field(default=64, metadata={"help": "batch of the timed rollout"})
     steps: int = dataclasses.field(default=50, metadata={"help": "steps of the timed rollout"})
+    physics: str = dataclasses.field(default="auto", metadata={"help": "auto | jax | warp (the env's physics backend)"})
 
 
 def main(argv: list[str]) -> None:
     bench = parse_args(DeviationConfig, argv, "benchmarks/physics_deviation.py", __doc__.splitlines()[0])
-    env = make_env(bench.env, solver_iterations=bench.solver_iterations or None, ls_iterations=bench.ls_iterations or None)
+    env = make_env(bench.env, solver_iterations=bench.solver_iterations or None, ls_iterations=bench.ls_iterations or None,
+                   physics=bench.physics, max_batch=max(bench.transitions, bench.num_envs))
     gym = gymnasium_transitions(env.gymnasium_id, bench.transitions)
     ours = step_from_states(env, gym["qpos"], gym["qvel"], gym["action"], np.zeros(bench.transitions, np.int32))
     obs_error = np.abs(np.asarray(ours.obs) - gym["obs"])
@@ -52,14 +55,14 @@ def main(argv: list[str]) -> None:
     steps_per_s = bench.num_envs * bench.steps / (time.perf_counter() - start)
 
     record = {
-        "env": env.gymnasium_id, "solver_iterations": int(env.mj_model.opt.iterations),
+        "env": env.gymnasium_id, "physics": env.physics_name, "solver_iterations": int(env.mj_model.opt.iterations),
         "ls_iterations": int(env.mj_model.opt.ls_iterations), "transitions": bench.transitions,
         "obs_max_error": float(obs_error.max()), "obs_p99_error": float(np.quantile(obs_error.max(1), 0.99)),
         "reward_max_error": float(reward_error.max()), "termination_mismatches": mismatches,
         "rollout_num_envs": bench.num_envs, "rollout_env_steps_per_s": round(steps_per_s, 1),
     }
     print(
-        f"{env.gymnasium_id}, solver {record['solver_iterations']}/{record['ls_iterations']}: "
+        f"{env.gymnasium_id} ({env.physics_name} physics), solver {record['solver_iterations']}/{record['ls_iterations']}: "
         f"obs max error {record['obs_max_error']:.2e}, reward max error {record['reward_max_error']:.2e}, "
         f"{mismatches} termination mismatches in {bench.transitions}; {steps_per_s:,.0f} env steps/s "
         f"(random rollout, {bench.num_envs} envs)"
