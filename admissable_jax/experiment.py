@@ -109,7 +109,6 @@ def main(argv: list[str]) -> int:
     config = parse_args(
         ExperimentConfig, argv, "admissable_jax.experiment",
         "Train every (seed, mode) pair in one vmapped program: the data for the paper's Figure 1.",
-        validate=pair_configs,
     )
     enable_compilation_cache()
     results, status = run_from_cli(run_experiment, config)

@@ -22,11 +22,12 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from admissable_jax.checkpointing import Checkpoints
-from admissable_jax.config import TrainConfig, env_options
+from admissable_jax.config import TrainConfig
 from admissable_jax.envs import make_env
 from admissable_jax.errors import Interrupted, RunFailed
 from admissable_jax.memory import MemoryBudget, MemoryBudgetExceeded, memory_budget
 from admissable_jax.run_directory import RunDirectory, metrics_row, score_row
+from admissable_jax.run_spec import RunSpec
 from admissable_jax.training import Trainer, TrainState
 
 
@@ -45,7 +46,8 @@ def mode_flags(missingness: str) -> tuple[bool, bool]:
 
 def make_trainer(config: TrainConfig, num_runs: int = 1) -> Trainer:
     """The env and the trainer for a resolved config, sized for ``num_runs`` vmapped runs."""
-    return Trainer(make_env(config.env, env_options(config, num_runs)), config)
+    spec = RunSpec.of(config, num_runs)
+    return Trainer(make_env(spec.env, spec.env_options), spec)
 
 
 def report(message: str) -> None:
@@ -86,8 +88,8 @@ class TrainingLoop:
     ):
         self.trainer, self.config, self.runs, self.checkpoints = trainer, config, runs, checkpoints
         self.init, self.batched = init, batched
-        run_chunk = lambda state: trainer.run_chunk(state, trainer.iterations_per_scoring)
-        score_and_update = lambda state: trainer.score_and_update(state, config.score_episodes)
+        run_chunk = lambda state: trainer.run_chunk(state, trainer.spec.iterations_per_scoring)
+        score_and_update = trainer.score_and_update
         self._run_chunk = jax.vmap(run_chunk) if batched else run_chunk
         self._score_and_update = jax.vmap(score_and_update) if batched else score_and_update
 

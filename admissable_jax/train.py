@@ -15,7 +15,7 @@ from typing import Any
 
 from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.cli import enable_compilation_cache, parse_args, run_from_cli
-from admissable_jax.config import TrainConfig, validate
+from admissable_jax.config import TrainConfig
 from admissable_jax.host_loop import TrainingLoop, make_trainer, mode_flags
 from admissable_jax.run_directory import RunDirectory
 from admissable_jax.training import Trainer, TrainState
@@ -41,8 +41,12 @@ class TrainResult:
 
 
 def train_fn(config: TrainConfig) -> TrainResult:
-    """Train SAC against missingness as ``config`` says; returns params and histories."""
-    validate(config)
+    """Train SAC against missingness as ``config`` says; returns params and histories.
+
+    The config is validated and resolved here, once (``TrainConfig.resolved``); the core
+    reads the :class:`~admissable_jax.run_spec.RunSpec` derived from it."""
+    if not isinstance(config, TrainConfig):
+        raise TypeError(f"train_fn expects a TrainConfig, got {type(config).__name__}")
     config = config.resolved()
     trainer = make_trainer(config)
     checkpoint_dir = os.path.join(config.out, "checkpoints")
@@ -60,7 +64,6 @@ def main(argv: list[str]) -> int:
     config = parse_args(
         TrainConfig, argv, "admissable_jax.train",
         "Train SAC against adversarial (or uniform) missingness on an MJX Gymnasium v5 env.",
-        validate=lambda c: c.resolved(),
     )
     enable_compilation_cache()
     result, status = run_from_cli(train_fn, config)

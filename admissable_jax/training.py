@@ -7,7 +7,8 @@ where one ended (drawing a fresh u ~ p_miss for each, paper §3), and takes
 ``run_chunk`` scans iterations on the device; ``score_and_update`` scores every u in one
 batched rollout and applies the adversary's update. Both are pure functions of
 :class:`TrainState`, so they jit, and vmap over seeds or over (seed, mode) pairs: the mode
-is data (``adversarial``, ``masking``), not code.
+is data (``adversarial``, ``masking``), not code. The trainer reads a frozen
+:class:`~admissable_jax.run_spec.RunSpec`, never the user's config.
 """
 
 from __future__ import annotations
@@ -18,10 +19,10 @@ from flax import struct
 
 from admissable_jax import replay
 from admissable_jax.adversary import update_p_miss, uniform_p_miss
-from admissable_jax.agent import SAC, SACBatch, SACHyperparams, SACState
-from admissable_jax.config import TrainConfig
+from admissable_jax.agent import SAC, SACBatch, SACState
 from admissable_jax.envs import EnvState, reset_where_done
 from admissable_jax.missingness import candidate_sets, mask_observation, sample_set_indices
+from admissable_jax.run_spec import RunSpec
 from admissable_jax.scoring import MissingnessScores, score_missingness
 
 
@@ -42,28 +43,12 @@ class TrainState:
 class Trainer:
     """Static parts of a run (env, agent, candidate sets, sizes) and its pure functions."""
 
-    def __init__(self, env, config: TrainConfig):
+    def __init__(self, env, spec: RunSpec):
         self.env = env
-        self.config = config
-        self.num_envs = config.num_envs
-        self.hidden_sets = jnp.asarray(
-            candidate_sets(env.observation_size, config.k, config.include_empty_set)
-        )
+        self.spec = spec
+        self.hidden_sets = jnp.asarray(candidate_sets(env.observation_size, spec.k, spec.include_empty_set))
         self.num_sets = int(self.hidden_sets.shape[0])
-        hp = SACHyperparams(
-            learning_rate=config.learning_rate,
-            gamma=config.gamma,
-            tau=config.tau,
-            batch_size=config.batch_size,
-            hidden_sizes=(config.hidden_size,) * config.hidden_layers,
-        )
-        self.agent = SAC(2 * env.observation_size, env.action_low, env.action_high, hp)
-        self.updates_per_iteration = config.updates_per_iteration
-        self.iterations_per_scoring = config.score_every // config.num_envs
-        self.capacity = replay.buffer_capacity(config.buffer_size, config.num_envs)
-        if config.score_envs < 1:
-            raise ValueError("Trainer needs a resolved config (TrainConfig.resolved()): score_envs is 0")
-        self.score_envs = config.score_envs
+        self.agent = SAC(2 * env.observation_size, env.action_low, env.action_high, spec.sac)
 
     # --- construction -------------------------------------------------------------------
     def init(self, seed: jax.Array, mode_adversarial: jax.Array, mode_masking: jax.Array) -> TrainState:
@@ -73,9 +58,9 @@ class Trainer:
         p_miss = uniform_p_miss(self.num_sets)
         return TrainState(
             sac=self.agent.init(agent_rng),
-            buffer=replay.init_buffer(self.capacity, self.env.observation_size, self.env.action_size),
-            env_states=jax.vmap(self.env.reset)(jax.random.split(env_rng, self.num_envs)),
-            set_index=sample_set_indices(set_rng, p_miss, (self.num_envs,)),
+            buffer=replay.init_buffer(self.spec.buffer_capacity, self.env.observation_size, self.env.action_size),
+            env_states=jax.vmap(self.env.reset)(jax.random.split(env_rng, self.spec.num_envs)),
+            set_index=sample_set_indices(set_rng, p_miss, (self.spec.num_envs,)),
             p_miss=p_miss,
             adversarial=jnp.asarray(mode_adversarial, bool),
             masking=jnp.asarray(mode_masking, bool),
@@ -100,13 +85,13 @@ class Trainer:
         random_action = jax.random.uniform(
             random_rng, policy_action.shape, minval=self.env.action_low, maxval=self.env.action_high
         )
-        return jnp.where(state.env_steps < self.config.learning_starts, random_action, policy_action)
+        return jnp.where(state.env_steps < self.spec.learning_starts, random_action, policy_action)
 
     def _learn(self, state: TrainState, rng: jax.Array) -> tuple[SACState, dict[str, jax.Array]]:
         # All minibatches are drawn before the learning_starts branch, so the branch's operands
         # are the SAC state and (n, batch) transitions, never the whole replay buffer.
         sample_keys, update_keys = jnp.moveaxis(
-            jax.vmap(jax.random.split)(jax.random.split(rng, self.updates_per_iteration)), 1, 0
+            jax.vmap(jax.random.split)(jax.random.split(rng, self.spec.updates_per_iteration)), 1, 0
         )
         batches = jax.vmap(lambda key: self._minibatch(state, key))(sample_keys)
 
@@ -126,7 +111,7 @@ class Trainer:
 
     def _minibatch(self, state: TrainState, rng: jax.Array) -> SACBatch:
         """A uniform replay minibatch, masked with each transition's own missing set."""
-        batch = replay.sample(state.buffer, rng, self.config.batch_size)
+        batch = replay.sample(state.buffer, rng, self.spec.sac.batch_size)
         hidden = self.hidden_rows(state, batch.set_index)
         return SACBatch(
             obs=mask_observation(batch.obs, hidden),
@@ -137,7 +122,7 @@ class Trainer:
         )
 
     def _learning(self, state: TrainState) -> jax.Array:
-        return state.env_steps > self.config.learning_starts
+        return state.env_steps > self.spec.learning_starts
 
     # --- the iteration ------------------------------------------------------------------
     def iteration(self, state: TrainState, _=None) -> tuple[TrainState, dict[str, jax.Array]]:
@@ -157,21 +142,21 @@ class Trainer:
         )
         done = stepped.done
         env_states = jax.vmap(reset_where_done, (None, 0, 0))(
-            self.env, stepped, jax.random.split(reset_rng, self.num_envs)
+            self.env, stepped, jax.random.split(reset_rng, self.spec.num_envs)
         )
-        new_sets = sample_set_indices(set_rng, state.p_miss, (self.num_envs,))
+        new_sets = sample_set_indices(set_rng, state.p_miss, (self.spec.num_envs,))
         state = state.replace(
             buffer=buffer,
             env_states=env_states,
             set_index=jnp.where(done, new_sets, state.set_index),
-            env_steps=state.env_steps + self.num_envs,
+            env_steps=state.env_steps + self.spec.num_envs,
             rng=rng,
         )
         sac_state, learn_metrics = self._learn(state, learn_rng)
         learned = self._learning(state)
         state = state.replace(
             sac=sac_state,
-            grad_steps=state.grad_steps + learned.astype(jnp.int32) * self.updates_per_iteration,
+            grad_steps=state.grad_steps + learned.astype(jnp.int32) * self.spec.updates_per_iteration,
         )
         finished_returns = stepped.episode_metrics["return"]
         metrics = {
@@ -188,14 +173,15 @@ class Trainer:
         """``num_iterations`` iterations on the device; per-iteration metrics stacked."""
         return jax.lax.scan(self.iteration, state, None, length=num_iterations)
 
-    def score_and_update(self, state: TrainState, n_episodes: int) -> tuple[TrainState, MissingnessScores]:
-        """Score every u (one batched rollout) and update p_miss (adversarial mode only)."""
+    def score_and_update(self, state: TrainState) -> tuple[TrainState, MissingnessScores]:
+        """Score every u (one batched rollout, N = ``score_episodes`` episodes each) and
+        update p_miss (adversarial mode only)."""
         rng, score_rng = jax.random.split(state.rng)
         scores = score_missingness(
-            self.env, self.policy, state.sac.actor_params, score_rng, self.hidden_sets, n_episodes,
-            num_slots=self.score_envs,
+            self.env, self.policy, state.sac.actor_params, score_rng, self.hidden_sets, self.spec.score_episodes,
+            num_slots=self.spec.score_envs,
         )
         p_miss = update_p_miss(
-            state.p_miss, scores.scores, state.adversarial, self.config.lower_bound, self.config.epsilon
+            state.p_miss, scores.scores, state.adversarial, self.spec.lower_bound, self.spec.epsilon
         )
         return state.replace(p_miss=p_miss, rng=rng), scores

@@ -36,8 +36,8 @@ from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.cli import parse_args
 from admissable_jax.config import TrainConfig, default_score_envs
 from admissable_jax.envs import make_env, observation_size
-from admissable_jax.missingness import num_candidate_sets
-from admissable_jax.missingness import mask_observation
+from admissable_jax.missingness import mask_observation, num_candidate_sets
+from admissable_jax.run_spec import RunSpec
 from admissable_jax.scoring import score_missingness
 from admissable_jax.training import Trainer
 from common import append_record, peak_host_memory_mb
@@ -92,13 +92,13 @@ def main(argv: list[str]) -> None:
     episodes = (num_candidate_sets(observation_size(config.env), config.k) + 1) * bench.n_episodes
     slots = {-1: default_score_envs(episodes), 0: episodes}.get(bench.slots, min(bench.slots, episodes))
     env = make_env(config.env, episode_length=bench.max_steps, physics=config.physics, max_batch=slots)
-    trainer = Trainer(env, config)
+    trainer = Trainer(env, RunSpec.of(config))
     state = jax.jit(trainer.init)(0, True, True)
     label = "untrained actor"
     if bench.run:
         checkpoints = Checkpoints(f"{bench.run}/checkpoints")
         saved_config = TrainConfig(**{**dataclasses.asdict(config), **_saved_sizes(bench.run)}).resolved()
-        trainer = Trainer(env, saved_config)
+        trainer = Trainer(env, RunSpec.of(saved_config))
         step, state = checkpoints.restore(jax.jit(trainer.init)(0, True, True))
         label = f"actor of {bench.run} at {step} env steps"
     result, compile_s, run_s = _compile_and_run(env, trainer.policy, state.sac.actor_params, bench, trainer.hidden_sets, slots)

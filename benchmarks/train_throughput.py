@@ -71,11 +71,11 @@ def _random_batch(trainer: Trainer) -> SACBatch:
     obs_size = 2 * trainer.env.observation_size
     keys = jax.random.split(jax.random.key(2), 4)
     return SACBatch(
-        obs=jax.random.normal(keys[0], (trainer.config.batch_size, obs_size)),
-        action=jax.random.uniform(keys[1], (trainer.config.batch_size, trainer.env.action_size), minval=-1, maxval=1),
-        reward=jax.random.normal(keys[2], (trainer.config.batch_size,)),
-        next_obs=jax.random.normal(keys[3], (trainer.config.batch_size, obs_size)),
-        terminated=jnp.zeros(trainer.config.batch_size, bool),
+        obs=jax.random.normal(keys[0], (trainer.spec.sac.batch_size, obs_size)),
+        action=jax.random.uniform(keys[1], (trainer.spec.sac.batch_size, trainer.env.action_size), minval=-1, maxval=1),
+        reward=jax.random.normal(keys[2], (trainer.spec.sac.batch_size,)),
+        next_obs=jax.random.normal(keys[3], (trainer.spec.sac.batch_size, obs_size)),
+        terminated=jnp.zeros(trainer.spec.sac.batch_size, bool),
     )
 
 
@@ -106,15 +106,15 @@ def iteration_breakdown(trainer: Trainer, state, iterations: int, rounds: int = 
     (``rollout.random_rollout``), and the iteration's updates (a scan on one minibatch).
     All four run in turn, ``rounds`` times, each keeping its best round, so that drifts of
     the machine's speed hit them alike."""
-    no_learning = Trainer(trainer.env, dataclasses.replace(trainer.config, learning_starts=2**30))
+    no_learning = Trainer(trainer.env, dataclasses.replace(trainer.spec, learning_starts=2**30))
     full_chunk = jax.jit(trainer.run_chunk, static_argnums=1)
     quiet_chunk = jax.jit(no_learning.run_chunk, static_argnums=1)
     physics = jax.jit(random_rollout, static_argnums=(0, 1, 2))
-    updates = compiled_updates(_sac_update(trainer), state.sac, _random_batch(trainer), iterations * trainer.updates_per_iteration)
+    updates = compiled_updates(_sac_update(trainer), state.sac, _random_batch(trainer), iterations * trainer.spec.updates_per_iteration)
     parts = {
         "full": lambda: full_chunk(state, iterations),
         "no_learning": lambda: quiet_chunk(state, iterations),
-        "physics": lambda: physics(trainer.env, trainer.num_envs, iterations, jax.random.key(6)),
+        "physics": lambda: physics(trainer.env, trainer.spec.num_envs, iterations, jax.random.key(6)),
         "updates": updates,
     }
     best = dict.fromkeys(parts, float("inf"))
@@ -148,11 +148,11 @@ def main(argv: list[str]) -> None:
     (state, metrics), run_s = _timed(compiled, state)
     assert bool(metrics["learned"].all())
     env_steps = bench.iterations * bench.num_envs * bench.seeds
-    grad_steps = bench.iterations * trainer.updates_per_iteration * bench.seeds
+    grad_steps = bench.iterations * trainer.spec.updates_per_iteration * bench.seeds
     record = {
         "env": env.gymnasium_id, "physics": env.physics_name, "num_envs": bench.num_envs, "seeds": bench.seeds, "utd": bench.utd,
         "batch_size": bench.batch_size, "hidden_sizes": [config.hidden_size] * config.hidden_layers,
-        "buffer_size": trainer.capacity, "iterations": bench.iterations,
+        "buffer_size": trainer.spec.buffer_capacity, "iterations": bench.iterations,
         "warmup_with_compile_s": round(warmup_s, 1), "compile_s": round(compile_s, 1), "run_s": round(run_s, 2),
         "env_steps_per_s": round(env_steps / run_s, 1), "grad_steps_per_s": round(grad_steps / run_s, 1),
         "peak_host_memory_mb": round(peak_host_memory_mb(), 1),
@@ -166,7 +166,7 @@ def main(argv: list[str]) -> None:
     )
     single = take_pair(state, 0)
     if bench.roofline:
-        record.update(update_alone(trainer, single, updates=max(200, trainer.updates_per_iteration)))
+        record.update(update_alone(trainer, single, updates=max(200, trainer.spec.updates_per_iteration)))
         print(
             f"SAC update alone: {record['update_flops'] / 1e9:.3f} GFLOP, {record['updates_per_s']:,.1f} updates/s "
             f"= {record['update_gflops_per_s']:.1f} GFLOP/s; matmul roofline {record['matmul_roofline_gflops_per_s']:.1f} "
@@ -179,7 +179,7 @@ def main(argv: list[str]) -> None:
         print(
             f"per iteration, best of 3 rounds each: {parts['full_ms_per_iteration']:.1f} ms in all; without learning "
             f"{parts['no_learning_ms_per_iteration']:.1f} ms (of which the batched env step with resets alone "
-            f"{parts['physics_ms_per_iteration']:.1f} ms); {trainer.updates_per_iteration} updates alone "
+            f"{parts['physics_ms_per_iteration']:.1f} ms); {trainer.spec.updates_per_iteration} updates alone "
             f"{parts['updates_ms_per_iteration']:.1f} ms; left over {rest:.1f} ms"
         )
     append_record("train_throughput", record)

@@ -20,6 +20,7 @@ import pytest
 from admissable_jax import TrainConfig, candidate_sets, make_env, mask_observation, score_missingness, train_fn
 from admissable_jax.checkpointing import CheckpointError
 from admissable_jax.host_loop import TrainingDiverged
+from admissable_jax.run_spec import RunSpec
 from admissable_jax.training import Trainer
 
 POINT_MASS = TrainConfig(
@@ -72,7 +73,7 @@ def test_run_directory_contents(point_mass_run):
 def test_missing_set_fixed_within_episode_and_drawn_from_p_miss():
     env = make_env("point_mass", episode_length=5)  # many episode starts
     config = dataclasses.replace(POINT_MASS, num_envs=20, episode_length=5).resolved()
-    trainer = Trainer(env, config)
+    trainer = Trainer(env, RunSpec.of(config))
     p_miss = jnp.array([0.55, 0.25, 0.15, 0.05])
     state = trainer.init(0, True, True).replace(p_miss=p_miss)
 
@@ -221,12 +222,13 @@ def test_train_step_vmaps_over_seeds_and_modes():
     """Two (seed, mode) pairs in one vmapped program give each pair's unbatched result
     (scoring on a pool of 3 slots for the 10 episodes, so refills run under vmap too)."""
     env = make_env("point_mass", episode_length=20)
-    config = dataclasses.replace(POINT_MASS, learning_starts=64, batch_size=32, episode_length=20, score_envs=3).resolved()
-    trainer = Trainer(env, config)
+    config = dataclasses.replace(POINT_MASS, learning_starts=64, batch_size=32, episode_length=20, score_envs=3,
+                                 score_episodes=2).resolved()
+    trainer = Trainer(env, RunSpec.of(config))
 
     def run(seed, adversarial):
         state, _ = trainer.run_chunk(trainer.init(seed, adversarial, True), 40)
-        state, scores = trainer.score_and_update(state, 2)
+        state, scores = trainer.score_and_update(state)
         return state, scores.scores
 
     batched_state, batched_scores = jax.jit(jax.vmap(run))(jnp.array([0, 1]), jnp.array([True, False]))

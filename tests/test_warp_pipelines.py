@@ -32,7 +32,7 @@ def _chunk_and_score(physics: str):
 
     def run(state):
         state, metrics = trainer.run_chunk(state, 16)  # 64 env steps, learning from step 48
-        state, scores = trainer.score_and_update(state, HOPPER.score_episodes)
+        state, scores = trainer.score_and_update(state)
         return state, metrics, scores
 
     return jax.jit(run)(trainer.init(0, True, True))

@@ -1,0 +1,61 @@
+"""What the pure training core reads about a run: one frozen spec, worked out once.
+
+A :class:`~admissable_jax.config.TrainConfig` is what a user writes (with "0 = auto"
+defaults); :meth:`TrainConfig.resolved` fills those in and validates, once, at the entry
+point; :meth:`RunSpec.of` then derives every size the core needs (env options, envs per
+iteration, gradient steps per iteration, iterations per scoring, replay capacity, SAC
+hyperparameters). :class:`~admissable_jax.training.Trainer` reads only this spec; the host
+loop keeps the run-level settings (total steps, checkpoints, resume, progress).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from admissable_jax.agent import SACHyperparams
+from admissable_jax.config import TrainConfig, env_options
+from admissable_jax.envs import EnvOptions
+from admissable_jax.replay import buffer_capacity
+
+
+@dataclasses.dataclass(frozen=True)
+class RunSpec:
+    env: str  # canonical env name
+    env_options: EnvOptions  # episode limit, physics backend, batch capacity
+    k: int  # |u|
+    include_empty_set: bool
+    num_envs: int  # envs stepped per iteration
+    score_envs: int  # envs stepped at once in a scoring round
+    score_episodes: int  # N
+    iterations_per_scoring: int  # ζ / num_envs
+    updates_per_iteration: int  # num_envs · utd, at least 1
+    buffer_capacity: int  # replay rows (a multiple of num_envs)
+    learning_starts: int
+    sac: SACHyperparams
+    lower_bound: float  # l
+    epsilon: float  # ε
+
+    @classmethod
+    def of(cls, config: TrainConfig, num_runs: int = 1) -> "RunSpec":
+        """The spec of a resolved config, its env sized for ``num_runs`` vmapped runs."""
+        if config.score_envs < 1 or config.num_envs < 1:
+            raise ValueError("RunSpec.of needs a resolved config (TrainConfig.resolved())")
+        return cls(
+            env=config.env,
+            env_options=env_options(config, num_runs),
+            k=config.k,
+            include_empty_set=config.include_empty_set,
+            num_envs=config.num_envs,
+            score_envs=config.score_envs,
+            score_episodes=config.score_episodes,
+            iterations_per_scoring=config.score_every // config.num_envs,
+            updates_per_iteration=config.updates_per_iteration,
+            buffer_capacity=buffer_capacity(config.buffer_size, config.num_envs),
+            learning_starts=config.learning_starts,
+            sac=SACHyperparams(
+                learning_rate=config.learning_rate, gamma=config.gamma, tau=config.tau,
+                batch_size=config.batch_size, hidden_sizes=(config.hidden_size,) * config.hidden_layers,
+            ),
+            lower_bound=config.lower_bound,
+            epsilon=config.epsilon,
+        )
