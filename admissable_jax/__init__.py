@@ -3,8 +3,8 @@
 import contextlib
 import io
 
-# MJX's optional Warp backend prints an import failure when NVIDIA Warp is absent; we use
-# the JAX backend only, so keep that line out of users' output.
+# MJX prints an import failure when warp-lang is absent; physics=jax needs no Warp (and
+# physics=warp says clearly when it is missing), so keep that line out of users' output.
 with contextlib.redirect_stdout(io.StringIO()):
     from mujoco import mjx  # noqa: F401
 
