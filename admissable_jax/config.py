@@ -11,7 +11,7 @@ import dataclasses
 import jax
 
 from admissable_jax.adversary import MODES
-from admissable_jax.envs import EnvOptions, canonical_env_name, observation_size, resolve_physics
+from admissable_jax.envs import canonical_env_name, observation_size, resolve_physics
 from admissable_jax.missingness import num_candidate_sets
 
 
@@ -86,17 +86,6 @@ class TrainConfig(RunSettings):
         if not config.out:
             config.out = f"runs/{config.env}-{config.missingness}-s{config.seed}"
         return config
-
-
-def env_options(config: TrainConfig, num_runs: int = 1) -> EnvOptions:
-    """The env a resolved config trains on: its episode limit and physics backend, sized for
-    ``num_runs`` runs vmapped together, each stepping ``num_envs`` (training) or
-    ``score_envs`` (scoring) envs at once."""
-    return EnvOptions(
-        episode_length=config.episode_length,
-        physics=config.physics,
-        max_batch=num_runs * max(config.num_envs, config.score_envs),
-    )
 
 
 def default_num_envs(score_every: int) -> int:

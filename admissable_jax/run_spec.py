@@ -13,7 +13,7 @@ from __future__ import annotations
 import dataclasses
 
 from admissable_jax.agent import SACHyperparams
-from admissable_jax.config import TrainConfig, env_options
+from admissable_jax.config import TrainConfig
 from admissable_jax.envs import EnvOptions
 from admissable_jax.replay import buffer_capacity
 
@@ -21,7 +21,7 @@ from admissable_jax.replay import buffer_capacity
 @dataclasses.dataclass(frozen=True)
 class RunSpec:
     env: str  # canonical env name
-    env_options: EnvOptions  # episode limit, physics backend, batch capacity
+    env_options: EnvOptions  # episode limit, physics backend, batch capacity (see `of`)
     k: int  # |u|
     include_empty_set: bool
     num_envs: int  # envs stepped per iteration
@@ -37,12 +37,17 @@ class RunSpec:
 
     @classmethod
     def of(cls, config: TrainConfig, num_runs: int = 1) -> "RunSpec":
-        """The spec of a resolved config, its env sized for ``num_runs`` vmapped runs."""
+        """The spec of a resolved config, its env sized for ``num_runs`` vmapped runs, each
+        stepping ``num_envs`` (training) or ``score_envs`` (scoring) envs at once."""
         if config.score_envs < 1 or config.num_envs < 1:
             raise ValueError("RunSpec.of needs a resolved config (TrainConfig.resolved())")
         return cls(
             env=config.env,
-            env_options=env_options(config, num_runs),
+            env_options=EnvOptions(
+                episode_length=config.episode_length,
+                physics=config.physics,
+                max_batch=num_runs * max(config.num_envs, config.score_envs),
+            ),
             k=config.k,
             include_empty_set=config.include_empty_set,
             num_envs=config.num_envs,

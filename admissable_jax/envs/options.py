@@ -50,8 +50,7 @@ class EnvOptions:
                 raise ValueError(f"{name} must be an int >= 1, got {value!r}")
         if self.episode_length > MAX_EPISODE_STEPS:
             raise ValueError(f"episode_length must be <= {MAX_EPISODE_STEPS} (the v5 limit), got {self.episode_length}")
-        if self.physics not in PHYSICS_CHOICES:
-            raise ValueError(f"physics must be one of {', '.join(PHYSICS_CHOICES)}, got {self.physics!r}")
+        _check_physics_choice(self.physics)
         for name in ("solver_iterations", "ls_iterations"):
             value = getattr(self, name)
             if value is not None and (not isinstance(value, int) or isinstance(value, bool) or value < 1):
@@ -64,15 +63,19 @@ class EnvOptions:
 
 
 def resolve_physics(physics: str) -> str:
-    """``"warp"`` or ``"jax"`` for a ``physics`` choice; RuntimeError if warp is asked for
-    and ``warp-lang`` is not installed."""
-    if physics not in PHYSICS_CHOICES:
-        raise ValueError(f"physics must be one of {', '.join(PHYSICS_CHOICES)}, got {physics!r}")
+    """``"warp"`` or ``"jax"`` for a ``physics`` choice; ValueError for an unknown choice, or
+    for warp when ``warp-lang`` is not installed."""
+    _check_physics_choice(physics)
     if physics == "warp" and not warp_installed():
         raise ValueError("physics=warp needs the warp-lang package (pip install warp-lang, or the 'cuda' extra)")
     if physics == "auto":
         return "warp" if _on_nvidia_gpu() and warp_installed() else "jax"
     return physics
+
+
+def _check_physics_choice(physics: str) -> None:
+    if physics not in PHYSICS_CHOICES:
+        raise ValueError(f"physics must be one of {', '.join(PHYSICS_CHOICES)}, got {physics!r}")
 
 
 @functools.cache

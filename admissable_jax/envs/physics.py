@@ -11,6 +11,8 @@ lives here:
   count. Both counts come from MJX's own static contact and constraint tables, so neither
   can overflow while the batch stays within ``max_batch``; if one does anyway, the world's
   overflow flags say so and :meth:`Physics.capacity_exceeded` reports it.
+- C MuJoCo's plane–capsule contact frames are installed on both backends when
+  :mod:`admissable_jax.envs` is imported (:mod:`.contact_frames`), before any step.
 - Warp computes ``cfrc_ext`` inside its step when the model asks for it
   (``run_rne_postconstraint``); the JAX implementation calls ``mjx.rne_postconstraint``.
 - Warp data has scratch fields shared by every world of a batch (the contact buffer and
@@ -28,8 +30,6 @@ import jax.numpy as jnp
 import mujoco
 from mujoco import mjx
 from mujoco.mjx._src import collision_driver, constraint
-
-from admissable_jax.envs import contact_frames
 
 # Warp's overflow flags that mean a buffer was too small (not: solver iteration limits).
 _CAPACITY_FLAGS = {
@@ -64,11 +64,10 @@ class Physics:
         self.contacts_per_world = int(condim.size)
         self.constraints_per_world = len(constraint.make_efc_type(mj_model, condim))
         if impl == "jax":
-            contact_frames.install()
             self.model = mjx.put_model(mj_model, impl="jax")
             self.data_template = mjx.make_data(self.model, impl="jax")
+            self._shared = {}  # JAX data has no fields shared across a batch
         elif impl == "warp":
-            contact_frames.install_warp()
             model = mjx.put_model(mj_model, impl="warp")
             if contact_forces:
                 warp_options = model.opt._impl.replace(run_rne_postconstraint=True)
@@ -105,13 +104,9 @@ class Physics:
         return self._without_shared(data)
 
     def _without_shared(self, data: mjx.Data) -> mjx.Data:
-        if self.impl == "jax":
-            return data
         return data.replace(_impl=data._impl.replace(**dict.fromkeys(self._shared)))
 
     def _with_shared(self, data: mjx.Data) -> mjx.Data:
-        if self.impl == "jax":
-            return data
         return data.replace(_impl=data._impl.replace(**self._shared))
 
     def step(self, data: mjx.Data, ctrl: jax.Array) -> mjx.Data:
