@@ -13,6 +13,7 @@ import os
 import shutil
 
 import jax
+import jax.numpy as jnp
 import orbax.checkpoint as ocp
 
 from admissable_jax.errors import RunFailed
@@ -34,9 +35,25 @@ class Checkpoints:
         return self._manager.latest_step()
 
     def save(self, step: int, state) -> None:
-        """Write ``state`` as checkpoint ``step`` and wait until it is on disk."""
-        self._manager.save(step, args=ocp.args.StandardSave(_non_empty_leaves(state)), force=True)
-        self._manager.wait_until_finished()
+        """Write ``state`` as checkpoint ``step`` and wait until it is on disk.
+
+        A write that fails (a full disk, most often) leaves no partial checkpoint behind:
+        orbax's temporary folder is removed, earlier checkpoints stay as they were, and a
+        one-line CheckpointError names the directory and the newest checkpoint kept."""
+        try:
+            self._manager.save(step, args=ocp.args.StandardSave(_non_empty_leaves(state)), force=True)
+            self._manager.wait_until_finished()
+        except Exception as error:  # orbax wraps the OSError in several layers
+            for name in os.listdir(self.directory):
+                if ".orbax-checkpoint-tmp" in name:
+                    shutil.rmtree(os.path.join(self.directory, name), ignore_errors=True)
+            self._manager.reload()
+            kept = self._manager.latest_step()
+            kept = f"checkpoint {kept} is intact" if kept is not None else "no earlier checkpoint"
+            raise CheckpointError(
+                f"cannot write checkpoint {step} in {self.directory}: {_reason(error)}; the partial write was "
+                f"removed and {kept}; free space, then continue with resume=true"
+            ) from error
 
     @staticmethod
     def steps_in(directory: str) -> list[int]:
@@ -46,7 +63,8 @@ class Checkpoints:
         return sorted(int(name) for name in os.listdir(directory) if name.isdigit())
 
     def restore(self, like, step: int | None = None) -> tuple[int, object]:
-        """(step, state) of checkpoint ``step`` (default: the latest), shaped like ``like``.
+        """(step, state) of checkpoint ``step`` (default: the latest), shaped like ``like``
+        (a state, or its ``jax.eval_shape``).
 
         A checkpoint that cannot be read raises a one-line CheckpointError naming it and the
         newest older checkpoint that can (pass that as ``step`` to continue from it).
@@ -80,7 +98,8 @@ class Checkpoints:
                 f"checkpoint {step} in {self.directory} is corrupt or does not fit this run ({first_line})"
             ) from error
         leaves, treedef = jax.tree.flatten(like)
-        leaves = [saved.get(str(i), leaf) for i, leaf in enumerate(leaves)]
+        # Zero-size leaves were not saved: the run's own (or, for an abstract ``like``, zeros).
+        leaves = [saved[str(i)] if str(i) in saved else jnp.zeros(leaf.shape, leaf.dtype) for i, leaf in enumerate(leaves)]
         return jax.tree.unflatten(treedef, leaves)
 
     def _readable(self, like, step: int) -> bool:
@@ -107,3 +126,15 @@ class Checkpoints:
 def _non_empty_leaves(state) -> dict[str, jax.Array]:
     """The pytree's leaves with at least one element, keyed by their flat index."""
     return {str(i): leaf for i, leaf in enumerate(jax.tree.leaves(state)) if leaf.size > 0}
+
+
+def _reason(error: BaseException) -> str:
+    """The root OSError's message in an exception chain (e.g. "No space left on device"),
+    else the first line of the error itself."""
+    seen = error
+    while seen is not None:
+        if isinstance(seen, OSError) and seen.strerror:
+            return seen.strerror
+        seen = seen.__cause__ or seen.__context__
+    text = str(error).strip()
+    return text.splitlines()[0][:200] if text else type(error).__name__

@@ -24,7 +24,8 @@ class RunSettings:
     """The settings every run of an experiment shares: task, adversary, SAC, cadence."""
 
     # task and adversary (paper §3, Table of hyperparameters)
-    env: str = _field("hopper", "hopper, walker2d or ant (or Hopper-v5, Walker2d-v5, Ant-v5)")
+    env: str = _field("hopper", "hopper, walker2d or ant (or Hopper-v5, Walker2d-v5, Ant-v5); point_mass: a "
+                                "seconds-to-compile toy for smoke runs")
     k: int = _field(1, "features hidden per episode (|u| = k)")
     include_empty_set: bool = _field(False, "also let the adversary pick 'nothing hidden'")
     score_every: int = _field(5000, "zeta: env steps (over all envs) between scorings")
@@ -52,6 +53,8 @@ class RunSettings:
     resume: bool = _field(False, "continue the run in 'out' from its last checkpoint")
     resume_step: int = _field(-1, "with resume=true: the checkpoint (env step) to continue from; -1 = the latest")
     progress: bool = _field(True, "show a progress bar")
+    time_limit: float = _field(0.0, "wall seconds this invocation may train (0 = no limit): it checkpoints and stops "
+                                    "before a scoring interval that would overrun; resume=true continues")
 
 
 @dataclasses.dataclass
@@ -61,6 +64,11 @@ class TrainConfig(RunSettings):
     missingness: str = _field("adversarial", "adversarial | uniform | none")
     seed: int = _field(0, "PRNG seed")
     out: str = _field("", "run directory; '' = runs/<env>-<missingness>-s<seed>")
+
+    @property
+    def planned_steps(self) -> int:
+        """The env steps a finished run has: ``total_steps`` rounded up to a multiple of ζ."""
+        return -(-self.total_steps // self.score_every) * self.score_every
 
     @property
     def updates_per_iteration(self) -> int:
@@ -124,6 +132,8 @@ def validate(config: TrainConfig) -> None:
     for name in ("num_envs", "score_envs"):
         if getattr(config, name) < 0:
             raise ValueError(f"{name} must be >= 0, got {getattr(config, name)}")
+    if config.time_limit < 0:
+        raise ValueError(f"time_limit must be >= 0 (0 = no limit), got {config.time_limit}")
     if config.utd <= 0:
         raise ValueError(f"utd must be > 0, got {config.utd}")
     if config.epsilon <= 0:

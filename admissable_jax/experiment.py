@@ -115,9 +115,7 @@ def main(argv: list[str]) -> int:
     if status:
         return status
     for result in results:
-        last = result.scores[-1]
-        print(f"{result.config.missingness} seed {result.config.seed}: min_u a_u {last['min_score']:.1f}, "
-              f"clean {last['clean_score']:.1f} at {last['env_steps']} env steps ({result.run_dir})")
+        print(result.summary())
     return 0
 
 

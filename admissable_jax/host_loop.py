@@ -12,7 +12,6 @@ the state is allocated, so a run that would not fit in memory stops before it st
 from __future__ import annotations
 
 import contextlib
-import math
 import sys
 import time
 from typing import Any, Callable
@@ -21,7 +20,7 @@ import jax
 import numpy as np
 from tqdm.auto import tqdm
 
-from admissable_jax.checkpointing import Checkpoints
+from admissable_jax.checkpointing import CheckpointError, Checkpoints
 from admissable_jax.config import TrainConfig
 from admissable_jax.envs import make_env
 from admissable_jax.errors import Interrupted, RunFailed
@@ -114,22 +113,35 @@ class TrainingLoop:
         return budget
 
     def run(self) -> TrainState:
+        """Train from scratch or from the checkpoint ``resume`` names, up to
+        ``planned_steps``, or until ``time_limit`` would be passed (then it checkpoints and
+        returns early; ``resume=true`` continues). Every invocation trains at least one
+        scoring interval."""
         config = self.config
+        started_run = time.perf_counter()
+        resume_from = self._resume_from()
+        if resume_from is not None and resume_from >= config.planned_steps:
+            report(f"nothing left to train: the run reached {resume_from} of {config.planned_steps} env steps "
+                   f"(raise total_steps to train further)")
+            _, state = self.checkpoints.restore(jax.eval_shape(self.init), resume_from)
+            self.checkpoints.close()
+            return state
         budget = self.compile()
         report(f"{len(self.runs)} run(s) x {config.num_envs} envs of {config.env} on "
                f"{self.trainer.env.physics_name} physics: {budget.describe()}")
         state = jax.jit(self.init)()
         start_step = 0
-        if config.resume:
-            start_step, state = self.checkpoints.restore(state, None if config.resume_step < 0 else config.resume_step)
+        if resume_from is not None:
+            start_step, state = self.checkpoints.restore(state, resume_from)
             for run in self.runs:
-                run.truncate_logs(start_step)
-        num_scorings = math.ceil(config.total_steps / config.score_every)
-        total = num_scorings * config.score_every
-        bar = tqdm(total=total, initial=start_step, unit="step", disable=not config.progress, dynamic_ncols=True)
+                for note in run.truncate_logs(start_step):
+                    report(note)
+        num_scorings = config.planned_steps // config.score_every
+        bar = tqdm(total=config.planned_steps, initial=start_step, unit="step", disable=not config.progress,
+                   dynamic_ncols=True)
         try:
             for scoring in range(start_step // config.score_every, num_scorings):
-                started = time.perf_counter()
+                interval_started = started = time.perf_counter()
                 state, chunk_metrics = self.run_chunk(state)
                 chunk_metrics = jax.device_get(chunk_metrics)
                 train_seconds = time.perf_counter() - started
@@ -151,7 +163,11 @@ class TrainingLoop:
                         env_steps, int(pick(state.grad_steps)), pick(chunk_metrics),
                         train_seconds, score_seconds, config, len(self.runs)))
 
-                if (scoring + 1) % config.checkpoint_every == 0 or scoring == num_scorings - 1:
+                last = scoring == num_scorings - 1
+                now = time.perf_counter()
+                pause = (not last and config.time_limit > 0
+                         and now - started_run + (now - interval_started) > config.time_limit)
+                if (scoring + 1) % config.checkpoint_every == 0 or last or pause:
                     self.checkpoints.save(env_steps, state)
                 bar.update(config.score_every)
                 bar.set_postfix(
@@ -159,12 +175,28 @@ class TrainingLoop:
                     clean=f"{np.mean([row['clean_score'] for row in rows]):.1f}",
                     train_sps=f"{config.score_every * len(self.runs) / train_seconds:.0f}",
                 )
+                if pause:
+                    report(f"paused at {env_steps} of {config.planned_steps} env steps: another scoring interval "
+                           f"would pass time_limit={config.time_limit:g} s; {self._kept_checkpoint()}; "
+                           f"continue with resume=true")
+                    break
         except KeyboardInterrupt:
             raise Interrupted(f"{self._kept_checkpoint()}; continue with resume=true") from None
         finally:
             bar.close()
             self.checkpoints.close()
         return state
+
+    def _resume_from(self) -> int | None:
+        """The checkpoint step a resumed run continues from (None for a fresh run)."""
+        if not self.config.resume:
+            return None
+        if self.config.resume_step >= 0:
+            return self.config.resume_step
+        latest = self.checkpoints.latest_step()
+        if latest is None:
+            raise CheckpointError(f"no checkpoint to resume from in {self.checkpoints.directory}")
+        return latest
 
     def _kept_checkpoint(self) -> str:
         kept = self.checkpoints.latest_step()

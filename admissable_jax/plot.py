@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import collections
 import dataclasses
-import json
 import os
 import sys
 
@@ -36,12 +35,12 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from omegaconf import OmegaConf  # noqa: E402
 from scipy import stats  # noqa: E402
 
 from admissable_jax.cli import fail, parse_args  # noqa: E402
 from admissable_jax.envs import observation_names  # noqa: E402
 from admissable_jax.missingness import candidate_sets  # noqa: E402
+from admissable_jax.run_directory import TornLine, load_config_yaml, read_jsonl  # noqa: E402
 
 MODE_COLORS = {"adversarial": "tab:blue", "uniform": "tab:red", "none": "tab:gray"}
 
@@ -58,6 +57,7 @@ class Run:
     clean_score: np.ndarray  # (T,)
     p_miss: np.ndarray  # (T, |U|)
     set_names: list[str]  # (|U|,) the hidden features of each candidate set
+    score_episodes: int  # N: episodes behind each a_u
 
 
 def set_names(env: str, k: int, include_empty: bool) -> list[str]:
@@ -69,9 +69,13 @@ def set_names(env: str, k: int, include_empty: bool) -> list[str]:
 
 def load_run(path: str) -> Run:
     """A run directory's config and scoring history."""
-    config = OmegaConf.load(os.path.join(path, "config.yaml"))
-    with open(os.path.join(path, "scores.jsonl")) as file:
-        rows = [json.loads(line) for line in file if line.strip()]
+    config = load_config_yaml(os.path.join(path, "config.yaml"))
+    scores_path = os.path.join(path, "scores.jsonl")
+    try:
+        rows = read_jsonl(scores_path)
+    except TornLine as torn:
+        print(f"warning: {torn}; plotting the rows before it", file=sys.stderr)
+        rows = read_jsonl(scores_path, torn="drop")
     if not rows:
         raise ValueError(f"{path} has no scoring rows yet")
     column = lambda key: np.asarray([row[key] for row in rows], dtype=float)
@@ -80,6 +84,7 @@ def load_run(path: str) -> Run:
         env_steps=column("env_steps"), scores=column("scores"), min_score=column("min_score"),
         clean_score=column("clean_score"), p_miss=column("p_miss"),
         set_names=set_names(str(config.env), int(config.k), bool(config.include_empty_set)),
+        score_episodes=int(config.score_episodes),
     )
 
 
@@ -132,6 +137,16 @@ def _window_note(window: int, used: int) -> str:
     if used == window:
         return f"moving average over {used} records"
     return f"moving average over {used} records (window={window} shortened: the runs have {used})"
+
+
+def _figure_caption(runs: list[Run], window: int, used: int) -> str:
+    """What Figure 1 shows, in words under it: a_u, the smoothing, the dots, the band."""
+    episodes = sorted({run.score_episodes for run in runs})
+    shaded = "; shaded: 95% t-interval over seeds" if max(collections.Counter(run.mode for run in runs).values()) > 1 else ""
+    return (f"$a_u$: mean undiscounted return of N = {'/'.join(map(str, episodes))} deterministic episodes with the "
+            f"features u hidden; $\\min_u a_u$: the worst u at each scoring.\n"
+            f"Lines: mean over seeds of the trailing {_window_note(window, used)}{shaded}; dots: each record "
+            f"unsmoothed (the summary's 'final' is the last dot).")
 
 
 def _seeds(n: int) -> str:
@@ -187,6 +202,7 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 40) -> list[str]:
             color = MODE_COLORS.get(mode, "black")
             ax.plot(steps, mean, color=color, label=f"{mode} ({_seeds(len(mode_runs))})")
             ax.fill_between(steps, low, high, color=color, alpha=0.2, linewidth=0)
+            ax.plot(steps, values.mean(axis=0), ".", color=color, alpha=0.35, markersize=3)
     ax_min.set_title(f"{envs[0]}: adversarial performance $\\min_u a_u$")
     ax_clean.set_title(f"{envs[0]}: clean return (nothing hidden)")
     for ax in (ax_min, ax_clean):
@@ -194,7 +210,7 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 40) -> list[str]:
         ax.set_ylabel("return")
         ax.grid(alpha=0.3)
         ax.legend()
-    figure.suptitle(f"mean over seeds of the {_window_note(window, used)}; shaded: 95% t-interval", fontsize=9, y=-0.04)
+    figure.suptitle(_figure_caption(runs, window, used), fontsize=9, y=-0.02, va="top")
     written += _save(figure, out_dir, "min_score")
 
     for mode, mode_runs in sorted(by_mode.items()):
@@ -279,8 +295,9 @@ def main(argv: list[str]) -> int:
               "record itself (final) and the mean over all records (AUC), unsmoothed.\n")
     with open(os.path.join(out_dir, "summary.md"), "w") as file:
         file.write(table)
-    print("\n".join([*written, os.path.join(out_dir, "summary.md")]))
     print(table)
+    print(f"figures and summary.md written to {out_dir}/:")
+    print("\n".join(f"  {os.path.basename(path)}" for path in [*written, os.path.join(out_dir, "summary.md")]))
     return 0
 
 

@@ -13,6 +13,7 @@ import os
 from typing import Any
 
 import numpy as np
+import yaml
 from omegaconf import OmegaConf
 
 from admissable_jax.checkpointing import CheckpointError, Checkpoints
@@ -26,7 +27,43 @@ from admissable_jax.scoring import MissingnessScores
 # Settings that may change when a run is resumed; any other difference is refused.
 # score_envs only changes how many episodes a scoring round steps at once, not its scores;
 # out is wherever the run directory is now (it may have been moved or copied).
-RESUMABLE_CHANGES = ("resume", "resume_step", "total_steps", "progress", "checkpoint_every", "score_envs", "out")
+RESUMABLE_CHANGES = ("resume", "resume_step", "total_steps", "progress", "checkpoint_every", "score_envs", "out",
+                     "time_limit")
+
+
+class TornLine(ValueError):
+    """A JSONL file's last line is cut off (a crash mid-append)."""
+
+
+def read_jsonl(path: str, torn: str = "raise") -> list[dict[str, Any]]:
+    """The rows of a JSONL file. A last line that does not parse is what a crash in
+    mid-append leaves: ``torn="drop"`` leaves it out (the caller says so), ``"raise"``
+    raises :class:`TornLine` naming the file. A bad line before the last is corruption: a
+    ValueError naming the file and line."""
+    with open(path) as file:
+        lines = [line for line in file.read().split("\n") if line.strip()]
+    rows = []
+    for number, line in enumerate(lines, 1):
+        try:
+            rows.append(json.loads(line))
+        except json.JSONDecodeError as error:
+            if number < len(lines):
+                raise ValueError(f"{path} line {number} is not valid JSON ({error.msg}); the file is corrupt") from None
+            if torn == "drop":
+                return rows
+            raise TornLine(f"{path}: the last line is cut off (a crash mid-write?): {error.msg}") from None
+    return rows
+
+
+def load_config_yaml(path: str):
+    """A run's ``config.yaml`` as an OmegaConf node; one-line ValueError if it is not valid YAML."""
+    try:
+        return OmegaConf.load(path)
+    except yaml.YAMLError as error:
+        where = getattr(error, "problem_mark", None)
+        line = f" (line {where.line + 1})" if where is not None else ""
+        problem = getattr(error, "problem", None) or str(error).splitlines()[0]
+        raise ValueError(f"{path} is not valid YAML{line}: {problem}") from None
 
 
 def score_row(env_steps: int, scores: MissingnessScores, p_miss, hidden_sets) -> dict[str, Any]:
@@ -38,7 +75,7 @@ def score_row(env_steps: int, scores: MissingnessScores, p_miss, hidden_sets) ->
         "argmin": argmin,
         "argmin_set": describe_set(np.asarray(hidden_sets[argmin])),
         "clean_score": float(scores.clean_score),
-        "scores": np.asarray(scores.scores).round(4).tolist(),
+        "scores": np.asarray(scores.scores).tolist(),
         "p_miss": np.asarray(p_miss).tolist(),
         "mean_episode_length": float(np.asarray(scores.lengths).mean()),
     }
@@ -106,7 +143,7 @@ class RunDirectory:
 
     @staticmethod
     def _check_same_run(config: TrainConfig, config_path: str, checkpoint_dir: str) -> None:
-        saved = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(TrainConfig), OmegaConf.load(config_path)))
+        saved = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(TrainConfig), load_config_yaml(config_path)))
         saved.physics = resolve_physics(saved.physics)  # runs saved before the key read "auto"
         for field in dataclasses.fields(TrainConfig):
             if field.name in RESUMABLE_CHANGES:
@@ -129,14 +166,24 @@ class RunDirectory:
 
     def read(self, name: str) -> list[dict[str, Any]]:
         path = os.path.join(self.path, name)
-        if not os.path.exists(path):
-            return []
-        with open(path) as file:
-            return [json.loads(line) for line in file if line.strip()]
+        return read_jsonl(path) if os.path.exists(path) else []
 
-    def truncate_logs(self, step: int) -> None:
-        """Drop rows written after checkpoint ``step`` (the resumed run writes them again)."""
+    def truncate_logs(self, step: int) -> list[str]:
+        """Drop rows written after checkpoint ``step`` (the resumed run writes them again),
+        and a torn last line (the checkpoint, not the log, is the truth). Returns a note
+        per file whose torn line was dropped."""
+        notes = []
         for name in ("scores.jsonl", "metrics.jsonl"):
-            rows = [row for row in self.read(name) if row["env_steps"] <= step]
-            with open(os.path.join(self.path, name), "w") as file:
+            path = os.path.join(self.path, name)
+            if not os.path.exists(path):
+                continue
+            try:
+                rows = read_jsonl(path)
+            except TornLine:
+                rows = read_jsonl(path, torn="drop")
+                notes.append(f"dropped the cut-off last line of {path} (a crash mid-write); "
+                             f"the run continues from checkpoint {step}")
+            rows = [row for row in rows if row["env_steps"] <= step]
+            with open(path, "w") as file:
                 file.writelines(json.dumps(row) + "\n" for row in rows)
+        return notes

@@ -39,6 +39,19 @@ class TrainResult:
     def run_dir(self) -> str:
         return self.config.out
 
+    @property
+    def finished(self) -> bool:
+        """Whether the run reached its planned steps (False after a ``time_limit`` pause)."""
+        return bool(self.scores) and self.scores[-1]["env_steps"] >= self.config.planned_steps
+
+    def summary(self) -> str:
+        """One line: how far the run got, its last min_u a_u and clean return, where it is."""
+        last = self.scores[-1]
+        state = "done" if self.finished else f"paused ({self.config.planned_steps} planned; resume=true continues)"
+        return (f"{state}: {self.config.env} {self.config.missingness} seed {self.config.seed}, "
+                f"{last['env_steps']} env steps, min_u a_u {last['min_score']:.1f} (u = {last['argmin_set']}), "
+                f"clean {last['clean_score']:.1f}; run in {self.run_dir}")
+
 
 def train_fn(config: TrainConfig) -> TrainResult:
     """Train SAC against missingness as ``config`` says; returns params and histories.
@@ -69,12 +82,7 @@ def main(argv: list[str]) -> int:
     result, status = run_from_cli(train_fn, config)
     if status:
         return status
-    last = result.scores[-1]
-    print(
-        f"done: {result.config.env} {result.config.missingness}, {last['env_steps']} env steps, "
-        f"min_u a_u {last['min_score']:.1f} (u = {last['argmin_set']}), clean {last['clean_score']:.1f}; "
-        f"run in {result.run_dir}"
-    )
+    print(result.summary())
     return 0
 
 

@@ -85,6 +85,7 @@ class BraxBenchConfig:
     num_eval_envs: int = dataclasses.field(default=8, metadata={"help": "Brax's evaluation envs (outside the timing)"})
     update_only: bool = dataclasses.field(default=False, metadata={"help": "time Brax's SAC update alone against ours"})
     physics: str = dataclasses.field(default="auto", metadata={"help": "auto | jax | warp (the env's physics backend)"})
+    episode_length: int = dataclasses.field(default=1000, metadata={"help": "Brax's episode length (truncation and evaluation; v5: 1000, shorter only for smoke runs)"})
 
 
 def _brax_update(obs_size: int, action_size: int):
@@ -180,7 +181,7 @@ def main(argv: list[str]) -> None:
     progress: list[tuple[int, dict]] = []
     started = time.perf_counter()
     brax_sac_train.train(
-        environment=env, num_timesteps=num_timesteps, episode_length=1000, num_envs=bench.num_envs,
+        environment=env, num_timesteps=num_timesteps, episode_length=bench.episode_length, num_envs=bench.num_envs,
         num_eval_envs=bench.num_eval_envs, learning_rate=3e-4, discounting=0.99, batch_size=bench.batch_size,
         num_evals=3, min_replay_size=min_replay, max_replay_size=1_000_000, grad_updates_per_step=grad_updates,
         tau=0.005, seed=0, progress_fn=lambda step, metrics: progress.append((step, dict(metrics))),

@@ -14,7 +14,9 @@ from typing import Any, Callable
 import jax
 import mujoco
 
-RESULTS_DIR = os.path.join(os.path.dirname(__file__), "results")
+# Where records go: benchmarks/results, or BENCHMARK_RESULTS_DIR (the campaign's smoke runs).
+COMMITTED_RESULTS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
+RESULTS_DIR = os.environ.get("BENCHMARK_RESULTS_DIR") or COMMITTED_RESULTS_DIR
 
 
 def environment_record() -> dict:
@@ -46,7 +48,7 @@ def _warp_version() -> str | None:
 def _commit() -> str:
     """The repository's commit, marked ``+changes`` when the tree differs from it."""
     def git(*args: str) -> str:
-        return subprocess.run(["git", *args], capture_output=True, text=True, cwd=RESULTS_DIR).stdout.strip()
+        return subprocess.run(["git", *args], capture_output=True, text=True, cwd=os.path.dirname(__file__)).stdout.strip()
 
     commit = git("rev-parse", "--short", "HEAD") or "unknown"
     return commit + ("+changes" if git("status", "--porcelain", "--untracked-files=no") else "")
@@ -58,7 +60,7 @@ def peak_host_memory_mb() -> float:
 
 
 def append_record(name: str, record: dict) -> str:
-    """Append one JSON line to ``benchmarks/results/<name>.jsonl``; returns the path."""
+    """Append one JSON line to ``<RESULTS_DIR>/<name>.jsonl``; returns the path."""
     os.makedirs(RESULTS_DIR, exist_ok=True)
     path = os.path.join(RESULTS_DIR, f"{name}.jsonl")
     with open(path, "a") as file:

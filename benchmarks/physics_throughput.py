@@ -1,6 +1,7 @@
 """Physics throughput per backend and batch: our env step against the bare physics step.
 
     python benchmarks/physics_throughput.py env=hopper physics=jax,warp batches=8,32 steps=50
+    python benchmarks/physics_throughput.py env=ant physics=warp batches=125 graph_modes=default,WARP,WARP_STAGED
 
 For every (backend, batch) pair: a batched random-policy rollout through our env (obs,
 reward, termination, automatic resets: ``admissable_jax.rollout.random_rollout``) and the
@@ -9,6 +10,8 @@ bare physics of the same batch (``frame_skip`` × ``mjx.step`` under ``vmap`` in
 warm-up run. Prints ms per batched env step and env steps/s, and appends one record per
 pair to ``benchmarks/results/physics_throughput.jsonl``; ``env_over_bare`` is the cost of
 our env layer over the physics it wraps (the Warp issue's target: <= 1.15 on a GPU).
+``graph_modes`` (Warp only) repeats each Warp measurement per MuJoCo Warp graph mode
+(``default`` = MJX's own choice).
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ import jax
 import jax.numpy as jnp
 
 from admissable_jax.cli import parse_args
-from admissable_jax.envs import canonical_env_name, make_env, resolve_physics
+from admissable_jax.envs import EnvOptions, canonical_env_name, make_env, resolve_physics
 from admissable_jax.rollout import random_rollout
 from common import append_record
 
@@ -32,6 +35,11 @@ class PhysicsBenchConfig:
     physics: str = dataclasses.field(default="jax,warp", metadata={"help": "comma-separated backends (auto, jax, warp)"})
     batches: str = dataclasses.field(default="8,32", metadata={"help": "comma-separated batch sizes (envs stepped at once)"})
     steps: int = dataclasses.field(default=50, metadata={"help": "batched steps per timed run"})
+    graph_modes: str = dataclasses.field(default="default", metadata={"help": "comma-separated Warp graph modes: default, WARP, WARP_STAGED"})
+
+
+def _graph_modes(bench: PhysicsBenchConfig) -> list[str | None]:
+    return [None if mode.strip() == "default" else mode.strip() for mode in bench.graph_modes.split(",")]
 
 
 def _validate(bench: PhysicsBenchConfig) -> None:
@@ -40,6 +48,8 @@ def _validate(bench: PhysicsBenchConfig) -> None:
         resolve_physics(physics.strip())
     if not all(int(batch) >= 1 for batch in bench.batches.split(",")) or bench.steps < 1:
         raise ValueError("batches and steps must be >= 1")
+    for mode in _graph_modes(bench):
+        EnvOptions(graph_mode=mode)  # validates the name
 
 
 def _bare_rollout(env, num_envs: int, steps: int, rng: jax.Array):
@@ -64,26 +74,30 @@ def _time(function, *args) -> tuple[float, float]:
 def main(argv: list[str]) -> None:
     bench = parse_args(PhysicsBenchConfig, argv, "benchmarks/physics_throughput.py", __doc__.splitlines()[0], _validate)
     rng = jax.random.key(0)
-    for physics in (p.strip() for p in bench.physics.split(",")):
-        for batch in (int(b) for b in bench.batches.split(",")):
-            env = make_env(bench.env, physics=physics, max_batch=batch)
-            env_compile_s, env_s = _time(random_rollout, env, batch, bench.steps, rng)
-            bare_compile_s, bare_s = _time(_bare_rollout, env, batch, bench.steps, rng)
-            record = {
-                "env": env.gymnasium_id, "physics": env.physics_name, "num_envs": batch, "steps": bench.steps,
-                "env_ms_per_step": round(1000 * env_s / bench.steps, 3),
-                "bare_ms_per_step": round(1000 * bare_s / bench.steps, 3),
-                "env_steps_per_s": round(batch * bench.steps / env_s, 1),
-                "bare_env_steps_per_s": round(batch * bench.steps / bare_s, 1),
-                "env_over_bare": round(env_s / bare_s, 3),
-                "env_compile_s": round(env_compile_s, 1), "bare_compile_s": round(bare_compile_s, 1),
-            }
-            append_record("physics_throughput", record)
-            print(
-                f"{env.gymnasium_id} {env.physics_name:4s} x {batch:6d}: env {record['env_ms_per_step']:8.2f} ms/step "
-                f"({record['env_steps_per_s']:,.0f} env steps/s), bare physics {record['bare_ms_per_step']:8.2f} ms/step "
-                f"-> env/bare {record['env_over_bare']:.2f}; compile {env_compile_s:.1f} s / {bare_compile_s:.1f} s"
-            )
+    cases = [(physics.strip(), batch, mode) for physics in bench.physics.split(",")
+             for batch in (int(b) for b in bench.batches.split(",")) for mode in _graph_modes(bench)]
+    for physics, batch, mode in cases:
+        env = make_env(bench.env, physics=physics, max_batch=batch, graph_mode=mode)
+        if env.physics_name != "warp" and mode != _graph_modes(bench)[0]:
+            continue  # graph modes are Warp's: measure the JAX backend once
+        env_compile_s, env_s = _time(random_rollout, env, batch, bench.steps, rng)
+        bare_compile_s, bare_s = _time(_bare_rollout, env, batch, bench.steps, rng)
+        record = {
+            "env": env.gymnasium_id, "physics": env.physics_name, "num_envs": batch, "steps": bench.steps,
+            "graph_mode": mode if env.physics_name == "warp" else None,
+            "env_ms_per_step": round(1000 * env_s / bench.steps, 3),
+            "bare_ms_per_step": round(1000 * bare_s / bench.steps, 3),
+            "env_steps_per_s": round(batch * bench.steps / env_s, 1),
+            "bare_env_steps_per_s": round(batch * bench.steps / bare_s, 1),
+            "env_over_bare": round(env_s / bare_s, 3),
+            "env_compile_s": round(env_compile_s, 1), "bare_compile_s": round(bare_compile_s, 1),
+        }
+        append_record("physics_throughput", record)
+        print(
+            f"{env.gymnasium_id} {env.physics_name:4s} {record['graph_mode'] or '':11s} x {batch:6d}: env {record['env_ms_per_step']:8.2f} ms/step "
+            f"({record['env_steps_per_s']:,.0f} env steps/s), bare physics {record['bare_ms_per_step']:8.2f} ms/step "
+            f"-> env/bare {record['env_over_bare']:.2f}; compile {env_compile_s:.1f} s / {bare_compile_s:.1f} s"
+        )
 
 
 if __name__ == "__main__":

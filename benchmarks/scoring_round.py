@@ -6,6 +6,7 @@ against the pure-physics time of the same rollout.
     python benchmarks/scoring_round.py env=hopper run=runs/h100k   # the run's final actor
     python benchmarks/scoring_round.py env=hopper slots=0 n_episodes=5   # every episode at once
     python benchmarks/scoring_round.py env=hopper run=runs/h100k sequential=true
+    python benchmarks/scoring_round.py env=ant slots=0 terminate=false   # every episode 1000 steps
 
 ``slots`` is the number of envs stepped at once (``score_envs`` of training; -1 = this
 backend's default, 0 = every episode at once). The pure-physics ceiling runs the same rollout
@@ -15,6 +16,9 @@ stepped, is the ceiling the round is compared with (``over_physics``; the target
 Zero actions visit other states than the policy does (the solver's work depends on the
 contacts), so the policy's own work is also timed alone: its masked forwards of the batch
 for the round's loop steps (``policy_share`` of the round).
+``terminate=false`` builds the env with Gymnasium's ``terminate_when_unhealthy=False``, so
+every episode runs ``max_steps`` steps: the longest round, as late in training, timed with
+any actor.
 ``sequential=true`` also runs the paper's way for comparison: Gymnasium's C-MuJoCo env, one
 episode after another for every u, the same actor through a jitted forward per step.
 
@@ -52,6 +56,7 @@ class ScoringBenchConfig:
     run: str = dataclasses.field(default="", metadata={"help": "run directory whose last checkpoint gives the actor ('' = untrained actor)"})
     seed: int = dataclasses.field(default=0, metadata={"help": "PRNG seed"})
     physics: str = dataclasses.field(default="auto", metadata={"help": "auto | jax | warp (the env's physics backend)"})
+    terminate: bool = dataclasses.field(default=True, metadata={"help": "false: episodes never terminate (every one runs max_steps)"})
     ceiling: bool = dataclasses.field(default=True, metadata={"help": "also time the pure-physics ceiling (zero actions, no policy)"})
     sequential: bool = dataclasses.field(default=False, metadata={"help": "also time the paper-style sequential Gymnasium loop"})
 
@@ -91,7 +96,8 @@ def main(argv: list[str]) -> None:
                          physics=bench.physics).resolved()
     episodes = (num_candidate_sets(observation_size(config.env), config.k) + 1) * bench.n_episodes
     slots = {-1: default_score_envs(episodes), 0: episodes}.get(bench.slots, min(bench.slots, episodes))
-    env = make_env(config.env, episode_length=bench.max_steps, physics=config.physics, max_batch=slots)
+    env = make_env(config.env, episode_length=bench.max_steps, physics=config.physics, max_batch=slots,
+                   terminate_when_unhealthy=bench.terminate)
     trainer = Trainer(env, RunSpec.of(config))
     state = jax.jit(trainer.init)(0, True, True)
     label = "untrained actor"
@@ -107,7 +113,8 @@ def main(argv: list[str]) -> None:
     stepped = loop_steps * slots
     record = {
         "env": env.gymnasium_id, "physics": env.physics_name, "n_episodes": bench.n_episodes, "sets": trainer.num_sets,
-        "batch_episodes": episodes, "slots": slots, "max_steps": bench.max_steps, "policy": label,
+        "batch_episodes": episodes, "slots": slots, "max_steps": bench.max_steps, "terminate": bench.terminate,
+        "policy": label,
         "compile_s": round(compile_s, 2), "run_s": round(run_s, 3),
         "loop_steps": loop_steps, "env_steps_stepped": stepped,
         "env_steps_in_episodes": int(lengths.sum()),

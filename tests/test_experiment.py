@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
-import sys
 
 import nbformat
 import numpy as np
@@ -81,14 +79,18 @@ def test_experiment_refuses_what_does_not_fit_before_allocating(tmp_path, monkey
         (["env=ant", "k=105"], "k must satisfy 1 <= k < d = 105"),
     ],
 )
-def test_experiment_cli_rejects_bad_input_with_one_line(args, message, tmp_path):
-    result = subprocess.run(
-        [sys.executable, "-m", "admissable_jax.experiment", *args, f"out={tmp_path}/x", "progress=false"],
-        capture_output=True, text=True, env={**os.environ, "JAX_PLATFORMS": "cpu"},
-    )
-    assert result.returncode == 2, result.stderr
-    assert message in result.stderr
-    assert len(result.stderr.strip().splitlines()) == 1, result.stderr
+def test_experiment_cli_rejects_bad_input_with_one_line(args, message, tmp_path, capsys):
+    """In-process (``main``); tests/test_runs.py runs the real command line for a bad input."""
+    from admissable_jax.experiment import main
+
+    try:
+        status = main([*args, f"out={tmp_path}/x", "progress=false"])
+    except SystemExit as exit_info:
+        status = exit_info.code
+    stderr = capsys.readouterr().err
+    assert status == 2, stderr
+    assert message in stderr
+    assert len(stderr.strip().splitlines()) == 1, stderr
 
 
 def test_pair_configs_name_one_directory_per_pair():

@@ -3,7 +3,10 @@ checkpoint recovery, moved directories. All on the point mass (seconds to compil
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import importlib
+import io
 import json
 import os
 import re
@@ -11,6 +14,8 @@ import shutil
 import subprocess
 import sys
 
+import jax
+import numpy as np
 import pytest
 
 from admissable_jax import TrainConfig, train_fn
@@ -26,9 +31,19 @@ RUN = TrainConfig(
 )
 
 
-def _cli(module: str, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", module, *args, "progress=false"], capture_output=True, text=True,
-                          env={**os.environ, "JAX_PLATFORMS": "cpu"})
+def _cli(module: str, *args: str, subprocess_run: bool = False) -> subprocess.CompletedProcess:
+    """``python -m module args`` as a user runs it: in this process (its ``main``), or as a
+    real command line when ``subprocess_run`` (slower: a fresh interpreter imports JAX)."""
+    if subprocess_run:
+        return subprocess.run([sys.executable, "-m", module, *args], capture_output=True, text=True,
+                              env={**os.environ, "JAX_PLATFORMS": "cpu"})
+    stderr = io.StringIO()
+    with contextlib.redirect_stderr(stderr), contextlib.redirect_stdout(io.StringIO()):
+        try:
+            status = importlib.import_module(module).main(list(args))
+        except SystemExit as exit_info:
+            status = exit_info.code
+    return subprocess.CompletedProcess(args, status, "", stderr.getvalue())
 
 
 def _steps(run_dir: str) -> list[int]:
@@ -58,21 +73,22 @@ def test_a_run_directory_has_one_owner_and_a_stale_lock_is_taken_over(tmp_path, 
     assert re.search(r"compiling the scoring round for point_mass \(jax physics\) on cpu: done in \d+\.\d s", said)
 
 
-@pytest.mark.parametrize("out, message", [("/proc/x", "cannot create the run directory /proc/x"),
-                                          ("/dev/null/x", "cannot create the run directory /dev/null/x")])
-def test_unwritable_out_is_one_line(out, message):
-    result = _cli("admissable_jax.train", "env=point_mass", f"out={out}")
+@pytest.mark.parametrize("out, message, subprocess_run", [("/proc/x", "cannot create the run directory /proc/x", True),
+                                                          ("/dev/null/x", "cannot create the run directory /dev/null/x", False)])
+def test_unwritable_out_is_one_line(out, message, subprocess_run):
+    """The first case runs the real command line: nothing else (an import warning, say) may add a line."""
+    result = _cli("admissable_jax.train", "env=point_mass", f"out={out}", "progress=false", subprocess_run=subprocess_run)
     assert result.returncode == 2, result.stderr
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"error: {message}: "), result.stderr
 
 
 def test_cli_edge_cases_are_one_line(tmp_path):
-    empty_modes = _cli("admissable_jax.experiment", "env=point_mass", "modes=", f"out={tmp_path}/e")
+    empty_modes = _cli("admissable_jax.experiment", "env=point_mass", "modes=", f"out={tmp_path}/e", "progress=false")
     assert empty_modes.returncode == 2
     assert empty_modes.stderr.strip() == "error: modes must be a comma-separated list of adversarial, uniform, none, got ''"
     missing = tmp_path / "never-started"
-    resumed = _cli("admissable_jax.train", "env=point_mass", "resume=true", f"out={missing}")
+    resumed = _cli("admissable_jax.train", "env=point_mass", "resume=true", f"out={missing}", "progress=false")
     assert resumed.returncode == 1 and "nothing to resume" in resumed.stderr
     assert len(resumed.stderr.strip().splitlines()) == 1
     assert not missing.exists()  # a failed resume leaves nothing behind
@@ -136,3 +152,74 @@ def test_resume_rules_corrupt_checkpoints_and_moved_directories(tmp_path, capsys
     again = train_fn(dataclasses.replace(RUN, out=moved, resume=True, total_steps=2500, resume_step=2000))
     assert again.scores == grown.scores
     assert os.listdir(checkpoints + "-superseded") == ["2500"]  # set aside, not deleted
+
+
+def test_faults_of_long_runs_cost_nothing_finished(tmp_path, monkeypatch, capsys):
+    """A torn last jsonl line, a config.yaml that is not YAML, a full disk during a
+    checkpoint, a finished run resumed, and a time limit: one line each, nothing lost."""
+    import errno
+
+    import orbax.checkpoint as ocp
+
+    from admissable_jax.plot import main as plot_main
+
+    straight = train_fn(dataclasses.replace(RUN, out=str(tmp_path / "straight")))
+
+    # A time limit pauses after whole scoring intervals with a checkpoint; resume goes on to
+    # the same history as the uninterrupted run.
+    paused_dir = str(tmp_path / "paused")
+    paused = train_fn(dataclasses.replace(RUN, out=paused_dir, time_limit=1e-3))
+    assert not paused.finished and _steps(paused_dir) == [500]
+    assert "paused at 500 of 2000 env steps" in capsys.readouterr().err
+    assert sorted(os.listdir(os.path.join(paused_dir, "checkpoints"))) == ["500"]
+
+    # A crash mid-append leaves a torn last line: resume drops it and says so; plot skips it
+    # with a warning naming the file.
+    for name in ("scores.jsonl", "metrics.jsonl"):
+        with open(os.path.join(paused_dir, name), "a") as file:
+            file.write('{"env_steps": 1000, "min_score": 12.')
+    assert plot_main([paused_dir, f"out={tmp_path / 'figs'}"]) == 0
+    assert f"warning: {os.path.join(paused_dir, 'scores.jsonl')}: the last line is cut off" in capsys.readouterr().err
+    resumed = train_fn(dataclasses.replace(RUN, out=paused_dir, resume=True))
+    assert resumed.finished and resumed.scores == straight.scores
+    assert f"dropped the cut-off last line of {os.path.join(paused_dir, 'scores.jsonl')}" in capsys.readouterr().err
+
+    # Resuming a finished run says so at once, compiles nothing, and returns its state.
+    again = train_fn(dataclasses.replace(RUN, out=paused_dir, resume=True))
+    said = capsys.readouterr().err
+    assert "nothing left to train: the run reached 2000 of 2000 env steps" in said and "compiling" not in said
+    for a, b in zip(jax.tree.leaves(again.state), jax.tree.leaves(straight.state)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+    # config.yaml that is not YAML: one line naming it, from train and from plot.
+    broken = tmp_path / "broken"
+    shutil.copytree(paused_dir, broken)
+    (broken / "config.yaml").write_text("env: [point_mass\nseed: 0\n")
+    for result in (_cli("admissable_jax.train", "env=point_mass", "resume=true", f"out={broken}", "progress=false"),
+                   _cli("admissable_jax.plot", str(broken), subprocess_run=True)):
+        lines = result.stderr.strip().splitlines()
+        assert result.returncode == 2 and len(lines) == 1, result.stderr
+        assert lines[0].startswith(f"error: {broken / 'config.yaml'} is not valid YAML"), lines[0]
+
+    # A disk that fills during a checkpoint: one line naming the directory and the intact
+    # checkpoint, orbax's temporary folder removed, and resume works once there is space.
+    real_save = ocp.CheckpointManager.save
+
+    def full_disk_at_1000(manager, step, *args, **kwargs):
+        if step == 1000:
+            partial = os.path.join(str(manager.directory), "1000.orbax-checkpoint-tmp-1")
+            os.makedirs(partial)
+            raise RuntimeError("write failed") from OSError(errno.ENOSPC, "No space left on device")
+        return real_save(manager, step, *args, **kwargs)
+
+    monkeypatch.setattr(ocp.CheckpointManager, "save", full_disk_at_1000)
+    full_dir = str(tmp_path / "full")
+    result, status = run_from_cli(train_fn, dataclasses.replace(RUN, out=full_dir))
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert status == 1 and result is None
+    checkpoints = os.path.join(full_dir, "checkpoints")
+    assert lines[-1] == (f"error: cannot write checkpoint 1000 in {checkpoints}: No space left on device; the partial "
+                         "write was removed and checkpoint 500 is intact; free space, then continue with resume=true")
+    assert os.listdir(checkpoints) == ["500"]
+    monkeypatch.setattr(ocp.CheckpointManager, "save", real_save)
+    assert train_fn(dataclasses.replace(RUN, out=full_dir, resume=True)).scores == straight.scores

@@ -76,7 +76,8 @@ class MjxEnv(abc.ABC):
         if self.options.ls_iterations is not None:
             self.mj_model.opt.ls_iterations = self.options.ls_iterations
         self.physics = Physics(self.mj_model, self.options.resolved_physics, self.frame_skip,
-                               self.options.max_batch, contact_forces=self.reads_contact_forces)
+                               self.options.max_batch, contact_forces=self.reads_contact_forces,
+                               graph_mode=self.options.graph_mode)
         self.dt = float(self.mj_model.opt.timestep) * self.frame_skip
         self.init_qpos = jnp.asarray(self.mj_model.qpos0, dtype=jnp.float32)
         self.init_qvel = jnp.zeros(self.mj_model.nv, dtype=jnp.float32)
@@ -187,7 +188,7 @@ class MjxEnv(abc.ABC):
             data=data,
             obs=self._observation(data),
             reward=reward,
-            terminated=jnp.logical_not(healthy),
+            terminated=jnp.logical_not(healthy) & self.options.terminate_when_unhealthy,
             truncated=step_count >= self.max_episode_steps,
             step_count=step_count,
             metrics={**terms, **info},

@@ -14,6 +14,7 @@ import functools
 import jax
 
 PHYSICS_CHOICES = ("auto", "jax", "warp")
+WARP_GRAPH_MODES = ("WARP", "WARP_STAGED")  # MuJoCo Warp's CUDA-graph modes under JAX
 MAX_EPISODE_STEPS = 1000  # Gymnasium's TimeLimit for Hopper-v5, Walker2d-v5 and Ant-v5.
 DEFAULT_MAX_BATCH = 1024
 
@@ -35,6 +36,13 @@ class EnvOptions:
             world in one shared buffer, sized from this and the model's largest possible
             contact count; a step that would exceed it stops the run with an error
             naming this setting. The JAX backend does not need it.
+        terminate_when_unhealthy: Gymnasium v5's argument of the same name: ``False``
+            never terminates an episode (the healthy reward still follows the health
+            rules), so every episode runs to ``episode_length``; benchmarks use it to time
+            the longest scoring rounds with an untrained policy.
+        graph_mode: Warp only: how MuJoCo Warp's kernels run under JAX
+            (``mjx.put_model(..., graph_mode=...)``): ``"WARP"`` or ``"WARP_STAGED"``
+            (CUDA-graph capture modes), ``None`` for MJX's default.
     """
 
     episode_length: int = MAX_EPISODE_STEPS
@@ -42,6 +50,8 @@ class EnvOptions:
     solver_iterations: int | None = None
     ls_iterations: int | None = None
     max_batch: int = DEFAULT_MAX_BATCH
+    terminate_when_unhealthy: bool = True
+    graph_mode: str | None = None
 
     def __post_init__(self) -> None:
         for name in ("episode_length", "max_batch"):
@@ -55,6 +65,10 @@ class EnvOptions:
             value = getattr(self, name)
             if value is not None and (not isinstance(value, int) or isinstance(value, bool) or value < 1):
                 raise ValueError(f"{name} must be None or an int >= 1, got {value!r}")
+        if not isinstance(self.terminate_when_unhealthy, bool):
+            raise ValueError(f"terminate_when_unhealthy must be a bool, got {self.terminate_when_unhealthy!r}")
+        if self.graph_mode is not None and self.graph_mode not in WARP_GRAPH_MODES:
+            raise ValueError(f"graph_mode must be None or one of {', '.join(WARP_GRAPH_MODES)}, got {self.graph_mode!r}")
 
     @property
     def resolved_physics(self) -> str:

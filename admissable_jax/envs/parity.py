@@ -6,6 +6,8 @@ a faster solver setting moves our envs from Gymnasium's.
 
 from __future__ import annotations
 
+import functools
+
 import gymnasium
 import jax
 import numpy as np
@@ -45,10 +47,11 @@ def gymnasium_transitions(env_id: str, n: int, seed: int = 0) -> dict[str, np.nd
     return arrays
 
 
+def step_from_state(env: MjxEnv, qpos, qvel, action, step_count) -> EnvState:
+    """Our step from one (qpos, qvel, step_count) with ``action`` (pure; jit/vmap it)."""
+    return env.step(env.state_from_qpos_qvel(qpos, qvel).replace(step_count=step_count), action)
+
+
 def step_from_states(env: MjxEnv, qpos, qvel, action, step_count) -> EnvState:
-    """Our step from each (qpos, qvel, step_count) with its action, batched and jitted."""
-
-    def one(q, v, a, c):
-        return env.step(env.state_from_qpos_qvel(q, v).replace(step_count=c), a)
-
-    return jax.jit(jax.vmap(one))(qpos, qvel, action, step_count)
+    """:func:`step_from_state` for each row, batched and jitted."""
+    return jax.jit(jax.vmap(functools.partial(step_from_state, env)))(qpos, qvel, action, step_count)

@@ -57,7 +57,7 @@ class Physics:
     """A MuJoCo model on one backend (``impl``: ``"jax"`` or ``"warp"``)."""
 
     def __init__(self, mj_model: mujoco.MjModel, impl: str, frame_skip: int, max_batch: int,
-                 contact_forces: bool):
+                 contact_forces: bool, graph_mode: str | None = None):
         self.impl, self.frame_skip, self.max_batch = impl, frame_skip, max_batch
         self.contact_forces = contact_forces
         condim = collision_driver.make_condim(mj_model)
@@ -68,7 +68,7 @@ class Physics:
             self.data_template = mjx.make_data(self.model, impl="jax")
             self._shared = {}  # JAX data has no fields shared across a batch
         elif impl == "warp":
-            model = mjx.put_model(mj_model, impl="warp")
+            model = mjx.put_model(mj_model, impl="warp", graph_mode=_warp_graph_mode(graph_mode))
             if contact_forces:
                 warp_options = model.opt._impl.replace(run_rne_postconstraint=True)
                 model = model.replace(opt=model.opt.replace(_impl=warp_options))
@@ -131,6 +131,15 @@ class Physics:
             f"{self.constraints_per_world} constraint rows per world); more worlds were stepped at once "
             f"than the env's max_batch allows: raise max_batch, or use physics=jax"
         )
+
+
+def _warp_graph_mode(name: str | None):
+    """MuJoCo Warp's ``GraphMode`` member called ``name`` (``None``: MJX's default)."""
+    if name is None:
+        return None
+    from mujoco.mjx.warp import types as warp_types
+
+    return getattr(warp_types.GraphMode, name)
 
 
 def _shared_fields(template: mjx.Data) -> dict[str, jax.Array]:

@@ -33,7 +33,8 @@ class PointMass:
     action_size = 2
 
     def __init__(self, options: EnvOptions | None = None):
-        """Only ``options.episode_length`` applies: there is no MuJoCo model or solver."""
+        """Only ``options.episode_length`` and ``terminate_when_unhealthy`` apply: there is
+        no MuJoCo model or solver."""
         self.options = options or EnvOptions()
         self.dt = _DT
         self.action_low = -jnp.ones(2, jnp.float32)
@@ -88,7 +89,7 @@ class PointMass:
         return self._state(
             PointMassData(position, velocity),
             reward,
-            jnp.linalg.norm(position) > _ESCAPE_RADIUS,
+            (jnp.linalg.norm(position) > _ESCAPE_RADIUS) & self.options.terminate_when_unhealthy,
             state.step_count + 1,
             {"reward_distance": episode_return, "return": episode_return},
         )

@@ -1,0 +1,203 @@
+"""The GPU campaign's speed table and run plans (``benchmarks/gpu_campaign.sh`` calls these).
+
+    python benchmarks/campaign.py measure env=hopper modes=adversarial,uniform,none seeds=5
+    python benchmarks/campaign.py plan env=hopper modes=adversarial,uniform,none seeds=5 \\
+        total_steps=1000000 deadline=1500
+    python benchmarks/campaign.py plan env=ant seeds=5 total_steps=0 min_steps=200000 deadline=1500
+
+``measure`` builds the experiment exactly as ``python -m admissable_jax.experiment`` would
+for these settings (every (seed, mode) pair vmapped in one program) and times its parts on
+this device: compiling both programs, one training chunk of ζ env steps with learning on,
+one scoring round as it comes (untrained policy: short episodes), one scoring round in which
+every episode runs its full ``episode_length`` (the env built with Gymnasium's
+``terminate_when_unhealthy=False``: the longest a round can take, as late in training), and
+saving and restoring the whole training state (replay buffers included) as a checkpoint.
+It appends one record to ``campaign_speed.jsonl`` in the results folder.
+
+``plan`` reads the newest matching record (same env, pairs, envs per pair, physics and
+device) and projects a run's wall time conservatively: every scoring round at full length,
+and every device call (``call_seconds`` each) paying the compile and a checkpoint restore
+and save. It prints the projection and exits 0 if the run fits in ``deadline`` seconds,
+3 if not. With ``total_steps=0`` it finds the longest run that fits (at least
+``min_steps``) and prints ``total_steps=N`` last.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import sys
+import tempfile
+import time
+
+import jax
+
+from admissable_jax.checkpointing import Checkpoints
+from admissable_jax.cli import parse_args
+from admissable_jax.envs import make_env
+from admissable_jax.experiment import ExperimentConfig, pair_configs
+from admissable_jax.host_loop import make_trainer, mode_flags
+from admissable_jax.training import Trainer
+from common import COMMITTED_RESULTS_DIR, RESULTS_DIR, append_record, environment_record
+
+REFUSED = 3  # plan's exit status for a run that does not fit
+
+
+@dataclasses.dataclass
+class MeasureConfig(ExperimentConfig):
+    """An experiment's settings (as ``experiment`` takes them); nothing is trained."""
+
+
+@dataclasses.dataclass
+class PlanConfig(ExperimentConfig):
+    deadline: float = dataclasses.field(default=1800.0, metadata={"help": "device seconds left for this run"})
+    call_seconds: float = dataclasses.field(default=540.0, metadata={"help": "seconds one device call may run"})
+    min_steps: int = dataclasses.field(default=200_000, metadata={"help": "with total_steps=0: refuse a run shorter than this"})
+
+
+def _experiment_trainer(config: ExperimentConfig) -> tuple[Trainer, list, Trainer]:
+    """(trainer, pair configs, the same trainer on an env that never terminates)."""
+    pairs = pair_configs(config)
+    trainer = make_trainer(pairs[0], num_runs=len(pairs))
+    endless_env = make_env(trainer.spec.env, dataclasses.replace(trainer.spec.env_options, terminate_when_unhealthy=False))
+    return trainer, pairs, Trainer(endless_env, trainer.spec)
+
+
+def _timed(function, *args):
+    start = time.perf_counter()
+    out = jax.block_until_ready(function(*args))
+    return out, time.perf_counter() - start
+
+
+def measure(config: MeasureConfig) -> dict:
+    trainer, pairs, endless = _experiment_trainer(config)
+    seeds = jax.numpy.array([pair.seed for pair in pairs])
+    adversarial, masking = (jax.numpy.array(flags) for flags in zip(*(mode_flags(p.missingness) for p in pairs)))
+    init = jax.jit(lambda: jax.vmap(trainer.init)(seeds, adversarial, masking))
+    chunk = jax.vmap(lambda state: trainer.run_chunk(state, trainer.spec.iterations_per_scoring))
+
+    start = time.perf_counter()
+    state = init()
+    chunk = jax.jit(chunk).lower(state).compile()
+    score = jax.jit(jax.vmap(trainer.score_and_update)).lower(state).compile()
+    compile_s = time.perf_counter() - start
+    score_full = jax.jit(jax.vmap(endless.score_and_update)).lower(state).compile()
+
+    (state, _), first_chunk_s = _timed(chunk, state)  # learning starts within it
+    (state, metrics), chunk_s = _timed(chunk, state)
+    (_, scores), score_s = _timed(score, state)
+    (_, full), score_full_s = _timed(score_full, state)
+    with tempfile.TemporaryDirectory() as directory:
+        checkpoints = Checkpoints(directory)
+        _, save_s = _timed(lambda: checkpoints.save(1, state))
+        (_, state), restore_s = _timed(lambda: checkpoints.restore(state, 1))
+        checkpoints.close()
+    first = pairs[0]
+    record = {
+        "env": trainer.env.gymnasium_id, "physics": trainer.env.physics_name, "pairs": len(pairs),
+        "num_envs": first.num_envs, "score_envs": first.score_envs, "score_episodes": first.score_episodes,
+        "episode_length": first.episode_length, "score_every": first.score_every, "buffer_size": first.buffer_size,
+        "compile_s": round(compile_s, 2), "first_chunk_s": round(first_chunk_s, 3), "chunk_s": round(chunk_s, 3),
+        "learned_share": float(metrics["learned"].mean()),
+        "score_s": round(score_s, 3), "score_loop_steps": int(scores.loop_steps.max()),
+        "score_full_s": round(score_full_s, 3), "score_full_loop_steps": int(full.loop_steps.max()),
+        "checkpoint_save_s": round(save_s, 2), "checkpoint_restore_s": round(restore_s, 2),
+    }
+    append_record("campaign_speed", record)
+    print(
+        f"{record['env']} ({record['physics']}), {len(pairs)} pairs x {first.num_envs} envs: compile {compile_s:.1f} s; "
+        f"chunk of {first.score_every} env steps per pair {chunk_s:.2f} s "
+        f"({first.score_every * len(pairs) / chunk_s:,.0f} env steps/s in all); scoring round {score_s:.2f} s "
+        f"({record['score_loop_steps']} loop steps), at full length {score_full_s:.2f} s "
+        f"({record['score_full_loop_steps']} loop steps); checkpoint save {save_s:.1f} s, restore {restore_s:.1f} s"
+    )
+    return record
+
+
+def speed_record(config: ExperimentConfig) -> dict:
+    """The newest ``campaign_speed`` record for this experiment's shape on this device, from
+    this campaign's records or the committed ones."""
+    trainer, pairs, _ = _experiment_trainer(config)
+    want = {"env": trainer.env.gymnasium_id, "physics": trainer.env.physics_name, "pairs": len(pairs),
+            "num_envs": pairs[0].num_envs, "score_episodes": pairs[0].score_episodes,
+            "episode_length": pairs[0].episode_length, "score_every": pairs[0].score_every,
+            "device": environment_record()["device"]}
+    paths = [os.path.join(folder, "campaign_speed.jsonl") for folder in dict.fromkeys([COMMITTED_RESULTS_DIR, RESULTS_DIR])]
+    records = []
+    for path in filter(os.path.exists, paths):
+        with open(path) as file:
+            records += [json.loads(line) for line in file if line.strip()]
+    matching = [r for r in records if all(r.get(key) == value for key, value in want.items())]
+    if not matching:
+        raise ValueError(f"no speed record in {' or '.join(paths)} for {want}: run the campaign's speed step first")
+    return matching[-1]
+
+
+@dataclasses.dataclass(frozen=True)
+class Projection:
+    scorings: int
+    calls: int
+    interval_s: float  # one chunk plus one full-length scoring round
+    per_call_s: float  # compile, checkpoint restore and save
+    total_s: float
+
+    def describe(self, record: dict) -> str:
+        return (f"{self.scorings} scorings x (chunk {record['chunk_s']:.1f} s + full-length scoring "
+                f"{record['score_full_s']:.1f} s) + {self.calls} call(s) x (compile {record['compile_s']:.0f} s + "
+                f"checkpoint {record['checkpoint_restore_s'] + record['checkpoint_save_s']:.0f} s) "
+                f"= {self.total_s:,.0f} s ({self.total_s / 60:.1f} min)")
+
+
+def project(record: dict, scorings: int, call_seconds: float) -> Projection:
+    """Conservative wall time of ``scorings`` scoring intervals run in calls of ``call_seconds``."""
+    interval = record["chunk_s"] + record["score_full_s"]
+    per_call = record["compile_s"] + record["checkpoint_restore_s"] + record["checkpoint_save_s"]
+    per_call_intervals = max(1, math.floor((call_seconds - per_call) / interval))
+    calls = math.ceil(scorings / per_call_intervals)
+    return Projection(scorings, calls, interval, per_call, calls * per_call + scorings * interval)
+
+
+def plan(config: PlanConfig) -> int:
+    record = speed_record(config)
+    shape = f"{record['env']}, {record['pairs']} pairs x {record['num_envs']} envs ({record['physics']} on {record['device']})"
+    if config.total_steps > 0:
+        scorings = math.ceil(config.total_steps / config.score_every)
+        projection = project(record, scorings, config.call_seconds)
+        fits = projection.total_s <= config.deadline
+        print(f"projected wall time for {shape}, {scorings * config.score_every:,} env steps: "
+              f"{projection.describe(record)}; device time left {config.deadline:,.0f} s: "
+              f"{'fits' if fits else 'does not fit, refused'}")
+        return 0 if fits else REFUSED
+    scorings = 1
+    while project(record, scorings + 1, config.call_seconds).total_s <= config.deadline:
+        scorings += 1
+    projection = project(record, scorings, config.call_seconds)
+    steps = scorings * config.score_every
+    if steps < config.min_steps or projection.total_s > config.deadline:
+        print(f"the longest run of {shape} that fits in {config.deadline:,.0f} s is {steps:,} env steps "
+              f"({projection.describe(record)}), below min_steps={config.min_steps:,}: refused")
+        return REFUSED
+    print(f"longest run of {shape} in {config.deadline:,.0f} s: {steps:,} env steps: {projection.describe(record)}")
+    print(f"total_steps={steps}")
+    return 0
+
+
+def main(argv: list[str]) -> int:
+    if not argv or argv[0] not in ("measure", "plan"):
+        print("usage: python benchmarks/campaign.py measure|plan key=value ... (--help after the verb)", file=sys.stderr)
+        return 2
+    verb, rest = argv[0], argv[1:]
+    if verb == "measure":
+        measure(parse_args(MeasureConfig, rest, "benchmarks/campaign.py measure", __doc__.splitlines()[0]))
+        return 0
+    try:
+        return plan(parse_args(PlanConfig, rest, "benchmarks/campaign.py plan", __doc__.splitlines()[0]))
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))
