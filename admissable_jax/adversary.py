@@ -22,10 +22,14 @@ def uniform_p_miss(num_sets: int) -> jax.Array:
 
 
 def inverse_score_p_miss(scores: jax.Array, lower_bound: float, epsilon: float) -> jax.Array:
-    """p_miss ∝ 1 / (max(a_u, l) − l + ε): the paper's update, lower scores sampled more."""
+    """p_miss ∝ 1 / (max(a_u, l) − l + ε): the paper's update, lower scores sampled more.
+
+    Computed as 1 / (max(a_u − l, 0) + ε). The written form ``max(a_u, l) − l + ε`` is not
+    safe under jit: XLA may reassociate it to ``max(a_u, l) + (ε − l)``, where ε vanishes in
+    float32 for l ≠ 0, so a clipped score gave 1/0 and p_miss turned NaN.
+    """
     chex.assert_rank(scores, 1)
-    clipped = jnp.maximum(scores, lower_bound)
-    weights = 1.0 / (clipped - lower_bound + epsilon)
+    weights = 1.0 / (jnp.maximum(scores - lower_bound, 0.0) + epsilon)
     return weights / jnp.sum(weights)
 
 

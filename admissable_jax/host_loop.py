@@ -11,6 +11,7 @@ the state is allocated, so a run that would not fit in memory stops before it st
 
 from __future__ import annotations
 
+import concurrent.futures
 import contextlib
 import sys
 import time
@@ -101,10 +102,13 @@ class TrainingLoop:
         abstract_state = jax.eval_shape(self.init)
         env = self.trainer.env
         where = f"{self.config.env} ({env.physics_name} physics) on {jax.devices()[0].platform}"
-        with _reporting(f"compiling the training step for {where}"):
-            self.run_chunk = jax.jit(self._run_chunk, donate_argnums=0).lower(abstract_state).compile()
-        with _reporting(f"compiling the scoring round for {where}"):
-            self.score_and_update = jax.jit(self._score_and_update, donate_argnums=0).lower(abstract_state).compile()
+        # Both programs are traced here, then compiled on two threads at once: XLA compiles
+        # outside Python's lock, so on two or more cores the compiles overlap.
+        lowered = [jax.jit(function, donate_argnums=0).lower(abstract_state)
+                   for function in (self._run_chunk, self._score_and_update)]
+        with _reporting(f"compiling the training step and the scoring round for {where}"):
+            with concurrent.futures.ThreadPoolExecutor(max_workers=2) as pool:
+                self.run_chunk, self.score_and_update = pool.map(lambda program: program.compile(), lowered)
         budget = memory_budget(abstract_state, self.run_chunk, self.score_and_update)
         if budget.needed_bytes > budget.available_bytes:
             raise MemoryBudgetExceeded(

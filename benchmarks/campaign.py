@@ -19,7 +19,7 @@ device) and projects a run's wall time conservatively: every scoring round at fu
 and every device call (``call_seconds`` each) paying the compile and a checkpoint restore
 and save. It prints the projection and exits 0 if the run fits in ``deadline`` seconds,
 3 if not. With ``total_steps=0`` it finds the longest run that fits (at least
-``min_steps``) and prints ``total_steps=N`` last.
+``min_steps``, at most ``max_steps``) and prints ``total_steps=N`` last.
 """
 
 from __future__ import annotations
@@ -55,6 +55,7 @@ class PlanConfig(ExperimentConfig):
     deadline: float = dataclasses.field(default=1800.0, metadata={"help": "device seconds left for this run"})
     call_seconds: float = dataclasses.field(default=540.0, metadata={"help": "seconds one device call may run"})
     min_steps: int = dataclasses.field(default=200_000, metadata={"help": "with total_steps=0: refuse a run shorter than this"})
+    max_steps: int = dataclasses.field(default=1_000_000, metadata={"help": "with total_steps=0: never plan more than this"})
 
 
 def _experiment_trainer(config: ExperimentConfig) -> tuple[Trainer, list, Trainer]:
@@ -78,17 +79,18 @@ def measure(config: MeasureConfig) -> dict:
     init = jax.jit(lambda: jax.vmap(trainer.init)(seeds, adversarial, masking))
     chunk = jax.vmap(lambda state: trainer.run_chunk(state, trainer.spec.iterations_per_scoring))
 
+    # Compiled as the experiment compiles them (the state donated to each program).
     start = time.perf_counter()
     state = init()
-    chunk = jax.jit(chunk).lower(state).compile()
-    score = jax.jit(jax.vmap(trainer.score_and_update)).lower(state).compile()
+    chunk = jax.jit(chunk, donate_argnums=0).lower(state).compile()
+    score = jax.jit(jax.vmap(trainer.score_and_update), donate_argnums=0).lower(state).compile()
     compile_s = time.perf_counter() - start
-    score_full = jax.jit(jax.vmap(endless.score_and_update)).lower(state).compile()
+    score_full = jax.jit(jax.vmap(endless.score_and_update), donate_argnums=0).lower(state).compile()
 
     (state, _), first_chunk_s = _timed(chunk, state)  # learning starts within it
     (state, metrics), chunk_s = _timed(chunk, state)
-    (_, scores), score_s = _timed(score, state)
-    (_, full), score_full_s = _timed(score_full, state)
+    (state, scores), score_s = _timed(score, state)
+    (state, full), score_full_s = _timed(score_full, state)
     with tempfile.TemporaryDirectory() as directory:
         checkpoints = Checkpoints(directory)
         _, save_s = _timed(lambda: checkpoints.save(1, state))
@@ -170,8 +172,8 @@ def plan(config: PlanConfig) -> int:
               f"{projection.describe(record)}; device time left {config.deadline:,.0f} s: "
               f"{'fits' if fits else 'does not fit, refused'}")
         return 0 if fits else REFUSED
-    scorings = 1
-    while project(record, scorings + 1, config.call_seconds).total_s <= config.deadline:
+    scorings, most = 1, max(1, config.max_steps // config.score_every)
+    while scorings < most and project(record, scorings + 1, config.call_seconds).total_s <= config.deadline:
         scorings += 1
     projection = project(record, scorings, config.call_seconds)
     steps = scorings * config.score_every

@@ -25,10 +25,14 @@
 # Settings (environment):
 #   CAMPAIGN_DEADLINE       device seconds left for this step (needed to start a run; `status` says)
 #   CAMPAIGN_CALL_SECONDS   seconds one call may work (default 540: 9 minutes)
-#   CAMPAIGN_SMOKE=1        every step end to end on the CPU at a tiny size (warp physics, a few
-#                           hundred env steps, 2-3 pairs), records kept apart; tests run this
+#   CAMPAIGN_SMOKE=1        every step end to end on the CPU at a tiny size (warp physics, 80 env
+#                           steps, 2-3 pairs), records kept apart; tests run this
 #   CAMPAIGN_DIR            where runs, records and the step's state go (default runs/campaign,
 #                           runs/campaign-smoke in smoke mode)
+#   CAMPAIGN_ONLY           a regular expression: the speed step runs only the stages it matches
+#                           (e.g. 'measure-hopper' or 'brax'), to redo one or to test a few
+#   CAMPAIGN_RUN_SECONDS    cap on one call's training seconds (tests set it tiny to make a run pause
+#                           after one scoring and go on in the next call)
 #   PYTHON                  the interpreter (default python3)
 set -uo pipefail
 step=${1:-}
@@ -65,6 +69,7 @@ again() { echo "call again: $1; run the same command to go on" | tee -a "$log"; 
 stage() {  # stage NAME LIMIT COMMAND...: run once per campaign, within LIMIT seconds
   local name=$1 limit=$2; shift 2
   [ -e "$state/$name.done" ] && return 0
+  [[ -z "${CAMPAIGN_ONLY:-}" || "$name" =~ $CAMPAIGN_ONLY ]] || return 0
   [ "$(left)" -ge "$limit" ] || again "stage $name needs up to ${limit} s, this call has $(left) s left"
   echo "+ $*" | tee -a "$log"
   timeout "$limit" "$@" 2>&1 | tee -a "$log"
@@ -90,10 +95,10 @@ install() {  # the packages ../shared/device/pack.sh packs, into /tmp/site (devi
 
 # Sizes: the paper's on a GPU; tiny on the CPU in smoke mode. Both on MuJoCo Warp.
 if [ "$smoke" = 1 ]; then
-  full_steps=400
-  sizes=(physics=warp seeds=1 score_every=200 num_envs=4 learning_starts=64 batch_size=32
-         hidden_size=32 buffer_size=1000 score_episodes=2 episode_length=25)
-  min_steps=200; worlds=4,8; graph_modes=default; physics_steps=5; scoring=(n_episodes=1 max_steps=25)
+  full_steps=80  # the sizes of tests/test_hopper_pipelines.py, whose straight run the smoke chain must repeat
+  sizes=(physics=warp seeds=1 score_every=40 num_envs=4 learning_starts=48 batch_size=32 hidden_size=32
+         buffer_size=1000 score_episodes=2 score_envs=8 episode_length=25 checkpoint_every=1)
+  min_steps=40; worlds=4,8; graph_modes=default; physics_steps=5; scoring=(n_episodes=1 max_steps=25)
   train_bench=(num_envs=4 iterations=4 batch_size=32 buffer_size=1000); brax=(num_envs=4 steps_per_epoch=4 batch_size=32 num_eval_envs=2 episode_length=10)
   deadline=${CAMPAIGN_DEADLINE:-3600}
 else
@@ -105,8 +110,10 @@ else
   scoring=(n_episodes=10); train_bench=(num_envs=125 iterations=40); brax=(num_envs=125 steps_per_epoch=40)
   deadline=${CAMPAIGN_DEADLINE:-}
 fi
-$py -c "import jax, mujoco; print('campaign step $step: jax', jax.__version__, jax.devices(), 'mujoco', mujoco.__version__)" \
-  2>&1 | grep -v '^Warp' | tee -a "$log"
+if [ "$smoke" != 1 ]; then  # the versions and the device, for the log that comes back
+  $py -c "import jax, mujoco, warp; print('campaign step $step: jax', jax.__version__, jax.devices(), 'mujoco', mujoco.__version__, 'warp', warp.__version__)" \
+    2>&1 | grep -v '^Warp' | tee -a "$log"
+fi
 
 ALL=adversarial,uniform,none
 PAIRED=adversarial,uniform
@@ -117,6 +124,7 @@ train() {  # train ENV MODES [total_steps=N]: one experiment, resumed across cal
   [ -n "$(ls -A "$rundir/checkpoints" 2>/dev/null)" ] && resume=true
   local budget=$(( $(left) - 30 ))  # 30 s for the pack at the end
   [ "$budget" -ge 60 ] || again "$(left) s left in this call"
+  budget=${CAMPAIGN_RUN_SECONDS:-$budget}
   echo "+ experiment env=$env modes=$modes ${sizes[*]} $* resume=$resume time_limit=$budget" | tee -a "$log"
   $py -m admissable_jax.experiment env="$env" modes="$modes" "${sizes[@]}" "$@" out="$rundir" resume=$resume \
       time_limit="$budget" progress=false 2>&1 | tee "$dir/last-call.log" | tee -a "$log"
@@ -161,18 +169,24 @@ case "$step" in
   hopper|walker2d)
     chosen=$state/$step.modes
     if [ ! -e "$chosen" ]; then
-      if admitted "$step" $ALL total_steps=$full_steps; then echo $ALL > "$chosen"
-      elif admitted "$step" $PAIRED total_steps=$full_steps; then
+      admitted "$step" $ALL total_steps=$full_steps; status=$?
+      if [ $status -eq 0 ]; then echo $ALL > "$chosen"
+      elif [ $status -eq 3 ]; then
+        admitted "$step" $PAIRED total_steps=$full_steps; status=$?
+        [ $status -eq 3 ] && refused "$step at $full_steps env steps cannot finish in $deadline s; give the time to the ant step"
+        [ $status -eq 0 ] || exit $status
         echo $PAIRED > "$chosen"
-        echo "15 pairs cannot finish in the time left; running the 10 adversarial/uniform pairs" | tee -a "$log"
-      else refused "$step at $full_steps env steps cannot finish in $deadline s; give the time to the ant step"; fi
+        echo "all modes' pairs cannot finish in the time left; running the adversarial/uniform pairs" | tee -a "$log"
+      else exit $status; fi
     fi
     train "$step" "$(cat "$chosen")" total_steps=$full_steps
     ;;
   ant)
     chosen=$state/ant.total_steps
     if [ ! -e "$chosen" ]; then
-      admitted ant $PAIRED total_steps=0 min_steps=$min_steps || refused "ant: fewer than $min_steps env steps fit in $deadline s"
+      admitted ant $PAIRED total_steps=0 min_steps=$min_steps max_steps=$full_steps; status=$?
+      [ $status -eq 3 ] && refused "ant: fewer than $min_steps env steps fit in $deadline s"
+      [ $status -eq 0 ] || exit $status
       tail -n 1 "$dir/plan.out" > "$chosen"
     fi
     train ant $PAIRED "$(cat "$chosen")"

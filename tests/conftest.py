@@ -1,7 +1,9 @@
 """Test session set-up: JAX on the CPU, with a persistent compilation cache outside the repo.
 
 MJX functions take tens of seconds to compile on a small CPU, so every compiled function
-is built once per session by a fixture and shared by the tests that need it.
+is built once per module by a fixture and shared by the tests that need it, and
+pytest-xdist runs whole test files on every core (pyproject.toml). The most expensive
+files go first, so that the workers finish together.
 """
 
 import os
@@ -12,3 +14,13 @@ os.environ.setdefault(
     os.path.join(os.path.expanduser("~"), ".cache", "admissable_jax", "jax_cache"),
 )
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "1")
+
+
+# Measured cold on 2 cores (README): these files compile the most; the rest take seconds.
+EXPENSIVE_FIRST = ("test_hopper_pipelines.py", "test_envs.py", "test_campaign.py", "test_experiment.py",
+                   "test_training.py", "test_runs.py")
+
+
+def pytest_collection_modifyitems(items):
+    rank = {name: position for position, name in enumerate(EXPENSIVE_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))

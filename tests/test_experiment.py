@@ -105,8 +105,8 @@ def test_quickstart_notebook_runs(tmp_path):
     notebook = nbformat.read(os.path.join(REPO, "notebooks", "quickstart.ipynb"), as_version=4)
     parameters = next(cell for cell in notebook.cells if cell.source.startswith("# Parameters"))
     parameters.source = "\n".join([
-        "TOTAL_STEPS = 200", "SCORE_EVERY = 100", "NUM_ENVS = 4", "SCORE_EPISODES = 2",
-        "EPISODE_LENGTH = 30", "LEARNING_STARTS = 64", "PHYSICS = 'warp'",
+        "TOTAL_STEPS = 80", "SCORE_EVERY = 40", "NUM_ENVS = 4", "SCORE_EPISODES = 2",
+        "EPISODE_LENGTH = 25", "LEARNING_STARTS = 48", "PHYSICS = 'warp'",
         "EXTRA = dict(batch_size=32, hidden_size=32, buffer_size=1000, progress=False)",
         f"OUT = {str(tmp_path / 'quickstart')!r}",
     ])

@@ -1,16 +1,22 @@
 """Hopper end to end on both physics backends: ``train_fn`` on MJX's JAX implementation, an
-experiment of two (seed, mode) pairs on MuJoCo Warp (on the CPU here), and the two checked
-against each other.
+experiment of three (seed, mode) pairs on MuJoCo Warp (on the CPU here), the two checked
+against each other, and the GPU campaign's Hopper chain (benchmarks/gpu_campaign.sh in smoke
+mode) repeating that experiment across paused and resumed calls.
 
 Warp programs compile in seconds, so the Warp side runs the whole experiment pipeline
 (nested vmap over Warp data, checkpoints, resume); the JAX side is one short ``train_fn``
 run (each JAX Hopper program costs a minute or more to compile on a small CPU). Short
-horizons, where float32 physics on the two backends agree.
+horizons, where float32 physics on the two backends agree. The sizes are the campaign's
+smoke sizes.
 """
 
 from __future__ import annotations
 
+import json
 import os
+import subprocess
+import sys
+import tarfile
 
 import jax
 import jax.numpy as jnp
@@ -38,9 +44,9 @@ def jax_run(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def warp_experiment(tmp_path_factory):
-    """(adversarial, uniform) × seed 0 on Warp, vmapped in one program."""
+    """(adversarial, uniform, none) × seed 0 on Warp, vmapped in one program."""
     out = str(tmp_path_factory.mktemp("hopper") / "warp")
-    return run_experiment(ExperimentConfig(**HOPPER, physics="warp", seeds=1, modes="adversarial,uniform",
+    return run_experiment(ExperimentConfig(**HOPPER, physics="warp", seeds=1, modes="adversarial,uniform,none",
                                            total_steps=80, out=out))
 
 
@@ -82,23 +88,72 @@ def test_warp_experiment_matches_jax_train_fn(jax_run, warp_experiment):
         assert np.linalg.norm(warp_change - jax_change) <= 0.05 * np.linalg.norm(jax_change)
 
 
-def test_warp_experiment_pairs_and_resume_repeat_the_straight_run(warp_experiment, tmp_path):
-    """Nested vmap over Warp data: the uniform pair kept p_miss; a run paused after its first
-    scoring (time limit) and resumed from the checkpoint holding Warp data repeats the
-    uninterrupted run exactly."""
-    straight = warp_experiment
-    assert [r.config.physics for r in straight] == ["warp", "warp"]
-    np.testing.assert_allclose(straight[1].scores[-1]["p_miss"], 1 / 11, rtol=1e-6)
-    assert not np.allclose(straight[0].scores[-1]["p_miss"], 1 / 11)
-    shared = dict(**HOPPER, physics="warp", seeds=1, modes="adversarial,uniform", total_steps=80,
-                  out=str(tmp_path / "resumed"))
-    paused = run_experiment(ExperimentConfig(**shared, time_limit=1e-3))
-    assert [row["env_steps"] for row in paused[0].scores] == [40] and not paused[0].finished
-    resumed = run_experiment(ExperimentConfig(**shared, resume=True))
-    for a, b in zip(straight, resumed):
-        assert b.finished
-        assert [row["scores"] for row in a.scores] == [row["scores"] for row in b.scores]
-        assert [row["p_miss"] for row in a.scores] == [row["p_miss"] for row in b.scores]
+def test_warp_experiment_pairs_keep_their_modes(warp_experiment):
+    """Nested vmap over Warp data: each pair trains in its own mode."""
+    assert [(r.config.missingness, r.config.physics) for r in warp_experiment] == [
+        ("adversarial", "warp"), ("uniform", "warp"), ("none", "warp")]
+    assert not np.allclose(warp_experiment[0].scores[-1]["p_miss"], 1 / 11)
+    for uniform in warp_experiment[1:]:
+        np.testing.assert_allclose(uniform.scores[-1]["p_miss"], 1 / 11, rtol=1e-6)
+    assert all(result.finished and int(result.state.grad_steps) == 32 for result in warp_experiment)
+
+
+CALL_AGAIN, REFUSED = 75, 3
+
+
+def _campaign(step: str, directory: str, **settings: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "JAX_PLATFORMS": "cpu", "CAMPAIGN_SMOKE": "1", "CAMPAIGN_DIR": directory,
+           "PYTHON": sys.executable, **settings}
+    env.pop("OUT", None)
+    return subprocess.run(["bash", os.path.join(os.path.dirname(__file__), "..", "benchmarks", "gpu_campaign.sh"), step],
+                          capture_output=True, text=True, env=env, timeout=900)
+
+
+def _packed(directory: str, step: str) -> dict[str, bytes]:
+    with tarfile.open(os.path.join(directory, "out", f"campaign-{step}.tar.gz")) as tar:
+        return {member.name: tar.extractfile(member).read() for member in tar.getmembers() if member.isfile()}
+
+
+def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
+    """The campaign as a lent GPU runs it, on the CPU: the speed step's measurement that
+    plans read; a run refused for lack of time (nothing started); a run admitted, paused by
+    its call's time and resumed by the next call from the checkpoint holding Warp data,
+    repeating the uninterrupted experiment exactly; what each call packs for the trip back."""
+    directory = str(tmp_path / "campaign")
+    speed = _campaign("speed", directory, CAMPAIGN_ONLY="^measure-hopper-adversarial,uniform,none$")
+    assert speed.returncode == 0, speed.stdout + speed.stderr
+    records_path = os.path.join(directory, "results", "campaign_speed.jsonl")
+    with open(records_path) as file:
+        (record,) = [json.loads(line) for line in file]
+    assert (record["env"], record["physics"], record["pairs"], record["num_envs"]) == ("Hopper-v5", "warp", 3, 4)
+    assert record["device"].startswith("cpu") and record["learned_share"] > 0
+    # Full length: each pair's (11 + 1) × 2 episodes on 8 slots, 3 after another, 25 steps each.
+    assert record["score_full_loop_steps"] == 3 * 25
+    assert "./state/measure-hopper-adversarial,uniform,none.done" in _packed(directory, "speed")
+
+    # Too little device time: the 3 pairs are refused, then the 2 (a record for them made
+    # from the measured one: the refusal reads only the times), and nothing starts.
+    with open(records_path, "a") as file:
+        file.write(json.dumps({**record, "pairs": 2}) + "\n")
+    refused = _campaign("hopper", directory, CAMPAIGN_DEADLINE="1")
+    assert refused.returncode == REFUSED, refused.stdout + refused.stderr
+    assert refused.stdout.count("does not fit, refused") == 2
+    assert "refused: hopper at 80 env steps cannot finish in 1 s" in refused.stdout
+    assert not os.path.exists(os.path.join(directory, "hopper"))
+
+    first = _campaign("hopper", directory, CAMPAIGN_RUN_SECONDS="0.001")
+    assert first.returncode == CALL_AGAIN, first.stdout + first.stderr
+    assert "projected wall time for Hopper-v5, 3 pairs x 4 envs" in first.stdout and "fits" in first.stdout
+    assert "call again: hopper is not finished" in first.stdout
+    second = _campaign("hopper", directory)
+    assert second.returncode == 0, second.stdout + second.stderr
+    assert "resume=true" in second.stdout and "step hopper complete" in second.stdout
+    packed = _packed(directory, "hopper")
+    assert b"paused at 40 of 80 env steps" in packed["./hopper.log"]
+    for straight in warp_experiment:
+        rows = [json.loads(line) for line in packed[f"./hopper/{straight.config.missingness}-s0/scores.jsonl"].splitlines()]
+        assert [row["scores"] for row in rows] == [row["scores"] for row in straight.scores]
+        assert [row["p_miss"] for row in rows] == [row["p_miss"] for row in straight.scores]
 
 
 def test_capacity_overflow_is_detected_and_stops_the_run_in_one_line(tmp_path, monkeypatch):

@@ -60,6 +60,10 @@ def test_p_miss_update_against_hand_computed_values():
     positive = jnp.array([1.0, 2.0, 4.0])
     np.testing.assert_allclose(inverse_score_p_miss(positive, 0.0, eps), [4 / 7, 2 / 7, 1 / 7], rtol=1e-6)
 
+    # The same compiled, as training runs it (XLA once reassociated l away there: NaN).
+    compiled = jax.jit(inverse_score_p_miss, static_argnums=(1, 2))
+    np.testing.assert_allclose(compiled(scores, 5.0, eps), weights / weights.sum(), rtol=1e-6)
+
     uniform = uniform_p_miss(3)
     np.testing.assert_allclose(uniform, [1 / 3] * 3)
     np.testing.assert_allclose(update_p_miss(uniform, positive, jnp.array(True), 0.0, eps), [4 / 7, 2 / 7, 1 / 7], rtol=1e-6)

@@ -69,8 +69,9 @@ def test_a_run_directory_has_one_owner_and_a_stale_lock_is_taken_over(tmp_path, 
     assert LOCK_NAME not in os.listdir(out)
     # With progress=false too, the run says what it compiles and how long that took.
     said = capsys.readouterr().err
-    assert "compiling the training step for point_mass (jax physics) on cpu..." in said
-    assert re.search(r"compiling the scoring round for point_mass \(jax physics\) on cpu: done in \d+\.\d s", said)
+    assert "compiling the training step and the scoring round for point_mass (jax physics) on cpu..." in said
+    assert re.search(r"compiling the training step and the scoring round for point_mass \(jax physics\) on cpu: "
+                     r"done in \d+\.\d s", said)
 
 
 @pytest.mark.parametrize("out, message, subprocess_run", [("/proc/x", "cannot create the run directory /proc/x", True),
