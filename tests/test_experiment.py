@@ -16,7 +16,7 @@ from admissable_jax.memory import MemoryBudgetExceeded
 
 EXPERIMENT = dict(
     env="point_mass", seeds=2, modes="adversarial,uniform", score_every=1000, num_envs=4,
-    learning_starts=500, episode_length=50, score_episodes=2, batch_size=64, buffer_size=5000,
+    learning_starts=500, episode_length=50, score_episodes=2, batch_size=64, buffer_size=5000, hidden_size=32,
     checkpoint_every=1, progress=False,
 )
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

@@ -179,8 +179,8 @@ def test_capacity_overflow_is_detected_and_stops_the_run_in_one_line(tmp_path, m
     monkeypatch.setattr(PointMass, "capacity_exceeded", lambda self, state: jnp.any(state.step_count >= 40))
     monkeypatch.setattr(PointMass, "capacity_message", lambda self: "contacts (naconmax) sized for max_batch=1 worlds; raise max_batch")
     config = TrainConfig(env="point_mass", total_steps=3000, score_every=500, num_envs=4, learning_starts=1000,
-                         episode_length=100, score_episodes=2, batch_size=32, buffer_size=5000, checkpoint_every=1,
-                         progress=False, out=str(tmp_path / "overflow"))
+                         episode_length=100, score_episodes=2, batch_size=32, buffer_size=5000, hidden_size=32,
+                         checkpoint_every=1, progress=False, out=str(tmp_path / "overflow"))
     with pytest.raises(PhysicsCapacityExceeded, match="at env step 500: .*raise max_batch; no checkpoint yet") as error:
         train_fn(config)
     assert "\n" not in str(error.value)

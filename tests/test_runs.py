@@ -27,7 +27,7 @@ from admissable_jax.locks import LOCK_NAME, RunDirectoryLocked
 
 RUN = TrainConfig(
     env="point_mass", total_steps=2000, score_every=500, num_envs=4, learning_starts=500, episode_length=50,
-    score_episodes=2, batch_size=32, buffer_size=4000, checkpoint_every=1, progress=False,
+    score_episodes=2, batch_size=32, buffer_size=4000, hidden_size=32, checkpoint_every=1, progress=False,
 )
 
 

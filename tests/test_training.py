@@ -72,7 +72,7 @@ def test_run_directory_contents(point_mass_run):
 
 def test_missing_set_fixed_within_episode_and_drawn_from_p_miss():
     env = make_env("point_mass", episode_length=5)  # many episode starts
-    config = dataclasses.replace(POINT_MASS, num_envs=20, episode_length=5).resolved()
+    config = dataclasses.replace(POINT_MASS, num_envs=20, episode_length=5, hidden_size=32).resolved()
     trainer = Trainer(env, RunSpec.of(config))
     p_miss = jnp.array([0.55, 0.25, 0.15, 0.05])
     state = trainer.init(0, True, True).replace(p_miss=p_miss)
@@ -132,7 +132,7 @@ def test_score_missingness_equals_a_plain_loop_and_finds_the_used_feature():
 
 
 def test_checkpoint_resume_continues_exactly(tmp_path):
-    config = dataclasses.replace(POINT_MASS, total_steps=4000, checkpoint_every=1)
+    config = dataclasses.replace(POINT_MASS, total_steps=4000, checkpoint_every=1, hidden_size=32)
     straight = train_fn(dataclasses.replace(config, out=str(tmp_path / "straight")))
     resumed_dir = str(tmp_path / "resumed")
     train_fn(dataclasses.replace(config, total_steps=2000, out=resumed_dir))
@@ -153,7 +153,7 @@ def test_corrupt_checkpoint_and_divergence_keep_finished_work(tmp_path):
     # Learning starts after the first scoring; a huge learning rate then blows up the losses.
     config = dataclasses.replace(
         POINT_MASS, total_steps=3000, score_every=500, learning_starts=600, learning_rate=1e6,
-        checkpoint_every=1, out=out,
+        checkpoint_every=1, out=out, hidden_size=32,
     )
     with pytest.raises(TrainingDiverged, match="last checkpoint \\(step 500\\) kept"):
         train_fn(config)
@@ -185,10 +185,12 @@ def test_cli_rejects_bad_input_with_one_line(args, message, tmp_path, capsys):
     """In-process (``main``); tests/test_runs.py runs the real command line for a bad input."""
     from admissable_jax.train import main
 
-    with pytest.raises(SystemExit) as exit_info:
-        main([*args, f"out={tmp_path}/x", "progress=false"])
+    try:
+        status = main([*args, f"out={tmp_path}/x", "progress=false"])
+    except SystemExit as exit_info:  # parse_args exits; settings train_fn refuses return 2
+        status = exit_info.code
     stderr = capsys.readouterr().err
-    assert exit_info.value.code == 2
+    assert status == 2
     assert message in stderr
     assert len(stderr.strip().splitlines()) == 1, stderr
     assert not os.path.exists(tmp_path / "x")  # refused before anything is created
@@ -208,7 +210,7 @@ def test_train_step_vmaps_over_seeds_and_modes():
     (scoring on a pool of 3 slots for the 10 episodes, so refills run under vmap too)."""
     env = make_env("point_mass", episode_length=20)
     config = dataclasses.replace(POINT_MASS, learning_starts=64, batch_size=32, episode_length=20, score_envs=3,
-                                 score_episodes=2).resolved()
+                                 score_episodes=2, hidden_size=32).resolved()
     trainer = Trainer(env, RunSpec.of(config))
 
     def run(seed, adversarial):
