@@ -130,7 +130,7 @@ def _episode_step(reset: np.ndarray) -> np.ndarray:
 def test_u_is_fixed_within_an_episode_and_redrawn_at_every_reset(k1):
     _, runs = k1
     for name in ("spread", "on_three"):
-        state, (set_before, set_after, step_count) = (np.asarray(x) if i else x for i, x in enumerate(runs[name]))
+        set_before, set_after, step_count = (np.asarray(x) for x in runs[name][1])
         reset = step_count == 0
         # Within an episode u never changes.
         assert (set_after[~reset] == set_before[~reset]).all()
