@@ -120,8 +120,9 @@ def measure(config: MeasureConfig) -> dict:
 
 def speed_record(config: ExperimentConfig) -> dict:
     """The newest ``campaign_speed`` record for this experiment's shape on this device, from
-    this campaign's records or the committed ones."""
-    trainer, pairs, _ = _experiment_trainer(config)
+    this campaign's records or the committed ones. (The run's length does not matter:
+    ``total_steps=0``, "find the longest", is read as one scoring interval.)"""
+    trainer, pairs, _ = _experiment_trainer(dataclasses.replace(config, total_steps=max(1, config.total_steps)))
     want = {"env": trainer.env.gymnasium_id, "physics": trainer.env.physics_name, "pairs": len(pairs),
             "num_envs": pairs[0].num_envs, "score_episodes": pairs[0].score_episodes,
             "episode_length": pairs[0].episode_length, "score_every": pairs[0].score_every,
