@@ -62,6 +62,17 @@ class Checkpoints:
             return []
         return sorted(int(name) for name in os.listdir(directory) if name.isdigit())
 
+    def step_to_restore(self, step: int | None = None) -> int:
+        """``step`` if it was saved, or the latest saved step for ``None``; CheckpointError otherwise."""
+        steps = self._manager.all_steps()
+        if not steps:
+            raise CheckpointError(f"no checkpoint to resume from in {self.directory}")
+        if step is None:
+            return max(steps)
+        if step not in steps:
+            raise CheckpointError(f"no checkpoint {step} in {self.directory}; saved: {sorted(steps)}")
+        return step
+
     def restore(self, like, step: int | None = None) -> tuple[int, object]:
         """(step, state) of checkpoint ``step`` (default: the latest), shaped like ``like``
         (a state, or its ``jax.eval_shape``).
@@ -71,13 +82,8 @@ class Checkpoints:
         Checkpoints newer than a chosen older ``step`` are moved aside to
         ``<directory>-superseded/`` (never deleted), since the run continues from ``step``.
         """
+        step = self.step_to_restore(step)
         steps = self._manager.all_steps()
-        if not steps:
-            raise CheckpointError(f"no checkpoint to resume from in {self.directory}")
-        if step is None:
-            step = max(steps)
-        elif step not in steps:
-            raise CheckpointError(f"no checkpoint {step} in {self.directory}; saved: {sorted(steps)}")
         try:
             state = self._restore(like, step)
         except CheckpointError as error:

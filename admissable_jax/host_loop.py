@@ -21,7 +21,7 @@ import jax
 import numpy as np
 from tqdm.auto import tqdm
 
-from admissable_jax.checkpointing import CheckpointError, Checkpoints
+from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.config import TrainConfig
 from admissable_jax.envs import make_env
 from admissable_jax.errors import Interrupted, RunFailed
@@ -195,12 +195,7 @@ class TrainingLoop:
         """The checkpoint step a resumed run continues from (None for a fresh run)."""
         if not self.config.resume:
             return None
-        if self.config.resume_step >= 0:
-            return self.config.resume_step
-        latest = self.checkpoints.latest_step()
-        if latest is None:
-            raise CheckpointError(f"no checkpoint to resume from in {self.checkpoints.directory}")
-        return latest
+        return self.checkpoints.step_to_restore(None if self.config.resume_step < 0 else self.config.resume_step)
 
     def _kept_checkpoint(self) -> str:
         kept = self.checkpoints.latest_step()
