@@ -30,6 +30,9 @@ import jax.numpy as jnp
 import mujoco
 from mujoco import mjx
 from mujoco.mjx._src import collision_driver, constraint
+from mujoco.mjx._src import forward as mjx_forward
+from mujoco.mjx._src import scan as mjx_scan
+from mujoco.mjx._src.types import IntegratorType
 
 # Warp's overflow flags that mean a buffer was too small (not: solver iteration limits).
 _CAPACITY_FLAGS = {
@@ -112,10 +115,16 @@ class Physics:
     def step(self, data: mjx.Data, ctrl: jax.Array) -> mjx.Data:
         """``frame_skip`` × ``mj_step`` with ``ctrl``, then contact forces if the env reads them."""
         data = self._with_shared(data).replace(ctrl=ctrl)
-        data = jax.lax.fori_loop(0, self.frame_skip, lambda _, d: mjx.step(self.model, d), data)
+        data = jax.lax.fori_loop(0, self.frame_skip, lambda _, d: self._mj_step(d), data)
         if self.contact_forces and self.impl == "jax":
             data = mjx.rne_postconstraint(self.model, data)
         return self._without_shared(data)
+
+    def _mj_step(self, data: mjx.Data) -> mjx.Data:
+        """One ``mj_step``: ``mjx.step``, except RK4 on the JAX backend (all three envs)."""
+        if self.impl == "jax" and self.model.opt.integrator == IntegratorType.RK4:
+            return _rungekutta4_step(self.model, data)
+        return mjx.step(self.model, data)
 
     def capacity_exceeded(self, data: mjx.Data) -> jax.Array:
         """Whether a buffer overflowed in this world since its data was made (always False on jax)."""
@@ -131,6 +140,49 @@ class Physics:
             f"{self.constraints_per_world} constraint rows per world); more worlds were stepped at once "
             f"than the env's max_batch allows: raise max_batch, or use physics=jax"
         )
+
+
+def _rungekutta4_step(model: mjx.Model, data: mjx.Data) -> mjx.Data:
+    """``mjx.step`` for an RK4 model (all three envs), compiled with one copy of ``forward``.
+
+    ``mjx.step`` runs ``mjx.forward``, then ``mjx.rungekutta4`` (C MuJoCo's
+    ``mj_RungeKutta``): three more ``forward`` stages in a scan that MJX unrolls, so a
+    compiled step holds four copies of ``forward`` (kinematics, collision, constraints,
+    solver), and XLA:CPU spends most of a program's compile time on them
+    (benchmarks/results/compile_rk4.md). Here all four stages are one scan of four ``forward``
+    calls: stage 0 is the plain ``forward`` of ``data``, stages 1-3 are MJX's, with the same
+    arithmetic in the same order. XLA fuses the two programs differently, so they agree to
+    float32 rounding, not bitwise (after 21 steps: |Δqpos| ≤ 3e-7, |Δqvel| ≤ 2e-5).
+    """
+    a, b = mjx_forward._RK4_A, mjx_forward._RK4_B  # pylint: disable=protected-access
+    dt = model.opt.timestep
+    stage_times = data.time + jnp.tril(a).sum(axis=0) * dt
+    integrate = lambda *args: mjx_forward._integrate_pos(*args, dt=dt)  # pylint: disable=protected-access
+
+    def stage(carry, row):
+        sums, previous_qvel, previous, start = carry
+        first, a_ii, b_i, time = row
+        # stage i > 0 starts from stage 0's state, moved along the previous stage's derivatives
+        qpos = mjx_scan.flat(model, integrate, "jqv", "q", model.jnt_type, start.qpos, a_ii * previous_qvel)
+        qvel = start.qvel + a_ii * previous.qacc * dt
+        act = start.act + a_ii * previous.act_dot * dt
+        pick = lambda original, moved: jnp.where(first, original, moved)
+        stage_data = mjx.forward(model, previous.replace(
+            qpos=pick(previous.qpos, qpos), qvel=pick(previous.qvel, qvel), act=pick(previous.act, act),
+            time=pick(previous.time, time),
+        ))
+        start = jax.tree.map(pick, stage_data, start)
+        terms = (stage_data.qvel, stage_data.qacc, stage_data.act_dot)
+        sums = jax.tree.map(lambda total, term: pick(b_i * term, total + b_i * term), sums, terms)
+        return (sums, stage_data.qvel, stage_data, start), None
+
+    rows = (jnp.arange(4) == 0, jnp.concatenate([jnp.zeros(1), jnp.diag(a)]), jnp.asarray(b),
+            jnp.concatenate([data.time[None], stage_times]))
+    zeros = jax.tree.map(jnp.zeros_like, (data.qvel, data.qacc, data.act_dot))
+    (sums, _, last, start), _ = jax.lax.scan(stage, (zeros, data.qvel, data, data), rows)
+    qvel_sum, qacc_sum, act_dot_sum = sums
+    last = last.replace(qpos=start.qpos, qvel=start.qvel, act=start.act, time=start.time)
+    return mjx_forward._advance(model, last, act_dot_sum, qacc_sum, qvel_sum)  # pylint: disable=protected-access
 
 
 def _warp_graph_mode(name: str | None):
