@@ -61,19 +61,34 @@ def test_plot_runs_writes_every_figure(tmp_path):
         find_runs([str(tmp_path / "missing")])
 
 
+def _run_with_minimums(root, mode, seed, minimums, final_clean):
+    """A run whose scorings have the given min_u a_u (the other sets score 10 and 20 more)."""
+    path = os.path.join(root, f"{mode}-s{seed}")
+    os.makedirs(path)
+    OmegaConf.save(OmegaConf.structured(TrainConfig(env="hopper", missingness=mode, seed=seed)), os.path.join(path, "config.yaml"))
+    with open(os.path.join(path, "scores.jsonl"), "w") as file:
+        for t, minimum in enumerate(minimums):
+            file.write(json.dumps({"env_steps": 5000 * (t + 1), "scores": [minimum + 10, minimum, minimum + 20],
+                                   "min_score": minimum, "clean_score": final_clean, "p_miss": [1 / 3] * 3}) + "\n")
+    return path
+
+
 def test_summary_table_reports_final_and_auc_per_mode(tmp_path):
-    paths = [_fake_run(str(tmp_path), mode, seed, records=4) for mode in ("adversarial", "uniform") for seed in range(2)]
-    table = summary_table(paths).splitlines()
-    assert len(table) == 4  # header, rule, one row per mode
-    for mode, row in zip(("adversarial", "uniform"), table[2:]):
-        runs = [load_run(path) for path in paths if f"{mode}-s" in path]
-        final = np.array([run.min_score[-1] for run in runs])
-        auc = np.array([run.min_score.mean() for run in runs])
-        mean, low, _ = mean_and_interval(final[:, None])
-        cells = [cell.strip() for cell in row.strip("|").split("|")]
-        assert cells[:4] == ["hopper", mode, "2", "20000"]
-        assert cells[4] == f"{mean[0]:.1f} ± {mean[0] - low[0]:.1f}"
-        assert cells[5].startswith(f"{auc.mean():.1f} ± ")
+    """Hand-computed: two adversarial seeds, min_u a_u [10, 20, 30, 40] and [20, 30, 50, 60],
+    final clean returns 100 and 120; one uniform seed."""
+    paths = [
+        _run_with_minimums(str(tmp_path), "adversarial", 0, [10, 20, 30, 40], 100),
+        _run_with_minimums(str(tmp_path), "adversarial", 1, [20, 30, 50, 60], 120),
+        _run_with_minimums(str(tmp_path), "uniform", 0, [5, 6, 7, 8], 90),
+    ]
+    header, rule, adversarial, uniform = summary_table(paths).splitlines()
+    cells = lambda row: [cell.strip() for cell in row.strip("|").split("|")]
+    # Two seeds: 95% half-width t(0.975, 1) · sd / √2 = 12.706 · sd / √2.
+    # final: mean(40, 60) = 50, sd 14.142 → ± 127.1; AUC: mean(25, 40) = 32.5, sd 10.607 → ± 95.3;
+    # clean: mean(100, 120) = 110 ± 127.1.
+    assert cells(adversarial) == ["hopper", "adversarial", "2", "20000", "50.0 ± 127.1", "32.5 ± 95.3", "110.0 ± 127.1"]
+    # One seed: the values alone, no interval (AUC: mean(5, 6, 7, 8) = 6.5).
+    assert cells(uniform) == ["hopper", "uniform", "1", "20000", "8.0", "6.5", "90.0"]
 
 
 def test_plots_say_what_they_show(tmp_path, capsys):
