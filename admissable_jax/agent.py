@@ -1,16 +1,22 @@
 """Soft Actor-Critic (Haarnoja et al. 2018), written by hand with Stable-Baselines3's defaults.
 
 Tanh-squashed Gaussian actor (log-std clipped to [-20, 2]), twin Q critics with Polyak
-target copies, automatic entropy coefficient (target entropy -|A|), Adam for all three.
-The update follows SB3's order: entropy coefficient, critics, actor, target networks, with
-the entropy coefficient from before its own step used in the critic and actor losses. The
-objectives themselves are in :mod:`admissable_jax.sac_losses`, beside their equations.
-Inputs are the 2·d masked observations; the agent never sees which env it runs in.
+target copies, automatic entropy coefficient (target entropy -|A|), Adam for all three,
+every layer initialised as PyTorch's ``nn.Linear`` (SB3's networks). The update follows
+SB3's order: entropy coefficient, critics, actor, target networks, with the entropy
+coefficient from before its own step used in the critic and actor losses. The objectives
+themselves are in :mod:`admissable_jax.sac_losses`, beside their equations. Inputs are the
+2·d masked observations; the agent never sees which env it runs in.
+
+``tests/test_agent.py`` checks one gradient step number for number against SB3's own
+(``tests/sb3_reference.py`` records it): log-probabilities, deterministic action, critic
+target, the three losses and every parameter after the step.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Sequence
 
 import chex
@@ -37,6 +43,18 @@ class SACHyperparams:
     initial_alpha: float = 1.0
 
 
+def linear(features: int, fan_in: int) -> nn.Dense:
+    """A dense layer initialised as PyTorch's ``nn.Linear``, which SB3's SAC keeps: weights
+    and biases ~ U(±1/√fan_in). (Flax's default, LeCun normal, spreads weights about √3
+    times wider and starts biases at 0.)"""
+    bound = 1.0 / math.sqrt(fan_in)
+
+    def uniform(key: jax.Array, shape: Sequence[int], dtype=jnp.float32) -> jax.Array:
+        return jax.random.uniform(key, shape, dtype, -bound, bound)
+
+    return nn.Dense(features, kernel_init=uniform, bias_init=uniform)
+
+
 class MLP(nn.Module):
     hidden_sizes: Sequence[int]
     out_size: int
@@ -44,8 +62,8 @@ class MLP(nn.Module):
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         for size in self.hidden_sizes:
-            x = nn.relu(nn.Dense(size)(x))
-        return nn.Dense(self.out_size)(x)
+            x = nn.relu(linear(size, x.shape[-1])(x))
+        return linear(self.out_size, x.shape[-1])(x)
 
 
 class Actor(nn.Module):
@@ -58,9 +76,9 @@ class Actor(nn.Module):
     def __call__(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
         x = obs
         for size in self.hidden_sizes:
-            x = nn.relu(nn.Dense(size)(x))
-        mean = nn.Dense(self.action_size)(x)
-        log_std = jnp.clip(nn.Dense(self.action_size)(x), LOG_STD_MIN, LOG_STD_MAX)
+            x = nn.relu(linear(size, x.shape[-1])(x))
+        mean = linear(self.action_size, x.shape[-1])(x)
+        log_std = jnp.clip(linear(self.action_size, x.shape[-1])(x), LOG_STD_MIN, LOG_STD_MAX)
         return mean, log_std
 
 
@@ -117,9 +135,18 @@ class SAC:
 
     def sample_action(self, actor_params, obs: jax.Array, rng: jax.Array) -> tuple[jax.Array, jax.Array]:
         """(action in the env's bounds, log π(action | obs)) for a batch of masked obs."""
+        return self.action_from_noise(actor_params, obs, self._noise(rng, obs))
+
+    def _noise(self, rng: jax.Array, obs: jax.Array) -> jax.Array:
+        return jax.random.normal(rng, (*obs.shape[:-1], self.action_size))
+
+    def action_from_noise(self, actor_params, obs: jax.Array, noise: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """:meth:`sample_action` with its standard-normal ``noise`` given: the
+        reparameterised sample a = scale(tanh(μ + σ·noise)) and its log-probability."""
         mean, log_std = self.actor.apply(actor_params, obs)
+        chex.assert_equal_shape([mean, noise])
         std = jnp.exp(log_std)
-        pre_tanh = mean + std * jax.random.normal(rng, mean.shape)
+        pre_tanh = mean + std * noise
         squashed = jnp.tanh(pre_tanh)
         gaussian_log_prob = -0.5 * (((pre_tanh - mean) / std) ** 2 + 2 * log_std + jnp.log(2 * jnp.pi))
         # Change of variables through tanh (SB3's 1e-6 guard) and the affine scale.
@@ -150,13 +177,25 @@ class SAC:
 
     def update(self, state: SACState, batch: SACBatch, rng: jax.Array) -> tuple[SACState, dict[str, jax.Array]]:
         """One gradient step on all three losses, then the Polyak target update."""
+        actor_rng, next_rng = jax.random.split(rng)
+        return self.update_from_noise(state, batch, self._noise(actor_rng, batch.obs), self._noise(next_rng, batch.next_obs))
+
+    def critic_target(self, state: SACState, batch: SACBatch, next_noise: jax.Array, alpha: jax.Array) -> jax.Array:
+        """The soft Bellman target y of every transition, from the target twins at a' ~ π(· | s')."""
+        next_action, next_log_prob = self.action_from_noise(state.actor_params, batch.next_obs, next_noise)
+        next_q = jnp.min(self.critic.apply(state.target_critic_params, batch.next_obs, next_action), axis=0)
+        return losses.soft_q_target(batch.reward, batch.terminated, next_q, next_log_prob, alpha, self.hp.gamma)
+
+    def update_from_noise(self, state: SACState, batch: SACBatch, actor_noise: jax.Array,
+                          next_noise: jax.Array) -> tuple[SACState, dict[str, jax.Array]]:
+        """:meth:`update` with the policy's sampling noise given: ``actor_noise`` for a ~ π(· | s)
+        (entropy coefficient and actor losses), ``next_noise`` for a' ~ π(· | s') (the target)."""
         chex.assert_rank(batch.obs, 2)
         chex.assert_equal(batch.obs.shape[-1], self.input_size)
-        actor_rng, next_rng = jax.random.split(rng)
         hp = self.hp
 
         # Entropy coefficient (eq. 18), then α from before its own step, as SB3.
-        _, log_prob = self.sample_action(state.actor_params, batch.obs, actor_rng)
+        _, log_prob = self.action_from_noise(state.actor_params, batch.obs, actor_noise)
         alpha_loss, alpha_grad = jax.value_and_grad(losses.entropy_coefficient_loss)(
             state.log_alpha, log_prob, self.target_entropy
         )
@@ -165,9 +204,7 @@ class SAC:
         alpha = jnp.exp(state.log_alpha)
 
         # Critics (eqs. 2-5) toward the soft Bellman target from the target twins.
-        next_action, next_log_prob = self.sample_action(state.actor_params, batch.next_obs, next_rng)
-        next_q = jnp.min(self.critic.apply(state.target_critic_params, batch.next_obs, next_action), axis=0)
-        target = losses.soft_q_target(batch.reward, batch.terminated, next_q, next_log_prob, alpha, hp.gamma)
+        target = self.critic_target(state, batch, next_noise, alpha)
 
         def critic_loss_fn(params):
             q = self.critic.apply(params, batch.obs, batch.action)
@@ -179,7 +216,7 @@ class SAC:
 
         # Actor (eq. 7) against the freshly updated critics (SB3's order).
         def actor_loss_fn(params):
-            action, log_prob = self.sample_action(params, batch.obs, actor_rng)
+            action, log_prob = self.action_from_noise(params, batch.obs, actor_noise)
             q_pi = jnp.min(self.critic.apply(critic_params, batch.obs, action), axis=0)
             return losses.actor_loss(alpha, log_prob, q_pi), -jnp.mean(log_prob)
 

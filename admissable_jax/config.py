@@ -46,8 +46,10 @@ class RunSettings:
     hidden_size: int = _field(256, "units per hidden layer")
     hidden_layers: int = _field(2, "hidden layers per network")
     buffer_size: int = _field(1_000_000, "replay capacity (transitions)")
-    learning_starts: int = _field(10_000, "env steps of uniform random actions before learning")
-    utd: float = _field(1.0, "gradient steps per env step")
+    learning_starts: int = _field(10_000, "env steps of uniform random actions before learning (10,000: RL-Zoo's "
+                                          "MuJoCo setting; SB3's library default is 100)")
+    utd: float = _field(1.0, "gradient steps per env step: with n parallel envs an iteration takes n env steps, "
+                             "then n * utd gradient steps")
     # output
     checkpoint_every: int = _field(10, "checkpoint every this many scorings (and at the end)")
     resume: bool = _field(False, "continue the run in 'out' from its last checkpoint")

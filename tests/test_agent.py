@@ -1,6 +1,10 @@
-"""The SAC objectives against hand-computed values, the update's target step, and the replay buffer."""
+"""The SAC objectives against hand-computed values, one gradient step against
+Stable-Baselines3's, the initialisation, and the replay buffer."""
 
 from __future__ import annotations
+
+import functools
+import os
 
 import jax
 import jax.numpy as jnp
@@ -40,19 +44,71 @@ def test_entropy_coefficient_rises_while_entropy_is_below_target(log_prob, grows
     np.testing.assert_array_equal(grad_log_prob, 0.0)  # log π is detached
 
 
-def test_update_moves_targets_by_tau_and_reports_finite_losses():
-    agent = SAC(6, -jnp.ones(2), jnp.ones(2), SACHyperparams(batch_size=8, hidden_sizes=(16, 16), tau=0.25))
-    state = agent.init(jax.random.key(0))
-    keys = jax.random.split(jax.random.key(1), 4)
-    batch = SACBatch(obs=jax.random.normal(keys[0], (8, 6)), action=jax.random.uniform(keys[1], (8, 2), minval=-1),
-                     reward=jax.random.normal(keys[2], (8,)), next_obs=jax.random.normal(keys[3], (8, 6)),
-                     terminated=jnp.arange(8) % 3 == 0)
-    new, metrics = jax.jit(agent.update)(state, batch, jax.random.key(2))
-    expected = jax.tree.map(lambda c, t: 0.25 * c + 0.75 * t, new.critic_params, state.target_critic_params)
-    for got, want in zip(jax.tree.leaves(new.target_critic_params), jax.tree.leaves(expected)):
-        np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-7)
-    assert all(np.isfinite(float(value)) for value in metrics.values())
-    np.testing.assert_allclose(metrics["alpha"], 1.0)  # α before its first step
+SB3_STEP = os.path.join(os.path.dirname(__file__), "data", "sb3_sac_step.npz")
+
+
+def _flax_params(recorded, stage: str) -> tuple[dict, dict, dict]:
+    """(actor, critic, target critic) parameters in our layout from SB3's state dicts recorded
+    ``before`` or ``after`` the step (torch weights are (out, in), Flax kernels (in, out))."""
+    def dense(name: str) -> dict:
+        return {"kernel": jnp.asarray(recorded[f"{stage}/{name}.weight"].T), "bias": jnp.asarray(recorded[f"{stage}/{name}.bias"])}
+
+    def twins(network: str) -> dict:
+        return {"params": {f"MLP_{twin}": {f"Dense_{i}": dense(f"{network}/qf{twin}.{layer}") for i, layer in enumerate((0, 2, 4))}
+                           for twin in (0, 1)}}
+
+    actor = {f"Dense_{i}": dense(f"actor/{name}") for i, name in enumerate(("latent_pi.0", "latent_pi.2", "mu", "log_std"))}
+    return {"params": actor}, twins("critic"), twins("critic_target")
+
+
+def test_one_gradient_step_matches_stable_baselines3():
+    """Our SAC against SB3's recorded ``train()`` step (``tests/sb3_reference.py``): the same
+    weights, batch and sampling noise give the same log-probabilities, deterministic action,
+    critic target, losses, and parameters after the step (order of updates, α per loss, Adam,
+    Polyak), within float32 rounding."""
+    recorded = np.load(SB3_STEP)
+    obs_size, action_size = recorded["batch/obs"].shape[1], recorded["batch/action"].shape[1]
+    hidden = recorded["before/actor/latent_pi.0.weight"].shape[0]
+    agent = SAC(obs_size, -jnp.ones(action_size), jnp.ones(action_size),
+                SACHyperparams(batch_size=recorded["batch/obs"].shape[0], hidden_sizes=(hidden, hidden)))
+    actor, critic, target_critic = _flax_params(recorded, "before")
+    state = agent.init(jax.random.key(0)).replace(actor_params=actor, critic_params=critic,
+                                                   target_critic_params=target_critic)
+    batch = SACBatch(**{name: jnp.asarray(recorded[f"batch/{name}"])
+                        for name in ("obs", "action", "reward", "next_obs", "terminated")})
+    actor_noise, next_noise = jnp.asarray(recorded["noise/actor_noise"]), jnp.asarray(recorded["noise/next_noise"])
+    close = functools.partial(np.testing.assert_allclose, rtol=2e-5, atol=2e-6)
+
+    close(agent.deterministic_action(actor, batch.obs), recorded["sb3/deterministic_action"])
+    action, log_prob = agent.action_from_noise(actor, batch.obs, actor_noise)
+    close(action, recorded["sb3/sampled_action"])
+    close(log_prob, recorded["sb3/log_prob"])
+    close(agent.critic_target(state, batch, next_noise, jnp.exp(state.log_alpha)), recorded["sb3/critic_target"])
+
+    new, metrics = jax.jit(agent.update_from_noise)(state, batch, actor_noise, next_noise)
+    for ours, theirs in (("critic_loss", "critic_loss"), ("actor_loss", "actor_loss"), ("alpha_loss", "ent_coef_loss"),
+                         ("alpha", "ent_coef")):
+        close(metrics[ours], recorded[f"sb3/{theirs}"])
+    for ours, theirs in zip((new.actor_params, new.critic_params, new.target_critic_params), _flax_params(recorded, "after")):
+        jax.tree.map(close, ours, theirs)
+    close(new.log_alpha, recorded["after/log_ent_coef"][0])
+
+    # Hand-computed: Adam's first step moves log α by the learning rate against the sign of
+    # its gradient −mean(log π + H̄), H̄ = −|A|: up while the entropy −log π is below H̄.
+    gradient = -np.mean(recorded["sb3/log_prob"] - action_size)
+    np.testing.assert_allclose(float(new.log_alpha - state.log_alpha), -3e-4 * np.sign(gradient), rtol=1e-3)
+
+
+def test_layers_start_as_pytorch_linear():
+    """Weights and biases ~ U(±1/√fan_in), as PyTorch's nn.Linear (SB3's initialisation)."""
+    agent = SAC(40, -jnp.ones(3), jnp.ones(3), SACHyperparams(hidden_sizes=(256, 256)))
+    layers = agent.init(jax.random.key(0)).critic_params["params"]["MLP_0"]
+    for name, fan_in in (("Dense_0", 43), ("Dense_1", 256)):
+        for array in (layers[name]["kernel"], layers[name]["bias"]):
+            bound = 1 / np.sqrt(fan_in)
+            assert np.abs(array).max() <= bound
+            # a uniform's standard deviation is bound/√3 (Flax's LeCun normal: about √3 times that)
+            np.testing.assert_allclose(np.std(array), bound / np.sqrt(3), rtol=0.15 if array.ndim == 1 else 0.02)
 
 
 def test_replay_buffer_wraps_around_and_samples_only_filled_rows():
