@@ -93,17 +93,20 @@ class Physics:
         return f"Physics({self.impl}, max_batch {self.max_batch}{sizes})"
 
     def data(self, qpos: jax.Array, qvel: jax.Array) -> mjx.Data:
-        """Fresh data at (qpos, qvel) after ``mj_forward``, as Gymnasium's ``set_state``.
+        """Fresh data at (qpos, qvel), ready to step and to observe, as after Gymnasium's
+        ``set_state`` (``mj_forward``).
 
-        MJX's kinematics writes normalized free-joint quaternions back into qpos; C MuJoCo
-        normalizes a copy, so the raw qpos is kept (Gymnasium's reset obs holds it). C's
-        ``mj_forward`` leaves contact forces at zero; Warp's, asked for them, fills them in,
-        so they are zeroed here.
+        Only the kinematics runs (body positions: Ant's reward reads the torso's before a
+        step), not the whole ``mj_forward``: every other quantity it would compute (contacts,
+        constraint forces, accelerations) is recomputed from (qpos, qvel) by the next
+        ``mj_step``'s own ``forward`` and read by nothing before it, and contact forces read
+        as zero, as in Gymnasium after a reset. This keeps a second copy of ``forward`` (and its
+        compile time) out of every program that resets envs. MJX's kinematics writes
+        normalized free-joint quaternions back into qpos; C MuJoCo normalizes a copy, so the
+        raw qpos is kept (Gymnasium's reset obs holds it).
         """
         data = self.data_template.replace(qpos=qpos, qvel=qvel)
-        data = mjx.forward(self.model, data).replace(qpos=qpos)
-        if self.impl == "warp" and self.contact_forces:
-            data = data.replace(_impl=data._impl.replace(cfrc_ext=jnp.zeros_like(data._impl.cfrc_ext)))
+        data = mjx.kinematics(self.model, data).replace(qpos=qpos)
         return self._without_shared(data)
 
     def _without_shared(self, data: mjx.Data) -> mjx.Data:
