@@ -1,37 +1,32 @@
-"""admissable_jax: training RL agents against adversarial missingness, in JAX on MJX."""
+"""admissable_jax: training RL agents against adversarial missingness, in JAX on MJX.
 
-import contextlib
-import io
+The public names below are imported on first use, so that ``admissable_jax.wrappers`` (NumPy
+and Gymnasium only) imports no JAX, and ``python -m admissable_jax.train`` does not import
+its own module twice.
+"""
 
-# MJX prints an import failure when warp-lang is absent; physics=jax needs no Warp (and
-# physics=warp says clearly when it is missing), so keep that line out of users' output.
-with contextlib.redirect_stdout(io.StringIO()):
-    from mujoco import mjx  # noqa: F401
+import importlib
 
-from admissable_jax.config import TrainConfig  # noqa: E402
-from admissable_jax.envs import make_env  # noqa: E402
-from admissable_jax.missingness import candidate_sets, mask_observation  # noqa: E402
-from admissable_jax.scoring import MissingnessScores, score_missingness  # noqa: E402
-
+_PUBLIC = {
+    "TrainConfig": "admissable_jax.config",
+    "make_env": "admissable_jax.envs",
+    "candidate_sets": "admissable_jax.missingness",
+    "mask_observation": "admissable_jax.missingness",
+    "MissingnessScores": "admissable_jax.scoring",
+    "score_missingness": "admissable_jax.scoring",
+    "train_fn": "admissable_jax.train",
+    "TrainResult": "admissable_jax.train",
+}
 
 
 def __getattr__(name: str):
-    """``train_fn`` and ``TrainResult`` live in :mod:`admissable_jax.train`, imported on first
-    use, so that ``python -m admissable_jax.train`` does not import its own module twice."""
-    if name in ("train_fn", "TrainResult"):
-        from admissable_jax import train
-
-        return getattr(train, name)
+    if name in _PUBLIC:
+        return getattr(importlib.import_module(_PUBLIC[name]), name)
     raise AttributeError(f"module 'admissable_jax' has no attribute {name!r}")
 
 
-__all__ = [
-    "MissingnessScores",
-    "TrainConfig",
-    "TrainResult",
-    "candidate_sets",
-    "make_env",
-    "mask_observation",
-    "score_missingness",
-    "train_fn",
-]
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_PUBLIC])
+
+
+__all__ = sorted(_PUBLIC)

@@ -14,23 +14,13 @@ import chex
 import jax
 import jax.numpy as jnp
 
-MODES = ("adversarial", "uniform", "none")
+from admissable_jax.method import MODES, inverse_score_p_miss
+
+__all__ = ["MODES", "inverse_score_p_miss", "uniform_p_miss", "update_p_miss"]
 
 
 def uniform_p_miss(num_sets: int) -> jax.Array:
     return jnp.full((num_sets,), 1.0 / num_sets, jnp.float32)
-
-
-def inverse_score_p_miss(scores: jax.Array, lower_bound: float, epsilon: float) -> jax.Array:
-    """p_miss ∝ 1 / (max(a_u, l) − l + ε): the paper's update, lower scores sampled more.
-
-    Computed as 1 / (max(a_u − l, 0) + ε). The written form ``max(a_u, l) − l + ε`` is not
-    safe under jit: XLA may reassociate it to ``max(a_u, l) + (ε − l)``, where ε vanishes in
-    float32 for l ≠ 0, so a clipped score gave 1/0 and p_miss turned NaN.
-    """
-    chex.assert_rank(scores, 1)
-    weights = 1.0 / (jnp.maximum(scores - lower_bound, 0.0) + epsilon)
-    return weights / jnp.sum(weights)
 
 
 def update_p_miss(
@@ -42,5 +32,6 @@ def update_p_miss(
 ) -> jax.Array:
     """The next p_miss: the inverse-score update if ``adversarial`` (a traced bool, so that
     adversarial and uniform runs share one compiled program), else ``p_miss`` unchanged."""
+    chex.assert_rank(scores, 1)
     chex.assert_equal_shape([p_miss, scores])
     return jnp.where(adversarial, inverse_score_p_miss(scores, lower_bound, epsilon), p_miss)

@@ -7,14 +7,21 @@ from :class:`EnvOptions`; nothing outside this package needs to know.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import io
 
-from admissable_jax.envs import contact_frames
-from admissable_jax.envs.ant import Ant
-from admissable_jax.envs.base import EnvState, MjxEnv, reset_where_done
-from admissable_jax.envs.options import MAX_EPISODE_STEPS, PHYSICS_CHOICES, EnvOptions, resolve_physics, warp_installed
-from admissable_jax.envs.planar_walkers import Hopper, Walker2d
-from admissable_jax.envs.point_mass import PointMass
+# MJX prints an import failure when warp-lang is absent; physics=jax needs no Warp (and
+# physics=warp says clearly when it is missing), so keep that line out of users' output.
+with contextlib.redirect_stdout(io.StringIO()):
+    from mujoco import mjx  # noqa: F401
+
+from admissable_jax.envs import contact_frames  # noqa: E402
+from admissable_jax.envs.ant import Ant  # noqa: E402
+from admissable_jax.envs.base import EnvState, MjxEnv, reset_where_done  # noqa: E402
+from admissable_jax.envs.options import MAX_EPISODE_STEPS, PHYSICS_CHOICES, EnvOptions, resolve_physics, warp_installed  # noqa: E402
+from admissable_jax.envs.planar_walkers import Hopper, Walker2d  # noqa: E402
+from admissable_jax.envs.point_mass import PointMass  # noqa: E402
 
 contact_frames.install()
 if warp_installed():

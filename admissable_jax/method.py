@@ -1,0 +1,73 @@
+"""The paper's method in array-library-neutral form: candidate sets, the masked observation
+and the adversary's p_miss, for NumPy and JAX arrays alike.
+
+JAX-free on purpose: the Gymnasium wrappers (:mod:`admissable_jax.wrappers`) run the method
+with NumPy alone, and the trainer (:mod:`.missingness`, :mod:`.adversary`) runs the same
+functions on JAX arrays under jit. A missing set u ⊆ {0..d-1} is a 0/1 row of length d
+(1 = hidden); the candidate sets U are a (|U|, d) matrix.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+
+MODES = ("adversarial", "uniform", "none")
+MAX_CANDIDATE_SETS = 100_000  # more subsets than this cannot be scored in one batched rollout
+
+
+def num_candidate_sets(num_features: int, k: int = 1, include_empty: bool = False) -> int:
+    """|U| = C(d, k) (+ 1 with the empty set); TypeError/ValueError for a bad ``k``."""
+    if not isinstance(k, int) or isinstance(k, bool):
+        raise TypeError(f"k must be an int, got {type(k).__name__}")
+    if not 1 <= k < num_features:
+        raise ValueError(f"k must satisfy 1 <= k < d = {num_features}, got k = {k}")
+    count = math.comb(num_features, k)
+    if count > MAX_CANDIDATE_SETS:
+        raise ValueError(
+            f"C({num_features}, {k}) = {count} candidate sets exceed {MAX_CANDIDATE_SETS}"
+        )
+    return count + int(include_empty)
+
+
+def candidate_sets(num_features: int, k: int = 1, include_empty: bool = False) -> np.ndarray:
+    """U as a (|U|, d) 0/1 float32 matrix: every subset of exactly ``k`` features, in
+    lexicographic order (k = 1 gives row i = {i}), optionally preceded by the empty set."""
+    num_candidate_sets(num_features, k, include_empty)
+    rows = [np.zeros(num_features, np.float32)] if include_empty else []
+    for subset in itertools.combinations(range(num_features), k):
+        row = np.zeros(num_features, np.float32)
+        row[list(subset)] = 1.0
+        rows.append(row)
+    return np.stack(rows)
+
+
+def describe_set(hidden) -> str:
+    """``"{3}"``, ``"{1,4}"`` or ``"{}"`` for a 0/1 row."""
+    return "{" + ",".join(str(i) for i in np.flatnonzero(np.asarray(hidden))) + "}"
+
+
+def mask_observation(obs, hidden):
+    """m_u(s): hidden features set to 0, followed by the 0/1 indicator v, v_i = 1[i ∈ u]
+    (paper §3, after Skand et al. 2024): shape (..., 2·d), in ``obs``'s array library and dtype.
+
+    ``hidden`` is u's 0/1 row, broadcast against ``obs``.
+    """
+    xp = obs.__array_namespace__()  # numpy or jax.numpy
+    hidden = xp.broadcast_to(xp.asarray(hidden, dtype=obs.dtype), obs.shape)
+    return xp.concat([obs * (1 - hidden), hidden], axis=-1)
+
+
+def inverse_score_p_miss(scores, lower_bound: float, epsilon: float):
+    """p_miss(u) ∝ 1 / (max(a_u, l) − l + ε) (paper §3): the sets the agent handles worst
+    are drawn most.
+
+    Computed as 1 / (max(a_u − l, 0) + ε). The written form ``max(a_u, l) − l + ε`` is not
+    safe under jit: XLA may reassociate it to ``max(a_u, l) + (ε − l)``, where ε vanishes in
+    float32 for l ≠ 0, so a clipped score gave 1/0 and p_miss turned NaN.
+    """
+    xp = scores.__array_namespace__()
+    weights = 1.0 / (xp.maximum(scores - lower_bound, 0.0) + epsilon)
+    return weights / xp.sum(weights)

@@ -1,0 +1,177 @@
+"""The paper's method in any Gymnasium pipeline: masked observations, the adversary, and a_u
+for any Python policy. NumPy and Gymnasium only: nothing here imports JAX.
+
+- :class:`MissingnessObservation` hides a set u of observation features (zeroed) and
+  appends the 0/1 indicator of u (2·d features), for a fixed u or one chosen per episode.
+- :class:`AdversarialMissingness` draws u ~ p_miss at every reset (fixed for the episode)
+  and applies the paper's p_miss update in :meth:`~AdversarialMissingness.update`.
+- :func:`score_policy` computes every a_u (and the clean return) for any policy on
+  Gymnasium's vector envs: the numbers the adversary's update takes.
+
+Stable-Baselines3, CleanRL or hand-written PyTorch train on the wrapped env as on any
+other; the README shows SB3's SAC with a callback that scores every ζ steps.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable, Iterable
+
+import gymnasium
+import numpy as np
+
+from admissable_jax.method import MODES, candidate_sets, inverse_score_p_miss, mask_observation
+
+HiddenChoice = Callable[[np.random.Generator], Iterable[int]]
+
+
+def _as_row(hidden: Iterable[int], num_features: int) -> np.ndarray:
+    """u's 0/1 row from feature indices; ValueError for an index outside [0, d)."""
+    indices = np.asarray(list(hidden), dtype=np.int64)
+    if indices.size and (indices.min() < 0 or indices.max() >= num_features):
+        raise ValueError(f"hidden features must be in [0, {num_features}), got {indices.tolist()}")
+    row = np.zeros(num_features, np.float32)
+    row[indices] = 1.0
+    return row
+
+
+class MissingnessObservation(gymnasium.ObservationWrapper, gymnasium.utils.RecordConstructorArgs):
+    """The paper's masked observation m_u(s) ⊕ 1[u] of a flat Box observation (2·d features).
+
+    ``hidden`` is the set u of feature indices to hide in every episode (``()``: none), or a
+    function ``choose(rng) -> indices`` called at every reset with this wrapper's own NumPy
+    generator (seeded by ``reset(seed=...)``), for one u per episode. The current u is
+    :attr:`hidden_row`, and ``info["hidden"]`` at reset lists its indices.
+    """
+
+    def __init__(self, env: gymnasium.Env, hidden: Iterable[int] | HiddenChoice = ()):
+        gymnasium.utils.RecordConstructorArgs.__init__(self, hidden=hidden)  # for env specs (check_env)
+        super().__init__(env)
+        space = env.observation_space
+        if not isinstance(space, gymnasium.spaces.Box) or len(space.shape) != 1:
+            raise ValueError(f"MissingnessObservation needs a flat Box observation space, got {space}")
+        self.num_features = int(space.shape[0])
+        self._choose = hidden if callable(hidden) else None
+        self.hidden_row = np.zeros(self.num_features, np.float32) if callable(hidden) else _as_row(hidden, self.num_features)
+        self._rng = np.random.default_rng()
+        zeros, ones = np.zeros(self.num_features, space.dtype), np.ones(self.num_features, space.dtype)
+        self.observation_space = gymnasium.spaces.Box(
+            low=np.concatenate([np.minimum(space.low, 0), zeros]),
+            high=np.concatenate([np.maximum(space.high, 0), ones]),
+            dtype=space.dtype,
+        )
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        if seed is not None:
+            self._rng = np.random.default_rng([seed, 0x6D61736B])  # apart from the env's own stream
+        if self._choose is not None:
+            self.hidden_row = _as_row(self._choose(self._rng), self.num_features)
+        obs, info = self.env.reset(seed=seed, options=options)
+        return self.observation(obs), {**info, "hidden": np.flatnonzero(self.hidden_row).tolist()}
+
+    def observation(self, observation: np.ndarray) -> np.ndarray:
+        return mask_observation(np.asarray(observation, self.observation_space.dtype), self.hidden_row)
+
+
+class AdversarialMissingness(MissingnessObservation):
+    """u ~ p_miss over all sets of ``k`` features, drawn at every reset and fixed for the
+    episode (paper §3). ``update(scores)`` takes a_u for every set, in the order of
+    :attr:`candidate_sets` (what :func:`score_policy` returns), and sets
+    p_miss(u) ∝ 1/(max(a_u, l) − l + ε) in ``mode="adversarial"``; ``"uniform"`` keeps p_miss
+    uniform (the paper's baseline). In a vector env every copy holds its own p_miss:
+    ``envs.call("update", scores)`` updates them all.
+    """
+
+    def __init__(self, env: gymnasium.Env, k: int = 1, mode: str = "adversarial", lower_bound: float = 0.0,
+                 epsilon: float = 1e-8, include_empty_set: bool = False, seed: int | None = None):
+        if mode not in MODES[:2]:
+            raise ValueError(f"mode must be 'adversarial' or 'uniform', got {mode!r}")
+        if epsilon <= 0:
+            raise ValueError(f"epsilon must be > 0, got {epsilon}")
+        gymnasium.utils.RecordConstructorArgs.__init__(self, k=k, mode=mode, lower_bound=lower_bound, epsilon=epsilon,
+                                                        include_empty_set=include_empty_set, seed=seed)
+        super().__init__(env, hidden=self._draw)
+        self.candidate_sets = candidate_sets(self.num_features, k, include_empty_set)
+        self.mode, self.lower_bound, self.epsilon = mode, float(lower_bound), float(epsilon)
+        self.p_miss = np.full(len(self.candidate_sets), 1.0 / len(self.candidate_sets))
+        self.set_index = 0
+        self._rng = np.random.default_rng(seed)
+
+    def _draw(self, rng: np.random.Generator) -> list[int]:
+        self.set_index = int(rng.choice(len(self.p_miss), p=self.p_miss))
+        return np.flatnonzero(self.candidate_sets[self.set_index]).tolist()
+
+    def update(self, scores) -> np.ndarray:
+        """The paper's update from a_u of every candidate set; returns the new p_miss."""
+        scores = np.asarray(scores, np.float64)
+        if scores.shape != self.p_miss.shape:
+            raise ValueError(f"update needs one score per candidate set ({len(self.p_miss)}), got shape {scores.shape}")
+        if not np.isfinite(scores).all():
+            raise ValueError("update needs finite scores")
+        if self.mode == "adversarial":
+            self.p_miss = inverse_score_p_miss(scores, self.lower_bound, self.epsilon)
+        return self.p_miss
+
+
+@dataclasses.dataclass
+class PolicyScores:
+    """:func:`score_policy`'s result, with :class:`~admissable_jax.scoring.MissingnessScores`'s fields, in NumPy."""
+
+    scores: np.ndarray  # (|U|,) a_u: mean return with u hidden
+    clean_score: float  # mean return with nothing hidden
+    returns: np.ndarray  # (|U| + 1, N) per-episode returns; the last row is the clean case
+    lengths: np.ndarray  # (|U| + 1, N) episode lengths
+    loop_steps: int  # vector-env steps the rollout took
+    capacity_exceeded: bool = False  # always False: C MuJoCo has no fixed-size buffers
+    hidden_sets: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 0), np.float32))  # U, (|U|, d)
+
+
+def score_policy(env_id: str, policy: Callable[[np.ndarray], Any], k: int = 1, n_episodes: int = 10,
+                 num_envs: int = 8, include_empty_set: bool = False, seed: int = 0,
+                 vectorization_mode: str = "sync", **env_kwargs) -> PolicyScores:
+    """a_u for every set u of ``k`` features (paper §3): the mean undiscounted return of
+    ``n_episodes`` episodes with u hidden, and the clean return, for any Python policy.
+
+    ``policy(masked_obs) -> actions`` maps a (num_envs, 2·d) batch of masked observations to
+    a batch of actions: NumPy, PyTorch behind ``.numpy()``, or SB3's
+    ``lambda obs: model.predict(obs, deterministic=True)[0]`` (a returned tuple's first
+    item is taken). The (|U| + 1)·N episodes run on ``num_envs`` copies of
+    ``gymnasium.make_vec(env_id, ...)``, each slot starting the next unscored episode as its
+    own ends; episode starts follow the vector env's seed.
+    """
+    if n_episodes < 1 or num_envs < 1:
+        raise ValueError("n_episodes and num_envs must be >= 1")
+    envs = gymnasium.make_vec(env_id, num_envs=num_envs, vectorization_mode=vectorization_mode, **env_kwargs)
+    try:
+        num_features = int(envs.single_observation_space.shape[0])
+        hidden_sets = candidate_sets(num_features, k, include_empty_set)
+        rows = np.concatenate([hidden_sets, np.zeros((1, num_features), np.float32)])
+        returns = np.zeros((len(rows), n_episodes))
+        lengths = np.zeros((len(rows), n_episodes), np.int64)
+        episode_of_slot = np.arange(num_envs)  # episode e: row e // N, repetition e % N
+        next_episode, total = num_envs, len(rows) * n_episodes
+        running_return, running_length = np.zeros(num_envs), np.zeros(num_envs, np.int64)
+        resetting = np.zeros(num_envs, bool)  # next step is the vector env's autoreset of this slot
+        obs, _ = envs.reset(seed=seed)
+        loop_steps = 0
+        while (episode_of_slot < total).any():
+            masked = mask_observation(np.asarray(obs, np.float32), rows[np.minimum(episode_of_slot, total - 1) // n_episodes])
+            actions = policy(masked)
+            actions = np.asarray(actions[0] if isinstance(actions, tuple) else actions)
+            obs, reward, terminated, truncated, _ = envs.step(actions)
+            loop_steps += 1
+            counted = ~resetting & (episode_of_slot < total)
+            running_return[counted] += reward[counted]
+            running_length[counted] += 1
+            ended = counted & (terminated | truncated)
+            for slot in np.flatnonzero(ended):
+                row, repetition = divmod(int(episode_of_slot[slot]), n_episodes)
+                returns[row, repetition], lengths[row, repetition] = running_return[slot], running_length[slot]
+                episode_of_slot[slot], next_episode = next_episode, next_episode + 1
+            running_return[ended], running_length[ended] = 0.0, 0
+            resetting = terminated | truncated
+    finally:
+        envs.close()
+    means = returns.mean(axis=1)
+    return PolicyScores(scores=means[:-1], clean_score=float(means[-1]), returns=returns, lengths=lengths,
+                        loop_steps=loop_steps, hidden_sets=hidden_sets)

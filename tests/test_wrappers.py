@@ -1,0 +1,107 @@
+"""The Gymnasium wrappers and score_policy, against hand-computed values (NumPy only, no JAX)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import gymnasium
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+from admissable_jax.wrappers import AdversarialMissingness, MissingnessObservation, score_policy
+
+
+class ConstantFeatures(gymnasium.Env):
+    """Observes (1, 2, 3) always; the reward is the action; 5-step episodes. A policy that
+    acts with the sum of what it sees earns 5 · (6 − the hidden feature's value)."""
+
+    observation_space = gymnasium.spaces.Box(-10.0, 10.0, (3,), np.float32)
+    action_space = gymnasium.spaces.Box(-100.0, 100.0, (1,), np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.steps = 0
+        return np.array([1.0, 2.0, 3.0], np.float32), {}
+
+    def step(self, action):
+        self.steps += 1
+        return np.array([1.0, 2.0, 3.0], np.float32), float(action[0]), False, self.steps >= 5, {}
+
+
+gymnasium.register("ConstantFeatures-v0", entry_point=ConstantFeatures)
+
+
+def sum_of_visible(masked_obs: np.ndarray) -> np.ndarray:
+    return masked_obs[:, :3].sum(axis=1, keepdims=True)
+
+
+def test_score_policy_gives_the_papers_a_u_for_a_numpy_policy():
+    result = score_policy("ConstantFeatures-v0", sum_of_visible, k=1, n_episodes=3, num_envs=5)
+    np.testing.assert_allclose(result.scores, [25.0, 20.0, 15.0])  # hide 1, 2 or 3 of 6
+    assert result.clean_score == 30.0
+    np.testing.assert_array_equal(result.lengths, 5)
+    assert result.returns.shape == (4, 3) and not result.capacity_exceeded
+    # 12 episodes on 5 slots: slots 0 and 1 run three back to back, 5 steps each plus the
+    # vector env's autoreset step between them: 3 · 6 − 1 = 17 steps.
+    assert result.loop_steps == 17
+    pairs = score_policy("ConstantFeatures-v0", lambda obs: (sum_of_visible(obs), None), k=2, n_episodes=1, num_envs=2)
+    np.testing.assert_allclose(pairs.scores, [15.0, 10.0, 5.0])  # {0,1}, {0,2}, {1,2}; SB3-style tuple taken
+
+
+def test_masked_observation_and_its_space():
+    env = MissingnessObservation(ConstantFeatures(), hidden=[1])
+    obs, info = env.reset(seed=0)
+    np.testing.assert_array_equal(obs, [1.0, 0.0, 3.0, 0.0, 1.0, 0.0])
+    assert info["hidden"] == [1] and env.observation_space.shape == (6,)
+    np.testing.assert_array_equal(env.observation_space.low, [-10, -10, -10, 0, 0, 0])
+    check_env(env, skip_render_check=True)
+    hopper = MissingnessObservation(gymnasium.make("Hopper-v5"), hidden=[0, 5])
+    check_env(hopper, skip_render_check=True)
+    assert hopper.observation_space.shape == (22,) and hopper.reset(seed=1)[0][[0, 5, 11, 16]].tolist() == [0, 0, 1, 1]
+    # One u per episode, from the wrapper's own generator, reproducible by seed.
+    per_episode = MissingnessObservation(ConstantFeatures(), hidden=lambda rng: [int(rng.integers(3))])
+    drawn = [per_episode.reset(seed=seed)[1]["hidden"] for seed in (5, 6, 5)]
+    assert drawn[0] == drawn[2]
+    with pytest.raises(ValueError, match=r"hidden features must be in \[0, 3\)"):
+        MissingnessObservation(ConstantFeatures(), hidden=[3])
+
+
+def test_adversary_draws_from_the_papers_p_miss_and_updates_in_vector_envs():
+    env = AdversarialMissingness(ConstantFeatures(), k=1, mode="adversarial", seed=0)
+    check_env(env, skip_render_check=True)
+    # p_miss ∝ 1/(a_u − l + ε): scores 25, 20, 15 give weights 1/25, 1/20, 1/15, normalised
+    # by their sum 47/300: 12/47, 15/47, 20/47.
+    np.testing.assert_allclose(env.update([25.0, 20.0, 15.0]), np.array([12, 15, 20]) / 47, rtol=1e-6)
+    draws = []
+    for _ in range(3000):
+        obs, info = env.reset()
+        (hidden,) = info["hidden"]
+        assert obs[hidden] == 0.0 and obs[3 + hidden] == 1.0 and env.set_index == hidden
+        for _ in range(2):  # u stays for the whole episode
+            obs, *_ = env.step(np.zeros(1, np.float32))
+            assert obs[3 + hidden] == 1.0 and obs[:3].sum() == 6.0 - (hidden + 1)
+        draws.append(hidden)
+    frequencies = np.bincount(draws, minlength=3) / len(draws)
+    np.testing.assert_allclose(frequencies, np.array([12, 15, 20]) / 47, atol=4 * np.sqrt(0.25 / len(draws)))
+    # A score below l counts as l: with l = 20, 15 and 20 both weigh 1/ε.
+    clipped = AdversarialMissingness(ConstantFeatures(), lower_bound=20.0).update([25.0, 20.0, 15.0])
+    np.testing.assert_allclose(clipped, [0.0, 0.5, 0.5], atol=1e-6)
+    uniform = AdversarialMissingness(ConstantFeatures(), mode="uniform")
+    np.testing.assert_allclose(uniform.update([25.0, 20.0, 15.0]), 1 / 3)
+    with pytest.raises(ValueError, match="one score per candidate set"):
+        env.update([1.0, 2.0])
+
+    envs = gymnasium.vector.SyncVectorEnv(
+        [lambda seed=seed: AdversarialMissingness(ConstantFeatures(), seed=seed) for seed in range(2)])
+    envs.reset(seed=0)
+    envs.call("update", [25.0, 20.0, 15.0])
+    for p_miss in envs.get_attr("p_miss"):
+        np.testing.assert_allclose(p_miss, np.array([12, 15, 20]) / 47, rtol=1e-6)
+    envs.close()
+
+
+def test_wrappers_import_no_jax():
+    code = "import sys, admissable_jax.wrappers; assert 'jax' not in sys.modules, 'jax imported'"
+    subprocess.run([sys.executable, "-c", code], check=True)
