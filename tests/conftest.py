@@ -17,7 +17,7 @@ os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "1")
 
 
 # Measured cold on 2 cores (README): these files compile the most; the rest take seconds.
-EXPENSIVE_FIRST = ("test_hopper_pipelines.py", "test_envs.py", "test_campaign.py", "test_experiment.py",
+EXPENSIVE_FIRST = ("test_hopper_pipelines.py", "test_envs.py", "test_experiment.py",
                    "test_training.py", "test_runs.py")
 
 
