@@ -82,17 +82,22 @@ class Checkpoints:
         Checkpoints newer than a chosen older ``step`` are moved aside to
         ``<directory>-superseded/`` (never deleted), since the run continues from ``step``.
         """
+        step, state = self.read(like, step)
+        self._set_aside_newer_than(step)
+        return step, state
+
+    def read(self, like, step: int | None = None) -> tuple[int, object]:
+        """:meth:`restore` without moving anything: for reading a run (a policy, an audit)
+        rather than continuing it."""
         step = self.step_to_restore(step)
-        steps = self._manager.all_steps()
         try:
-            state = self._restore(like, step)
+            return step, self._restore(like, step)
         except CheckpointError as error:
-            intact = next((older for older in sorted(steps, reverse=True) if older < step and self._readable(like, older)), None)
+            older = sorted((s for s in self._manager.all_steps() if s < step), reverse=True)
+            intact = next((s for s in older if self._readable(like, s)), None)
             offer = (f"checkpoint {intact} is intact: resume with resume_step={intact}" if intact is not None
                      else "no older checkpoint is intact")
             raise CheckpointError(f"{error}; {offer}") from error.__cause__
-        self._set_aside_newer_than(step)
-        return step, state
 
     def _restore(self, like, step: int):
         abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, _non_empty_leaves(like))

@@ -5,14 +5,17 @@ from __future__ import annotations
 import json
 import os
 
+import jax
 import nbformat
 import numpy as np
 import pytest
 from nbclient import NotebookClient
 
+from admissable_jax import mask_observation
 from admissable_jax.experiment import ExperimentConfig, pair_configs, run_experiment
 from admissable_jax.plot import find_runs, plot_runs
 from admissable_jax.memory import MemoryBudgetExceeded
+from admissable_jax.policies import load_policy
 
 EXPERIMENT = dict(
     env="point_mass", seeds=2, modes="adversarial,uniform", score_every=1000, num_envs=4,
@@ -43,6 +46,12 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path):
             assert not np.allclose(result.scores[-1]["p_miss"], 0.25)
     # Seeds differ, so pairs of one mode differ.
     assert straight[0].scores[-1]["scores"] != straight[1].scores[-1]["scores"]
+    # A pair's policy outside the trainer: the experiment's checkpoint, that pair's part.
+    policy = load_policy(straight[2].run_dir)
+    obs = np.random.default_rng(0).normal(size=(5, 4)).astype(np.float32)
+    expected = jax.vmap(straight[2].trainer.policy, (None, 0))(straight[2].actor_params, mask_observation(obs, np.array([0, 1, 0, 0])))
+    assert policy.step == 3000 and policy.config.missingness == "uniform"
+    np.testing.assert_allclose(policy(obs, hidden=[1]), expected, rtol=1e-5, atol=1e-6)
 
     resumed_root = str(tmp_path / "resumed")
     run_experiment(ExperimentConfig(**EXPERIMENT, total_steps=2000, out=resumed_root))

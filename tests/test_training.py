@@ -20,6 +20,7 @@ import pytest
 from admissable_jax import TrainConfig, candidate_sets, make_env, mask_observation, score_missingness, train_fn
 from admissable_jax.checkpointing import CheckpointError
 from admissable_jax.host_loop import TrainingDiverged
+from admissable_jax.policies import load_policy
 from admissable_jax.run_spec import RunSpec
 from admissable_jax.training import Trainer
 
@@ -33,6 +34,7 @@ POINT_MASS = TrainConfig(
     score_episodes=4,
     batch_size=128,
     buffer_size=20_000,
+    hidden_size=64,
     progress=False,
 )
 
@@ -73,6 +75,24 @@ def test_run_directory_contents(point_mass_run):
         # Adversarial mode: p_miss after the update is the inverse-score distribution.
         inverse = 1.0 / np.maximum(np.array(row["scores"]), 0.0)
         np.testing.assert_allclose(row["p_miss"], inverse / inverse.sum(), rtol=1e-3)
+
+
+def test_load_policy_is_the_trainers_deterministic_policy(point_mass_run):
+    """load_policy reads a run's checkpoint without touching it, and acts as scoring does."""
+    run_dir = point_mass_run.run_dir
+    before = sorted(os.listdir(os.path.join(run_dir, "checkpoints")))
+    policy = load_policy(run_dir)
+    assert policy.step == 6000
+    obs = np.random.default_rng(0).normal(size=(7, 4)).astype(np.float32)
+    expected = jax.vmap(point_mass_run.trainer.policy, (None, 0))(point_mass_run.actor_params,
+                                                                  mask_observation(obs, np.array([0, 0, 1, 0])))
+    np.testing.assert_allclose(policy(obs, hidden=[2]), expected, rtol=1e-6)
+    np.testing.assert_allclose(policy(obs[0], hidden=np.array([0, 0, 1, 0], np.float32)), expected[0], rtol=1e-6)
+    assert sorted(os.listdir(os.path.join(run_dir, "checkpoints"))) == before
+    with pytest.raises(CheckpointError, match="no checkpoint 10 in .*; saved: \\[6000\\]"):
+        load_policy(run_dir, step=10)
+    with pytest.raises(ValueError, match=r"hidden features must be in \[0, 4\)"):
+        policy(obs, hidden=[4])
 
 
 def test_missing_set_fixed_within_episode_and_drawn_from_p_miss():
@@ -224,8 +244,9 @@ def test_train_step_vmaps_over_seeds_and_modes():
         return state, scores.scores
 
     batched_state, batched_scores = jax.jit(jax.vmap(run))(jnp.array([0, 1]), jnp.array([True, False]))
+    unbatched = jax.jit(run)
     for pair, (seed, adversarial) in enumerate([(0, True), (1, False)]):
-        state, scores = jax.jit(run, static_argnums=(0, 1))(seed, adversarial)
+        state, scores = unbatched(jnp.asarray(seed), jnp.asarray(adversarial))
         np.testing.assert_allclose(batched_scores[pair], scores, rtol=1e-4, atol=1e-4)
         np.testing.assert_allclose(
             batched_state.sac.actor_params["params"]["Dense_0"]["kernel"][pair],

@@ -1,0 +1,115 @@
+"""Trained policies outside the trainer: ``load_policy(run_dir, step=None)``.
+
+The returned :class:`TrainedPolicy` maps a Gymnasium observation (or a batch) and a hidden
+set u to the trainer's deterministic action, in NumPy: the policy that scoring evaluates,
+for Gymnasium's own C-MuJoCo envs (:func:`admissable_jax.wrappers.score_policy`), SB3-style
+evaluation code, or a video. It reads a ``train`` run directory (``RUN/checkpoints``) or
+one pair of an ``experiment`` (the pair's directory; the checkpoints are the experiment's).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from typing import Iterable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from omegaconf import OmegaConf
+
+from admissable_jax.checkpointing import Checkpoints
+from admissable_jax.config import TrainConfig
+from admissable_jax.experiment import ExperimentConfig, pair_configs
+from admissable_jax.host_loop import make_trainer, mode_flags, take_pair
+from admissable_jax.missingness import mask_observation
+from admissable_jax.run_directory import load_config_yaml
+from admissable_jax.training import Trainer
+
+
+@dataclasses.dataclass
+class TrainedPolicy:
+    """A run's deterministic policy at one checkpoint.
+
+    ``policy(obs, hidden=())`` takes an observation (d,) or a batch (n, d) and u as feature
+    indices (or a 0/1 row), and returns the action(s) as NumPy; ``policy.masked(batch)``
+    takes observations already masked (n, 2·d), as :func:`~admissable_jax.wrappers.score_policy`
+    hands them.
+    """
+
+    config: TrainConfig
+    trainer: Trainer
+    actor_params: object
+    step: int
+
+    def __post_init__(self):
+        self._act = jax.jit(jax.vmap(self.trainer.policy, in_axes=(None, 0)))
+
+    @property
+    def observation_size(self) -> int:
+        return self.trainer.env.observation_size
+
+    def hidden_row(self, hidden: Iterable[int] | np.ndarray) -> np.ndarray:
+        """u's 0/1 row from indices (or a row already); ValueError outside [0, d)."""
+        hidden = np.asarray(list(hidden) if not isinstance(hidden, np.ndarray) else hidden)
+        if hidden.shape == (self.observation_size,) and set(np.unique(hidden)) <= {0, 1} and hidden.dtype != np.int64:
+            return hidden.astype(np.float32)
+        row = np.zeros(self.observation_size, np.float32)
+        indices = hidden.astype(np.int64)
+        if indices.size and (indices.min() < 0 or indices.max() >= self.observation_size):
+            raise ValueError(f"hidden features must be in [0, {self.observation_size}), got {indices.tolist()}")
+        row[indices] = 1.0
+        return row
+
+    def __call__(self, obs: np.ndarray, hidden: Iterable[int] | np.ndarray = ()) -> np.ndarray:
+        obs = np.asarray(obs, np.float32)
+        if obs.shape[-1] != self.observation_size:
+            raise ValueError(f"expected observations of {self.observation_size} features, got shape {obs.shape}")
+        batch = obs.reshape(-1, self.observation_size)
+        actions = self.masked(np.asarray(mask_observation(batch, self.hidden_row(hidden))))
+        return actions.reshape(*obs.shape[:-1], -1)
+
+    def masked(self, masked_obs: np.ndarray) -> np.ndarray:
+        return np.asarray(self._act(self.actor_params, jnp.asarray(masked_obs, jnp.float32)))
+
+
+def _config(path: str, cls):
+    node = load_config_yaml(path)
+    known = {field.name for field in dataclasses.fields(cls)}
+    return cls(**{key: value for key, value in OmegaConf.to_container(node).items() if key in known})
+
+
+def load_policy(run_dir: str, step: int | None = None) -> TrainedPolicy:
+    """The deterministic policy of the run in ``run_dir`` at checkpoint ``step`` (default:
+    the latest). FileNotFoundError/CheckpointError with one line when there is none."""
+    config_path = os.path.join(run_dir, "config.yaml")
+    if not os.path.isfile(config_path):
+        raise FileNotFoundError(f"{run_dir} is not a run directory (no config.yaml)")
+    config = _config(config_path, TrainConfig).resolved()
+    own_checkpoints = os.path.join(run_dir, "checkpoints")
+    experiment_yaml = os.path.join(os.path.dirname(os.path.abspath(run_dir)), "experiment.yaml")
+    if os.path.isdir(own_checkpoints):
+        trainer = make_trainer(config)
+        like = jax.eval_shape(lambda: trainer.init(config.seed, *mode_flags(config.missingness)))
+        pick = lambda state: state
+        checkpoint_dir = own_checkpoints
+    elif os.path.isfile(experiment_yaml):
+        experiment = _config(experiment_yaml, ExperimentConfig)
+        experiment.out = os.path.dirname(os.path.abspath(run_dir))
+        pairs = pair_configs(experiment)
+        names = [os.path.basename(pair.out) for pair in pairs]
+        index = names.index(os.path.basename(os.path.abspath(run_dir)))
+        trainer = make_trainer(pairs[0], num_runs=len(pairs))
+        seeds = jnp.array([pair.seed for pair in pairs])
+        flags = [jnp.array(flag) for flag in zip(*(mode_flags(pair.missingness) for pair in pairs))]
+        like = jax.eval_shape(lambda: jax.vmap(trainer.init)(seeds, *flags))
+        pick = lambda state: take_pair(state, index)
+        checkpoint_dir = os.path.join(experiment.out, "checkpoints")
+    else:
+        raise FileNotFoundError(f"{run_dir} has no checkpoints (no checkpoints/ and no experiment.yaml above it)")
+    checkpoints = Checkpoints(checkpoint_dir)
+    try:
+        restored_step, state = checkpoints.read(like, step)
+    finally:
+        checkpoints.close()
+    return TrainedPolicy(config, trainer, pick(state).sac.actor_params, restored_step)
