@@ -12,6 +12,7 @@ import jax
 
 from admissable_jax.adversary import MODES
 from admissable_jax.envs import canonical_env_name, observation_size, resolve_physics
+from admissable_jax.loggers import LOGGERS
 from admissable_jax.missingness import num_candidate_sets
 
 
@@ -55,6 +56,7 @@ class RunSettings:
     resume: bool = _field(False, "continue the run in 'out' from its last checkpoint")
     resume_step: int = _field(-1, "with resume=true: the checkpoint (env step) to continue from; -1 = the latest")
     progress: bool = _field(True, "show a progress bar")
+    logger: str = _field("none", "also log every scores/metrics row to: none | tensorboard (<run dir>/tensorboard)")
     time_limit: float = _field(0.0, "wall seconds this invocation may train (0 = no limit): it checkpoints and stops "
                                     "before a scoring interval that would overrun; resume=true continues")
 
@@ -124,6 +126,8 @@ def validate(config: TrainConfig) -> None:
             raise TypeError(f"{field.name} must be {field.type}, got {value!r}")
     canonical_env_name(config.env)
     resolve_physics(config.physics)
+    if config.logger not in LOGGERS:
+        raise ValueError(f"logger must be one of {', '.join(LOGGERS)}, got {config.logger!r}")
     if config.missingness not in MODES:
         raise ValueError(f"missingness must be one of {', '.join(MODES)}, got {config.missingness!r}")
     positive = ("k", "score_every", "score_episodes", "total_steps", "episode_length",

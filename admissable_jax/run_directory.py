@@ -21,6 +21,7 @@ from admissable_jax.config import TrainConfig
 from admissable_jax.envs import resolve_physics
 from admissable_jax.errors import UnusableRunDirectory
 from admissable_jax.locks import RunLock
+from admissable_jax.loggers import make_logger
 from admissable_jax.missingness import describe_set
 from admissable_jax.scoring import MissingnessScores
 
@@ -28,7 +29,7 @@ from admissable_jax.scoring import MissingnessScores
 # score_envs only changes how many episodes a scoring round steps at once, not its scores;
 # out is wherever the run directory is now (it may have been moved or copied).
 RESUMABLE_CHANGES = ("resume", "resume_step", "total_steps", "progress", "checkpoint_every", "score_envs", "out",
-                     "time_limit")
+                     "time_limit", "logger")
 
 
 class TornLine(ValueError):
@@ -119,6 +120,7 @@ class RunDirectory:
         self.lock.acquire()
         try:
             self._prepare(config, config_path, checkpoint_dir)
+            self.logger = make_logger(config.logger, self.path)
         except BaseException:
             self.lock.release()
             raise
@@ -138,7 +140,9 @@ class RunDirectory:
         OmegaConf.save(OmegaConf.structured(config), config_path)
 
     def close(self) -> None:
-        """Give the directory back (remove the lock)."""
+        """Give the directory back (close the logger, remove the lock)."""
+        if self.logger is not None:
+            self.logger.close()
         self.lock.release()
 
     @staticmethod
@@ -161,8 +165,11 @@ class RunDirectory:
             )
 
     def append(self, name: str, row: dict[str, Any]) -> None:
+        """Append ``row`` to the JSONL file ``name`` (the record), and to the logger if any."""
         with open(os.path.join(self.path, name), "a") as file:
             file.write(json.dumps(row) + "\n")
+        if self.logger is not None:
+            self.logger.log(name, row)
 
     def read(self, name: str) -> list[dict[str, Any]]:
         path = os.path.join(self.path, name)

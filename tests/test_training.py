@@ -6,9 +6,11 @@ tests/test_hopper_pipelines.py.
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import json
 import os
+import struct
 import subprocess
 import sys
 
@@ -36,6 +38,7 @@ POINT_MASS = TrainConfig(
     buffer_size=20_000,
     hidden_size=64,
     progress=False,
+    logger="tensorboard",
 )
 
 
@@ -66,7 +69,7 @@ def test_sac_learns_point_mass(point_mass_run):
 
 def test_run_directory_contents(point_mass_run):
     run_dir = point_mass_run.run_dir
-    assert sorted(os.listdir(run_dir)) == ["checkpoints", "config.yaml", "metrics.jsonl", "scores.jsonl"]
+    assert sorted(os.listdir(run_dir)) == ["checkpoints", "config.yaml", "metrics.jsonl", "scores.jsonl", "tensorboard"]
     for row in point_mass_run.scores:
         assert len(row["scores"]) == 4 and len(row["p_miss"]) == 4
         assert row["min_score"] == pytest.approx(min(row["scores"]), abs=1e-3)
@@ -75,6 +78,40 @@ def test_run_directory_contents(point_mass_run):
         # Adversarial mode: p_miss after the update is the inverse-score distribution.
         inverse = 1.0 / np.maximum(np.array(row["scores"]), 0.0)
         np.testing.assert_allclose(row["p_miss"], inverse / inverse.sum(), rtol=1e-3)
+
+
+def _tensorboard_events(directory: str) -> list:
+    """Every event in a tensorboardX log (TFRecord: length, its CRC, the Event proto, its CRC)."""
+    from tensorboardX.proto import event_pb2
+
+    events = []
+    for name in sorted(os.listdir(directory)):
+        with open(os.path.join(directory, name), "rb") as file:
+            data = file.read()
+        offset = 0
+        while offset < len(data):
+            (length,) = struct.unpack("<Q", data[offset:offset + 8])
+            event = event_pb2.Event()
+            event.ParseFromString(data[offset + 12:offset + 12 + length])
+            events.append(event)
+            offset += 12 + length + 4
+    return events
+
+
+def test_tensorboard_mirrors_the_jsonl_rows(point_mass_run):
+    """logger=tensorboard: each row's numbers as scalars at its env step, every a_u, p_miss as a histogram."""
+    values = collections.defaultdict(dict)
+    for event in _tensorboard_events(os.path.join(point_mass_run.run_dir, "tensorboard")):
+        for value in event.summary.value:
+            values[value.tag][event.step] = value.histo if value.HasField("histo") else value.simple_value
+    for row in point_mass_run.scores:
+        step = row["env_steps"]
+        assert values["scores/min_score"][step] == pytest.approx(row["min_score"], rel=1e-6)
+        assert values["scores/clean_score"][step] == pytest.approx(row["clean_score"], rel=1e-6)
+        assert [values[f"a_u/{u:03d}"][step] for u in range(4)] == pytest.approx(row["scores"], rel=1e-6)
+        np.testing.assert_allclose(values["p_miss"][step].bucket, row["p_miss"], rtol=1e-6)
+    for row in point_mass_run.metrics[1:]:
+        assert values["metrics/critic_loss"][row["env_steps"]] == pytest.approx(row["critic_loss"], rel=1e-6)
 
 
 def test_load_policy_is_the_trainers_deterministic_policy(point_mass_run):
