@@ -35,7 +35,7 @@ import time
 import jax
 
 from admissable_jax.checkpointing import Checkpoints
-from admissable_jax.cli import parse_args
+from admissable_jax.cli import enable_compilation_cache, parse_args
 from admissable_jax.envs import make_env
 from admissable_jax.experiment import ExperimentConfig, pair_configs
 from admissable_jax.host_loop import make_trainer, mode_flags
@@ -193,6 +193,7 @@ def main(argv: list[str]) -> int:
         return 2
     verb, rest = argv[0], argv[1:]
     if verb == "measure":
+        enable_compilation_cache()  # as the experiment it measures: its programs then start the run compiled
         measure(parse_args(MeasureConfig, rest, "benchmarks/campaign.py measure", __doc__.splitlines()[0]))
         return 0
     try:
