@@ -51,7 +51,6 @@ class TensorBoardLogger:
 
 
 def make_logger(name: str, run_dir: str) -> TensorBoardLogger | None:
-    """The logger ``name`` (one of :data:`LOGGERS`) for the run in ``run_dir``; None for ``none``."""
-    if name not in LOGGERS:
-        raise ValueError(f"logger must be one of {', '.join(LOGGERS)}, got {name!r}")
+    """The logger ``name`` (one of :data:`LOGGERS`, checked by the config) for the run in
+    ``run_dir``; None for ``none``."""
     return TensorBoardLogger(run_dir) if name == "tensorboard" else None

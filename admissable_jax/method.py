@@ -49,6 +49,20 @@ def describe_set(hidden) -> str:
     return "{" + ",".join(str(i) for i in np.flatnonzero(np.asarray(hidden))) + "}"
 
 
+def hidden_row(hidden, num_features: int) -> np.ndarray:
+    """u's 0/1 float32 row of length d from its feature indices (ints), or from a 0/1 row
+    given as floats or bools; ValueError for an index outside [0, d)."""
+    hidden = np.asarray(list(hidden) if not isinstance(hidden, np.ndarray) else hidden)
+    if hidden.dtype.kind in "fb" and hidden.shape == (num_features,) and np.isin(hidden, (0, 1)).all():
+        return hidden.astype(np.float32)
+    indices = hidden.astype(np.int64)
+    if indices.size and (indices.min() < 0 or indices.max() >= num_features):
+        raise ValueError(f"hidden features must be in [0, {num_features}), got {indices.tolist()}")
+    row = np.zeros(num_features, np.float32)
+    row[indices] = 1.0
+    return row
+
+
 def mask_observation(obs, hidden):
     """m_u(s): hidden features set to 0, followed by the 0/1 indicator v, v_i = 1[i ∈ u]
     (paper §3, after Skand et al. 2024): shape (..., 2·d), in ``obs``'s array library and dtype.

@@ -16,14 +16,14 @@ from typing import Iterable
 import jax
 import jax.numpy as jnp
 import numpy as np
-from omegaconf import OmegaConf
 
 from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.config import TrainConfig
 from admissable_jax.experiment import ExperimentConfig, pair_configs
 from admissable_jax.host_loop import make_trainer, mode_flags, take_pair
+from admissable_jax.method import hidden_row
 from admissable_jax.missingness import mask_observation
-from admissable_jax.run_directory import load_config_yaml
+from admissable_jax.run_directory import load_config
 from admissable_jax.training import Trainer
 
 
@@ -49,34 +49,16 @@ class TrainedPolicy:
     def observation_size(self) -> int:
         return self.trainer.env.observation_size
 
-    def hidden_row(self, hidden: Iterable[int] | np.ndarray) -> np.ndarray:
-        """u's 0/1 row from indices (or a row already); ValueError outside [0, d)."""
-        hidden = np.asarray(list(hidden) if not isinstance(hidden, np.ndarray) else hidden)
-        if hidden.shape == (self.observation_size,) and set(np.unique(hidden)) <= {0, 1} and hidden.dtype != np.int64:
-            return hidden.astype(np.float32)
-        row = np.zeros(self.observation_size, np.float32)
-        indices = hidden.astype(np.int64)
-        if indices.size and (indices.min() < 0 or indices.max() >= self.observation_size):
-            raise ValueError(f"hidden features must be in [0, {self.observation_size}), got {indices.tolist()}")
-        row[indices] = 1.0
-        return row
-
     def __call__(self, obs: np.ndarray, hidden: Iterable[int] | np.ndarray = ()) -> np.ndarray:
         obs = np.asarray(obs, np.float32)
         if obs.shape[-1] != self.observation_size:
             raise ValueError(f"expected observations of {self.observation_size} features, got shape {obs.shape}")
         batch = obs.reshape(-1, self.observation_size)
-        actions = self.masked(np.asarray(mask_observation(batch, self.hidden_row(hidden))))
+        actions = self.masked(np.asarray(mask_observation(batch, hidden_row(hidden, self.observation_size))))
         return actions.reshape(*obs.shape[:-1], -1)
 
     def masked(self, masked_obs: np.ndarray) -> np.ndarray:
         return np.asarray(self._act(self.actor_params, jnp.asarray(masked_obs, jnp.float32)))
-
-
-def _config(path: str, cls):
-    node = load_config_yaml(path)
-    known = {field.name for field in dataclasses.fields(cls)}
-    return cls(**{key: value for key, value in OmegaConf.to_container(node).items() if key in known})
 
 
 def load_policy(run_dir: str, step: int | None = None) -> TrainedPolicy:
@@ -85,7 +67,7 @@ def load_policy(run_dir: str, step: int | None = None) -> TrainedPolicy:
     config_path = os.path.join(run_dir, "config.yaml")
     if not os.path.isfile(config_path):
         raise FileNotFoundError(f"{run_dir} is not a run directory (no config.yaml)")
-    config = _config(config_path, TrainConfig).resolved()
+    config = load_config(config_path, TrainConfig).resolved()
     own_checkpoints = os.path.join(run_dir, "checkpoints")
     experiment_yaml = os.path.join(os.path.dirname(os.path.abspath(run_dir)), "experiment.yaml")
     if os.path.isdir(own_checkpoints):
@@ -94,7 +76,7 @@ def load_policy(run_dir: str, step: int | None = None) -> TrainedPolicy:
         pick = lambda state: state
         checkpoint_dir = own_checkpoints
     elif os.path.isfile(experiment_yaml):
-        experiment = _config(experiment_yaml, ExperimentConfig)
+        experiment = load_config(experiment_yaml, ExperimentConfig)
         experiment.out = os.path.dirname(os.path.abspath(run_dir))
         pairs = pair_configs(experiment)
         names = [os.path.basename(pair.out) for pair in pairs]

@@ -67,6 +67,12 @@ def load_config_yaml(path: str):
         raise ValueError(f"{path} is not valid YAML{line}: {problem}") from None
 
 
+def load_config(path: str, cls=TrainConfig):
+    """The ``cls`` dataclass saved in the YAML file ``path``; keys it lacks take their
+    defaults (files written before a key existed), a key it does not know is an error."""
+    return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(cls), load_config_yaml(path)))
+
+
 def score_row(env_steps: int, scores: MissingnessScores, p_miss, hidden_sets) -> dict[str, Any]:
     """One ``scores.jsonl`` row: every a_u, the minimum and its set, the clean score, p_miss."""
     argmin = int(scores.argmin)
@@ -147,7 +153,7 @@ class RunDirectory:
 
     @staticmethod
     def _check_same_run(config: TrainConfig, config_path: str, checkpoint_dir: str) -> None:
-        saved = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(TrainConfig), load_config_yaml(config_path)))
+        saved = load_config(config_path)
         saved.physics = resolve_physics(saved.physics)  # runs saved before the key read "auto"
         for field in dataclasses.fields(TrainConfig):
             if field.name in RESUMABLE_CHANGES:

@@ -20,19 +20,9 @@ from typing import Any, Callable, Iterable
 import gymnasium
 import numpy as np
 
-from admissable_jax.method import MODES, candidate_sets, inverse_score_p_miss, mask_observation
+from admissable_jax.method import MODES, candidate_sets, hidden_row, inverse_score_p_miss, mask_observation
 
 HiddenChoice = Callable[[np.random.Generator], Iterable[int]]
-
-
-def _as_row(hidden: Iterable[int], num_features: int) -> np.ndarray:
-    """u's 0/1 row from feature indices; ValueError for an index outside [0, d)."""
-    indices = np.asarray(list(hidden), dtype=np.int64)
-    if indices.size and (indices.min() < 0 or indices.max() >= num_features):
-        raise ValueError(f"hidden features must be in [0, {num_features}), got {indices.tolist()}")
-    row = np.zeros(num_features, np.float32)
-    row[indices] = 1.0
-    return row
 
 
 class MissingnessObservation(gymnasium.ObservationWrapper, gymnasium.utils.RecordConstructorArgs):
@@ -52,7 +42,7 @@ class MissingnessObservation(gymnasium.ObservationWrapper, gymnasium.utils.Recor
             raise ValueError(f"MissingnessObservation needs a flat Box observation space, got {space}")
         self.num_features = int(space.shape[0])
         self._choose = hidden if callable(hidden) else None
-        self.hidden_row = np.zeros(self.num_features, np.float32) if callable(hidden) else _as_row(hidden, self.num_features)
+        self.hidden_row = np.zeros(self.num_features, np.float32) if callable(hidden) else hidden_row(hidden, self.num_features)
         self._rng = np.random.default_rng()
         zeros, ones = np.zeros(self.num_features, space.dtype), np.ones(self.num_features, space.dtype)
         self.observation_space = gymnasium.spaces.Box(
@@ -65,7 +55,7 @@ class MissingnessObservation(gymnasium.ObservationWrapper, gymnasium.utils.Recor
         if seed is not None:
             self._rng = np.random.default_rng([seed, 0x6D61736B])  # apart from the env's own stream
         if self._choose is not None:
-            self.hidden_row = _as_row(self._choose(self._rng), self.num_features)
+            self.hidden_row = hidden_row(self._choose(self._rng), self.num_features)
         obs, info = self.env.reset(seed=seed, options=options)
         return self.observation(obs), {**info, "hidden": np.flatnonzero(self.hidden_row).tolist()}
 
