@@ -42,16 +42,21 @@ def parse_args(
     program: str,
     summary: str,
     validate: Callable[[ConfigT], None] | None = None,
+    positional: str | None = None,
 ) -> ConfigT:
     """The config given by ``argv`` (``key=value`` items) over ``config_cls``'s defaults.
 
-    Exits with status 0 after printing help for ``-h``/``--help``, and with status 2 and a
-    one-line message on stderr for anything malformed, unknown, mistyped or rejected by
-    ``validate`` (which raises ``ValueError``/``TypeError``).
+    With ``positional``, a first item without ``=`` is that key's value
+    (``python -m admissable_jax.video RUN_DIR ...``). Exits with status 0 after printing help
+    for ``-h``/``--help``, and with status 2 and a one-line message on stderr for anything
+    malformed, unknown, mistyped or rejected by ``validate`` (which raises
+    ``ValueError``/``TypeError``).
     """
     if any(arg in ("-h", "--help") for arg in argv):
         print(help_text(config_cls, program, summary))
         raise SystemExit(0)
+    if positional is not None and argv and "=" not in argv[0]:
+        argv = [f"{positional}={argv[0]}", *argv[1:]]
     malformed = [arg for arg in argv if "=" not in arg or arg.startswith("=")]
     if malformed:
         fail(f"expected key=value, got {malformed[0]!r} (see --help)")
@@ -80,14 +85,15 @@ def _one_line(error: OmegaConfBaseException) -> str:
 
 
 def run_from_cli(function: Callable[[Any], Any], config: Any) -> tuple[Any, int]:
-    """(result, exit status) of ``function(config)`` for a command line: bad settings exit 2;
+    """(result, exit status) of ``function(config)`` for a command line: bad settings (and a
+    missing input file or directory) exit 2;
     a run that fails (:class:`~admissable_jax.errors.RunFailed`: a corrupt checkpoint, a
     diverged run, one too large for memory or for the physics buffers, an unusable run
     directory, Ctrl-C) exits with its own status; each prints one line on stderr, and
     finished work stays in the run directory."""
     try:
         return function(config), 0
-    except (ValueError, TypeError, FileExistsError) as error:
+    except (ValueError, TypeError, FileExistsError, FileNotFoundError) as error:
         print(f"error: {error}", file=sys.stderr)
         return None, USAGE_ERROR
     except RunFailed as error:

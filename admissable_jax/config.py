@@ -12,8 +12,9 @@ import jax
 
 from admissable_jax.adversary import MODES
 from admissable_jax.envs import canonical_env_name, observation_size, resolve_physics
-from admissable_jax.loggers import LOGGERS
+from admissable_jax.loggers import parse_logger_names
 from admissable_jax.missingness import num_candidate_sets
+from admissable_jax.scoring import SCORE_ESTIMATORS
 
 
 def _field(default, help_text: str):
@@ -32,6 +33,10 @@ class RunSettings:
     score_every: int = _field(5000, "zeta: env steps (over all envs) between scorings")
     score_episodes: int = _field(10, "N: deterministic episodes per missing set")
     score_envs: int = _field(0, "envs stepped at once in a scoring round; 0 = 32 on CPU, all (|U|+1)*N episodes on GPU")
+    score_estimator: str = _field("rollout", "how a_u is scored: rollout (the paper's N whole episodes) | critic (the "
+                                             "critic's discounted value of the N starts, no physics) | horizon "
+                                             "(score_horizon steps, then the critic)")
+    score_horizon: int = _field(100, "H, physics steps of score_estimator=horizon before the critic values the rest")
     physics: str = _field("auto", "physics backend: auto (warp on an NVIDIA GPU with warp-lang, else jax) | jax | warp")
     lower_bound: float = _field(0.0, "l: return lower bound; scores below are clipped to it")
     epsilon: float = _field(1e-8, "eps in p_miss = 1/(a_u - l + eps), normalised")
@@ -56,7 +61,8 @@ class RunSettings:
     resume: bool = _field(False, "continue the run in 'out' from its last checkpoint")
     resume_step: int = _field(-1, "with resume=true: the checkpoint (env step) to continue from; -1 = the latest")
     progress: bool = _field(True, "show a progress bar")
-    logger: str = _field("none", "also log every scores/metrics row to: none | tensorboard (<run dir>/tensorboard)")
+    logger: str = _field("none", "also log every scores/metrics row to: none | tensorboard (<run dir>/tensorboard) | "
+                                    "wandb (the wandb extra; $WANDB_PROJECT, WANDB_MODE=offline) | tensorboard,wandb")
     time_limit: float = _field(0.0, "wall seconds this invocation may train (0 = no limit): it checkpoints and stops "
                                     "before a scoring interval that would overrun; resume=true continues")
 
@@ -126,8 +132,11 @@ def validate(config: TrainConfig) -> None:
             raise TypeError(f"{field.name} must be {field.type}, got {value!r}")
     canonical_env_name(config.env)
     resolve_physics(config.physics)
-    if config.logger not in LOGGERS:
-        raise ValueError(f"logger must be one of {', '.join(LOGGERS)}, got {config.logger!r}")
+    parse_logger_names(config.logger)
+    if config.score_estimator not in SCORE_ESTIMATORS:
+        raise ValueError(f"score_estimator must be one of {', '.join(SCORE_ESTIMATORS)}, got {config.score_estimator!r}")
+    if config.score_horizon < 1:
+        raise ValueError(f"score_horizon must be >= 1, got {config.score_horizon}")
     if config.missingness not in MODES:
         raise ValueError(f"missingness must be one of {', '.join(MODES)}, got {config.missingness!r}")
     positive = ("k", "score_every", "score_episodes", "total_steps", "episode_length",

@@ -161,7 +161,8 @@ class TrainingLoop:
                 rows = []
                 for pair, run in enumerate(self.runs):
                     pick = lambda tree: self.select_pair(tree, pair)
-                    rows.append(score_row(env_steps, pick(scores), pick(state.p_miss), self.trainer.hidden_sets))
+                    rows.append(score_row(env_steps, pick(scores), pick(state.p_miss), self.trainer.hidden_sets,
+                                            self.trainer.spec.score_estimator))
                     run.append("scores.jsonl", rows[-1])
                     run.append("metrics.jsonl", metrics_row(
                         env_steps, int(pick(state.grad_steps)), pick(chunk_metrics),

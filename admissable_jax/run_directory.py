@@ -21,7 +21,7 @@ from admissable_jax.config import TrainConfig
 from admissable_jax.envs import resolve_physics
 from admissable_jax.errors import UnusableRunDirectory
 from admissable_jax.locks import RunLock
-from admissable_jax.loggers import make_logger
+from admissable_jax.loggers import Loggers
 from admissable_jax.missingness import describe_set
 from admissable_jax.scoring import MissingnessScores
 
@@ -73,11 +73,15 @@ def load_config(path: str, cls=TrainConfig):
     return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(cls), load_config_yaml(path)))
 
 
-def score_row(env_steps: int, scores: MissingnessScores, p_miss, hidden_sets) -> dict[str, Any]:
-    """One ``scores.jsonl`` row: every a_u, the minimum and its set, the clean score, p_miss."""
+def score_row(env_steps: int, scores: MissingnessScores, p_miss, hidden_sets, estimator: str) -> dict[str, Any]:
+    """One ``scores.jsonl`` row: every a_u, the minimum and its set, the clean score, p_miss,
+    and which estimator made the scores (``rollout``: the paper's undiscounted returns;
+    ``critic``/``horizon``: discounted values, whose ``mean_episode_length`` counts the
+    physics steps each estimate ran)."""
     argmin = int(scores.argmin)
     return {
         "env_steps": env_steps,
+        "score_estimator": estimator,
         "min_score": float(scores.min_score),
         "argmin": argmin,
         "argmin_set": describe_set(np.asarray(hidden_sets[argmin])),
@@ -126,7 +130,7 @@ class RunDirectory:
         self.lock.acquire()
         try:
             self._prepare(config, config_path, checkpoint_dir)
-            self.logger = make_logger(config.logger, self.path)
+            self.loggers = Loggers(config.logger, self.path, dataclasses.asdict(config))
         except BaseException:
             self.lock.release()
             raise
@@ -147,8 +151,7 @@ class RunDirectory:
 
     def close(self) -> None:
         """Give the directory back (close the logger, remove the lock)."""
-        if self.logger is not None:
-            self.logger.close()
+        self.loggers.close()
         self.lock.release()
 
     @staticmethod
@@ -171,11 +174,10 @@ class RunDirectory:
             )
 
     def append(self, name: str, row: dict[str, Any]) -> None:
-        """Append ``row`` to the JSONL file ``name`` (the record), and to the logger if any."""
+        """Append ``row`` to the JSONL file ``name`` (the record), and to the loggers if any."""
         with open(os.path.join(self.path, name), "a") as file:
             file.write(json.dumps(row) + "\n")
-        if self.logger is not None:
-            self.logger.log(name, row)
+        self.loggers.log(name, row)
 
     def read(self, name: str) -> list[dict[str, Any]]:
         path = os.path.join(self.path, name)

@@ -27,6 +27,8 @@ class RunSpec:
     num_envs: int  # envs stepped per iteration
     score_envs: int  # envs stepped at once in a scoring round
     score_episodes: int  # N
+    score_estimator: str  # rollout | critic | horizon (admissable_jax.scoring)
+    score_horizon: int  # H of the horizon estimator; 0 for critic
     iterations_per_scoring: int  # ζ / num_envs
     updates_per_iteration: int  # num_envs · utd, at least 1
     buffer_capacity: int  # replay rows (a multiple of num_envs)
@@ -53,6 +55,8 @@ class RunSpec:
             num_envs=config.num_envs,
             score_envs=config.score_envs,
             score_episodes=config.score_episodes,
+            score_estimator=config.score_estimator,
+            score_horizon=config.score_horizon if config.score_estimator == "horizon" else 0,
             iterations_per_scoring=config.score_every // config.num_envs,
             updates_per_iteration=config.updates_per_iteration,
             buffer_capacity=buffer_capacity(config.buffer_size, config.num_envs),

@@ -23,7 +23,7 @@ from admissable_jax.agent import SAC, SACBatch, SACState
 from admissable_jax.envs import EnvState, reset_where_done
 from admissable_jax.missingness import candidate_sets, mask_observation, sample_set_indices
 from admissable_jax.run_spec import RunSpec
-from admissable_jax.scoring import MissingnessScores, score_missingness
+from admissable_jax.scoring import MissingnessScores, estimate_scores, score_missingness
 
 
 @struct.dataclass
@@ -173,14 +173,24 @@ class Trainer:
         """``num_iterations`` iterations on the device; per-iteration metrics stacked."""
         return jax.lax.scan(self.iteration, state, None, length=num_iterations)
 
+    def critic_values(self, critic_params, masked_obs: jax.Array, action: jax.Array) -> jax.Array:
+        """Both critics' Q on one masked observation and action: (2,)."""
+        return self.agent.critic.apply(critic_params, masked_obs, action)
+
     def score_and_update(self, state: TrainState) -> tuple[TrainState, MissingnessScores]:
-        """Score every u (one batched rollout, N = ``score_episodes`` episodes each) and
-        update p_miss (adversarial mode only)."""
+        """Score every u (N = ``score_episodes`` episodes each, by the spec's estimator: one
+        batched rollout, or the critic's estimate) and update p_miss (adversarial mode only)."""
         rng, score_rng = jax.random.split(state.rng)
-        scores = score_missingness(
-            self.env, self.policy, state.sac.actor_params, score_rng, self.hidden_sets, self.spec.score_episodes,
-            num_slots=self.spec.score_envs,
-        )
+        if self.spec.score_estimator == "rollout":
+            scores = score_missingness(
+                self.env, self.policy, state.sac.actor_params, score_rng, self.hidden_sets, self.spec.score_episodes,
+                num_slots=self.spec.score_envs,
+            )
+        else:
+            scores = estimate_scores(
+                self.env, self.policy, state.sac.actor_params, self.critic_values, state.sac.critic_params, score_rng,
+                self.hidden_sets, self.spec.score_episodes, self.spec.score_horizon, self.spec.sac.gamma,
+            )
         p_miss = update_p_miss(
             state.p_miss, scores.scores, state.adversarial, self.spec.lower_bound, self.spec.epsilon
         )

@@ -14,11 +14,12 @@ os.environ.setdefault(
     os.path.join(os.path.expanduser("~"), ".cache", "admissable_jax", "jax_cache"),
 )
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "1")
+os.environ.setdefault("MUJOCO_GL", "egl")  # the video test renders headless (Mesa's EGL on a CPU)
 
 
 # Measured cold on 2 cores (README): these files compile the most; the rest take seconds.
 EXPENSIVE_FIRST = ("test_hopper_pipelines.py", "test_envs.py", "test_experiment.py",
-                   "test_training.py", "test_runs.py")
+                   "test_training.py", "test_runs.py", "test_audit.py", "test_mechanism.py")
 
 
 def pytest_collection_modifyitems(items):

@@ -31,7 +31,7 @@ from admissable_jax.train import train_fn
 # 80 env steps in 2 scorings of 40 (10 iterations of 4 envs each); learning from step 48.
 HOPPER = dict(
     env="hopper", score_every=40, num_envs=4, learning_starts=48, batch_size=32, hidden_size=32,
-    buffer_size=1000, score_episodes=2, score_envs=8, episode_length=25, checkpoint_every=1, progress=False,
+    buffer_size=1000, score_episodes=2, score_envs=8, episode_length=10, checkpoint_every=1, progress=False,
 )
 
 
@@ -55,7 +55,7 @@ def test_short_hopper_run_through_train_fn(jax_run):
     assert [row["env_steps"] for row in jax_run.scores] == [40, 80]
     for row in jax_run.scores:
         assert len(row["scores"]) == 11
-        assert 0 < row["mean_episode_length"] <= 25
+        assert 0 < row["mean_episode_length"] <= 10
         assert np.isfinite(row["clean_score"])
         assert row["min_score"] == min(row["scores"])
     # Learning starts once more than 48 env steps are collected: after iteration 13 of 20
@@ -88,16 +88,6 @@ def test_warp_experiment_matches_jax_train_fn(jax_run, warp_experiment):
         assert np.linalg.norm(warp_change - jax_change) <= 0.05 * np.linalg.norm(jax_change)
 
 
-def test_warp_experiment_pairs_keep_their_modes(warp_experiment):
-    """Nested vmap over Warp data: each pair trains in its own mode."""
-    assert [(r.config.missingness, r.config.physics) for r in warp_experiment] == [
-        ("adversarial", "warp"), ("uniform", "warp"), ("none", "warp")]
-    assert not np.allclose(warp_experiment[0].scores[-1]["p_miss"], 1 / 11)
-    for uniform in warp_experiment[1:]:
-        np.testing.assert_allclose(uniform.scores[-1]["p_miss"], 1 / 11, rtol=1e-6)
-    assert all(result.finished and int(result.state.grad_steps) == 32 for result in warp_experiment)
-
-
 CALL_AGAIN, REFUSED = 75, 3
 
 
@@ -127,8 +117,8 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
         (record,) = [json.loads(line) for line in file]
     assert (record["env"], record["physics"], record["pairs"], record["num_envs"]) == ("Hopper-v5", "warp", 3, 4)
     assert record["device"].startswith("cpu") and record["learned_share"] > 0
-    # Full length: each pair's (11 + 1) × 2 episodes on 8 slots, 3 after another, 25 steps each.
-    assert record["score_full_loop_steps"] == 3 * 25
+    # Full length: each pair's (11 + 1) × 2 episodes on 8 slots, 3 after another, 10 steps each.
+    assert record["score_full_loop_steps"] == 3 * 10
     assert "./state/measure-hopper-adversarial,uniform,none.done" in _packed(directory, "speed")
 
     # Too little device time: the 3 pairs are refused, then the 2 (a record for them made
@@ -170,18 +160,17 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
 def test_capacity_overflow_is_detected_and_stops_the_run_in_one_line(tmp_path, monkeypatch):
     """A batch larger than the env's max_batch overflows Warp's shared contact buffer and the
     env says so; a run whose env says so stops with an error naming the setting."""
-    def overflowed(max_batch: int) -> bool:
-        env = make_env("hopper", physics="warp", max_batch=max_batch)
-        actions = np.zeros((8, env.action_size), np.float32)
+    # Sized for 1 world, 8 Hoppers falling onto the floor overflow. (Sized for the
+    # batch, nothing overflows: the Warp experiment's 24 worlds, sized for them, finish.)
+    env = make_env("hopper", physics="warp", max_batch=1)
+    actions = np.zeros((8, env.action_size), np.float32)
 
-        def fall(states, _):  # 8 Hoppers fall onto the floor: contacts in every world
-            states = jax.vmap(env.step)(states, actions)
-            return states, env.capacity_exceeded(states)
+    def step(states, _):
+        states = jax.vmap(env.step)(states, actions)
+        return states, env.capacity_exceeded(states)
 
-        states = jax.vmap(env.reset)(jax.random.split(jax.random.key(0), 8))
-        return bool(jax.jit(lambda s: jax.lax.scan(fall, s, None, length=40)[1].any())(states))
-
-    assert overflowed(max_batch=1) and not overflowed(max_batch=8)
+    states = jax.vmap(env.reset)(jax.random.split(jax.random.key(0), 8))
+    assert bool(jax.jit(lambda s: jax.lax.scan(step, s, None, length=40)[1].any())(states))
 
     # The loop's side, on the point mass (seconds): an env that reports an overflow
     # mid-run stops it with one line naming the setting and the kept checkpoint.
@@ -195,3 +184,40 @@ def test_capacity_overflow_is_detected_and_stops_the_run_in_one_line(tmp_path, m
     with pytest.raises(PhysicsCapacityExceeded, match="at env step 500: .*raise max_batch; no checkpoint yet") as error:
         train_fn(config)
     assert "\n" not in str(error.value)
+
+
+def test_video_of_the_trained_hopper_beside_its_worst_set(jax_run, tmp_path, capsys):
+    """The video: nothing hidden beside the same start with the checkpoint's worst set hidden,
+    in Gymnasium's C-MuJoCo env; on the command line, bad input is one line."""
+    import imageio.v3 as iio
+
+    from admissable_jax import video
+    from admissable_jax.missingness import candidate_sets
+
+    made = video.render_video(video.VideoConfig(run_dir=jax_run.run_dir, frames=20, out=str(tmp_path / "hopper.mp4")))
+    worst = np.flatnonzero(candidate_sets(11)[jax_run.scores[-1]["argmin"]])
+    assert made.hidden == tuple(worst) and made.step == 80
+    # 20 frames: the start, one per step until this barely trained Hopper falls (both sides
+    # within 19 steps), then the end held (for up to a second).
+    assert made.frames == 20 and 0 < made.hidden_length <= 19 and 0 < made.clean_length <= 19
+    frames = iio.imread(made.path)
+    assert frames.shape == (made.frames, video.LABEL_HEIGHT + video.PANEL_HEIGHT, 2 * video.PANEL_WIDTH, 3)
+    # The same start on both sides: the first frame's panels match, up to H.264's loss (the
+    # rendered panels are equal; encoded, they differ by about 2 of 255 on average). The
+    # hidden set changes the actions, so the two sides' returns differ.
+    scene = frames[0, video.LABEL_HEIGHT:].astype(np.float32)
+    assert np.abs(scene[:, :video.PANEL_WIDTH] - scene[:, video.PANEL_WIDTH:]).mean() < 5
+    assert made.clean_return != made.hidden_return
+
+    assert video.main([jax_run.run_dir, "hidden=elbow", f"out={tmp_path}/elbow.mp4"]) == 2
+    assert "'elbow' is neither a feature index below 11 nor a feature name of hopper" in capsys.readouterr().err
+
+
+def test_warp_experiment_pairs_keep_their_modes(warp_experiment):
+    """Nested vmap over Warp data: each pair trains in its own mode."""
+    assert [(r.config.missingness, r.config.physics) for r in warp_experiment] == [
+        ("adversarial", "warp"), ("uniform", "warp"), ("none", "warp")]
+    assert not np.allclose(warp_experiment[0].scores[-1]["p_miss"], 1 / 11)
+    for uniform in warp_experiment[1:]:
+        np.testing.assert_allclose(uniform.scores[-1]["p_miss"], 1 / 11, rtol=1e-6)
+    assert all(result.finished and int(result.state.grad_steps) == 32 for result in warp_experiment)

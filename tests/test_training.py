@@ -8,11 +8,13 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import glob
 import json
 import os
 import struct
 import subprocess
 import sys
+import unittest.mock
 
 import jax
 import jax.numpy as jnp
@@ -38,14 +40,15 @@ POINT_MASS = TrainConfig(
     buffer_size=20_000,
     hidden_size=64,
     progress=False,
-    logger="tensorboard",
+    logger="tensorboard,wandb",
 )
 
 
 @pytest.fixture(scope="module")
 def point_mass_run(tmp_path_factory):
     out = str(tmp_path_factory.mktemp("runs") / "pm")
-    return train_fn(dataclasses.replace(POINT_MASS, out=out))
+    with unittest.mock.patch.dict(os.environ, {"WANDB_MODE": "offline", "WANDB_SILENT": "true"}):
+        return train_fn(dataclasses.replace(POINT_MASS, out=out))
 
 
 def test_sac_learns_point_mass(point_mass_run):
@@ -69,7 +72,8 @@ def test_sac_learns_point_mass(point_mass_run):
 
 def test_run_directory_contents(point_mass_run):
     run_dir = point_mass_run.run_dir
-    assert sorted(os.listdir(run_dir)) == ["checkpoints", "config.yaml", "metrics.jsonl", "scores.jsonl", "tensorboard"]
+    assert sorted(os.listdir(run_dir)) == ["checkpoints", "config.yaml", "metrics.jsonl", "scores.jsonl", "tensorboard",
+                                           "wandb", "wandb_run_id"]
     for row in point_mass_run.scores:
         assert len(row["scores"]) == 4 and len(row["p_miss"]) == 4
         assert row["min_score"] == pytest.approx(min(row["scores"]), abs=1e-3)
@@ -98,20 +102,60 @@ def _tensorboard_events(directory: str) -> list:
     return events
 
 
-def test_tensorboard_mirrors_the_jsonl_rows(point_mass_run):
-    """logger=tensorboard: each row's numbers as scalars at its env step, every a_u, p_miss as a histogram."""
+def _wandb_history(run_dir: str) -> list[dict]:
+    """The history rows of an offline W&B run: its ``.wandb`` file is a LevelDB-style log
+    (a 7-byte header, then 32 KiB blocks of chunks: CRC, length, type) of Record protos."""
+    from wandb.proto import wandb_internal_pb2
+
+    (path,) = glob.glob(os.path.join(run_dir, "wandb", "offline-run-*", "*.wandb"))
+    with open(path, "rb") as file:
+        data = file.read()
+    assert data[:4] == b":W&B"
+    offset, pending, rows = 7, b"", []
+    while offset + 7 <= len(data):
+        if 32768 - offset % 32768 < 7:  # a block's tail too short for a chunk header is padding
+            offset += 32768 - offset % 32768
+            continue
+        _, length, kind = struct.unpack("<IHB", data[offset:offset + 7])
+        if kind == 0:
+            break
+        pending += data[offset + 7:offset + 7 + length]
+        offset += 7 + length
+        if kind in (1, 4):  # a full record, or the last chunk of one
+            record = wandb_internal_pb2.Record()
+            record.ParseFromString(pending)
+            pending = b""
+            if record.WhichOneof("record_type") == "history":
+                rows.append({item.key or "/".join(item.nested_key): json.loads(item.value_json) for item in record.history.item})
+    return rows
+
+
+def test_loggers_mirror_the_jsonl_rows(point_mass_run):
+    """logger=tensorboard,wandb: each row's numbers as scalars at its env step, every a_u,
+    p_miss as a histogram, in TensorBoard's event files and in W&B's offline run."""
     values = collections.defaultdict(dict)
     for event in _tensorboard_events(os.path.join(point_mass_run.run_dir, "tensorboard")):
         for value in event.summary.value:
             values[value.tag][event.step] = value.histo if value.HasField("histo") else value.simple_value
+    wandb_rows = collections.defaultdict(dict)
+    for row in _wandb_history(point_mass_run.run_dir):
+        wandb_rows[row["env_steps"]].update(row)
     for row in point_mass_run.scores:
         step = row["env_steps"]
         assert values["scores/min_score"][step] == pytest.approx(row["min_score"], rel=1e-6)
         assert values["scores/clean_score"][step] == pytest.approx(row["clean_score"], rel=1e-6)
         assert [values[f"a_u/{u:03d}"][step] for u in range(4)] == pytest.approx(row["scores"], rel=1e-6)
         np.testing.assert_allclose(values["p_miss"][step].bucket, row["p_miss"], rtol=1e-6)
+        logged = wandb_rows[step]
+        assert logged["scores/min_score"] == pytest.approx(row["min_score"], rel=1e-6)
+        assert [logged[f"a_u/{u:03d}"] for u in range(4)] == pytest.approx(row["scores"], rel=1e-6)
+        np.testing.assert_allclose(logged["p_miss/values"], row["p_miss"], rtol=1e-6)
+        np.testing.assert_allclose(logged["p_miss/bins"], np.arange(5) - 0.5)
     for row in point_mass_run.metrics[1:]:
         assert values["metrics/critic_loss"][row["env_steps"]] == pytest.approx(row["critic_loss"], rel=1e-6)
+        assert wandb_rows[row["env_steps"]]["metrics/critic_loss"] == pytest.approx(row["critic_loss"], rel=1e-6)
+    with open(os.path.join(point_mass_run.run_dir, "wandb_run_id")) as file:  # resume=true logs on into this run
+        assert glob.glob(os.path.join(point_mass_run.run_dir, "wandb", f"offline-run-*-{file.read().strip()}"))
 
 
 def test_load_policy_is_the_trainers_deterministic_policy(point_mass_run):
@@ -241,6 +285,8 @@ def test_corrupt_checkpoint_and_divergence_keep_finished_work(tmp_path):
         (["env=hopper", "k=11"], "k must satisfy 1 <= k < d = 11"),
         (["score_envs=-1"], "score_envs must be >= 0"),
         (["physics=cuda"], "physics must be one of auto, jax, warp"),
+        (["logger=tensorboard,mlflow"], "logger must be none or a comma list of tensorboard, wandb, got 'tensorboard,mlflow'"),
+        (["score_estimator=guess"], "score_estimator must be one of rollout, critic, horizon"),
     ],
 )
 def test_cli_rejects_bad_input_with_one_line(args, message, tmp_path, capsys):

@@ -1,0 +1,266 @@
+"""Which sensors break a policy? A robustness audit over every set of k hidden features.
+
+    python -m admissable_jax.audit RUN_DIR k=1,2 episodes=50 out=DIR [step=N]
+
+For every u with |u| in ``k`` (all C(d, |u|) sets, scored exactly: one batched rollout for
+all of them and the clean case, N = ``episodes`` deterministic episodes each from the same N
+start states, as the paper scores), the audit reports a_u with its 95% confidence interval
+(Student's t over the N returns) and the drop from the clean return in %. It writes
+
+- ``DIR/report.md``: the worst sets per k, with the env's feature names, on one page;
+- ``DIR/audit.json``: every number (every set's a_u, CI, drop, and the N returns);
+- ``DIR/scores_k1.png``: a bar chart of a_u per hidden feature (k = 1);
+- ``DIR/pairs_k2.png``: a d × d heatmap of a_ij (k = 2).
+
+In Python, :func:`audit` takes any JAX ``policy_fn(params, masked_obs) -> action`` on any of
+our envs, and :func:`write_audit` writes its files.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import sys
+from typing import Any
+
+import numpy as np
+
+from admissable_jax.cli import enable_compilation_cache, parse_args, run_from_cli
+from admissable_jax.method import candidate_sets, num_candidate_sets
+
+MAX_AUDIT_EPISODES = 200_000  # sets × N stepped in one program; beyond it, audit fewer k or episodes
+
+
+def _field(default, help_text: str):
+    return dataclasses.field(default=default, metadata={"help": help_text})
+
+
+@dataclasses.dataclass
+class AuditConfig:
+    run_dir: str = _field("", "a train run directory or an experiment pair's (may be given first, without run_dir=)")
+    k: str = _field("1", "set sizes to audit, comma separated (e.g. 1,2)")
+    episodes: int = _field(50, "N: deterministic episodes per set (the CI narrows as 1/sqrt(N))")
+    out: str = _field("", "where the report goes (default RUN_DIR/audit-step<STEP>)")
+    step: int = _field(-1, "the checkpoint (env step) to audit; -1 = the latest")
+    seed: int = _field(0, "seed of the N start states")
+    top: int = _field(10, "worst sets listed per k in report.md")
+    slots: int = _field(0, "envs stepped at once (0 = every episode at once, at most 4096)")
+
+
+def _ks(text: str) -> tuple[int, ...]:
+    try:
+        ks = tuple(sorted({int(part) for part in text.split(",") if part.strip()}))
+    except ValueError:
+        raise ValueError(f"k must be a comma list of set sizes, e.g. 1,2; got {text!r}") from None
+    if not ks or ks[0] < 1:
+        raise ValueError(f"k must be a comma list of set sizes >= 1, got {text!r}")
+    return ks
+
+
+def check_audit_config(config: AuditConfig) -> None:
+    if not config.run_dir:
+        raise ValueError("give the run directory: python -m admissable_jax.audit RUN_DIR [k=1,2] [episodes=50]")
+    _ks(config.k)
+    for name in ("episodes", "top"):
+        if getattr(config, name) < 1:
+            raise ValueError(f"{name} must be at least 1, got {getattr(config, name)}")
+    if config.episodes < 2:
+        raise ValueError("episodes must be at least 2 for a confidence interval")
+    if config.slots < 0:
+        raise ValueError(f"slots must be >= 0, got {config.slots}")
+
+
+@dataclasses.dataclass
+class SetScore:
+    """One audited set: its features, a_u, the 95% CI half-width, the drop from clean in %."""
+
+    hidden: tuple[int, ...]
+    names: tuple[str, ...]
+    score: float
+    ci95: float
+    drop_percent: float
+    returns: list[float]
+
+
+@dataclasses.dataclass
+class AuditResult:
+    env: str
+    n_episodes: int
+    clean_score: float
+    clean_ci95: float
+    clean_returns: list[float]
+    sets: dict[int, list[SetScore]]  # by k, in candidate_sets order
+    feature_names: list[str]
+    source: dict[str, Any]  # what was audited (run directory, step), for the report
+
+    def worst(self, k: int, top: int) -> list[SetScore]:
+        return sorted(self.sets[k], key=lambda entry: entry.score)[:top]
+
+
+def _ci95(returns: np.ndarray) -> float:
+    from scipy import stats
+
+    n = returns.shape[-1]
+    return float(stats.t.ppf(0.975, n - 1) * returns.std(ddof=1) / math.sqrt(n))
+
+
+def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, num_slots: int | None = None,
+          feature_names: list[str] | None = None, source: dict[str, Any] | None = None) -> AuditResult:
+    """Score every set of each size in ``ks`` and the clean case in one batched rollout of
+    :func:`~admissable_jax.scoring.score_missingness` (N = ``n_episodes`` each)."""
+    import jax
+
+    from admissable_jax.scoring import score_missingness
+
+    d = env.observation_size
+    total = sum(num_candidate_sets(d, k) for k in ks)
+    if (total + 1) * n_episodes > MAX_AUDIT_EPISODES:
+        raise ValueError(f"auditing k={','.join(map(str, ks))} on {env.name} is {total:,} sets x {n_episodes} episodes, "
+                         f"over {MAX_AUDIT_EPISODES:,} episodes in one rollout: lower episodes= or drop the largest k")
+    blocks = [candidate_sets(d, k) for k in ks]
+    scored = jax.jit(score_missingness, static_argnums=(0, 1, 5, 6, 7))(
+        env, policy_fn, params, jax.random.key(seed), np.concatenate(blocks), n_episodes, None, num_slots)
+    if bool(scored.capacity_exceeded):
+        raise ValueError(f"the physics ran out of contact buffers: {env.capacity_message()}")
+    returns = np.asarray(scored.returns, np.float64)
+    clean = returns[-1]
+    clean_score = float(clean.mean())
+    names = feature_names or [str(i) for i in range(d)]
+    sets, row = {}, 0
+    for k, block in zip(ks, blocks):
+        entries = []
+        for hidden_row in block:
+            hidden = tuple(int(i) for i in np.flatnonzero(hidden_row))
+            score = float(returns[row].mean())
+            drop = 100.0 * (clean_score - score) / abs(clean_score) if clean_score else float("nan")
+            entries.append(SetScore(hidden, tuple(names[i] for i in hidden), score, _ci95(returns[row]), drop,
+                                    returns[row].tolist()))
+            row += 1
+        sets[k] = entries
+    return AuditResult(env.name, n_episodes, clean_score, _ci95(clean), clean.tolist(), sets, list(names), source or {})
+
+
+def write_audit(result: AuditResult, out: str, top: int = 10) -> list[str]:
+    """report.md, audit.json and the figures into ``out``; returns the paths written."""
+    os.makedirs(out, exist_ok=True)
+    written = [os.path.join(out, "audit.json"), os.path.join(out, "report.md")]
+    with open(written[0], "w") as file:
+        json.dump(dataclasses.asdict(result), file, indent=1)
+    if 1 in result.sets:
+        written.append(_bar_chart(result, os.path.join(out, "scores_k1.png")))
+    if 2 in result.sets:
+        written.append(_pair_heatmap(result, os.path.join(out, "pairs_k2.png")))
+    with open(written[1], "w") as file:
+        file.write(_report(result, top, [os.path.basename(path) for path in written[2:]]))
+    return written
+
+
+def _report(result: AuditResult, top: int, figures: list[str]) -> str:
+    source = ", ".join(f"{key} {value}" for key, value in result.source.items())
+    lines = [
+        f"# Robustness audit: {result.env}", "",
+        f"{source}. Every set u of the sizes below was hidden for whole episodes (hidden features read 0, "
+        f"with the 0/1 indicator of the paper's masked observation); a_u is the mean undiscounted return of "
+        f"N = {result.n_episodes} deterministic episodes from the same N start states, ± the 95% confidence "
+        f"interval (Student's t); the drop is relative to the clean return.", "",
+        f"**Clean return (nothing hidden): {result.clean_score:.1f} ± {result.clean_ci95:.1f}**", "",
+    ]
+    for k, entries in result.sets.items():
+        worst = result.worst(k, top)
+        lines += [f"## k = {k}: the {len(worst)} worst of {len(entries)} sets", "",
+                  "| rank | hidden features | indices | a_u ± 95% CI | drop |", "|---|---|---|---|---|"]
+        for rank, entry in enumerate(worst, 1):
+            lines.append(f"| {rank} | {', '.join(entry.names)} | {', '.join(map(str, entry.hidden))} | "
+                         f"{entry.score:.1f} ± {entry.ci95:.1f} | {entry.drop_percent:.1f}% |")
+        lines.append("")
+    lines += [f"![{name}]({name})" for name in figures]
+    lines += ["", "Every number, with each episode's return: `audit.json`."]
+    return "\n".join(lines) + "\n"
+
+
+def _bar_chart(result: AuditResult, path: str) -> str:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    entries = result.sets[1]
+    worst = min(range(len(entries)), key=lambda i: entries[i].score)
+    figure, ax = plt.subplots(figsize=(max(6, 0.35 * len(entries)), 4))
+    ax.bar(range(len(entries)), [e.score for e in entries], yerr=[e.ci95 for e in entries], capsize=2,
+           color=["tab:red" if i == worst else "tab:blue" for i in range(len(entries))])
+    ax.axhline(result.clean_score, color="black", linestyle="--", label=f"nothing hidden ({result.clean_score:.0f})")
+    ax.set_xticks(range(len(entries)), [", ".join(e.names) for e in entries], rotation=60, ha="right", fontsize=7)
+    ax.set_ylabel(f"$a_u$: mean return of {result.n_episodes} episodes (95% CI)")
+    ax.set_title(f"{result.env}: return with one feature hidden (worst in red)")
+    ax.legend()
+    figure.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(figure)
+    return path
+
+
+def _pair_heatmap(result: AuditResult, path: str) -> str:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    d = len(result.feature_names)
+    grid = np.full((d, d), np.nan)
+    for entry in result.sets[2]:
+        i, j = entry.hidden
+        grid[i, j] = grid[j, i] = entry.score
+    for entry in result.sets.get(1, []):  # the diagonal: the feature alone, where audited
+        grid[entry.hidden[0], entry.hidden[0]] = entry.score
+    size = max(5, 0.3 * d)
+    figure, ax = plt.subplots(figsize=(size + 1.5, size))
+    image = ax.imshow(grid, cmap="viridis")
+    figure.colorbar(image, ax=ax, label="$a_{ij}$: mean return with features i and j hidden")
+    labels = result.feature_names if d <= 40 else [str(i) for i in range(d)]
+    ax.set_xticks(range(d), labels, rotation=90, fontsize=6)
+    ax.set_yticks(range(d), labels, fontsize=6)
+    ax.set_title(f"{result.env}: pairs hidden (diagonal: one feature, where audited)")
+    figure.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(figure)
+    return path
+
+
+def audit_run(config: AuditConfig) -> tuple[AuditResult, list[str]]:
+    """Audit the run in ``config.run_dir`` at ``config.step``; write the report."""
+    check_audit_config(config)
+    from admissable_jax.envs import make_env, observation_names
+    from admissable_jax.policies import load_policy
+
+    policy = load_policy(config.run_dir, None if config.step < 0 else config.step)
+    train = policy.config
+    ks = _ks(config.k)
+    episodes = (sum(num_candidate_sets(policy.observation_size, k) for k in ks) + 1) * config.episodes
+    slots = min(episodes, config.slots or 4096)
+    env = make_env(train.env, physics=train.physics, episode_length=train.episode_length, max_batch=slots)
+    result = audit(env, policy.trainer.policy, policy.actor_params, ks, config.episodes, config.seed, slots,
+                   observation_names(train.env), {"run": os.path.abspath(config.run_dir), "checkpoint (env step)": policy.step})
+    out = config.out or os.path.join(config.run_dir, f"audit-step{policy.step}")
+    return result, write_audit(result, out, config.top)
+
+
+def main(argv: list[str]) -> int:
+    config = parse_args(AuditConfig, argv, "admissable_jax.audit",
+                        "Which sensors break a policy? a_u of every set of k hidden features, with CIs, on one page.",
+                        validate=check_audit_config, positional="run_dir")
+    enable_compilation_cache()
+    outcome, status = run_from_cli(audit_run, config)
+    if status:
+        return status
+    result, written = outcome
+    for k in result.sets:
+        (worst,) = result.worst(k, 1)
+        print(f"k={k}: worst {', '.join(worst.names)} ({list(worst.hidden)}): a_u {worst.score:.1f} ± {worst.ci95:.1f}, "
+              f"{worst.drop_percent:.1f}% below clean {result.clean_score:.1f}")
+    print(f"wrote {', '.join(written)}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))

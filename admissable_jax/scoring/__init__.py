@@ -1,0 +1,14 @@
+"""The scores a_u of the candidate sets: the paper's rollout and cheaper estimates.
+
+- :func:`score_missingness` (``rollout``, :mod:`.rollout_scores`): the paper's a_u, N whole
+  episodes per set in one batched rollout; the default everywhere.
+- :func:`estimate_scores` (``critic``, ``horizon``, :mod:`.value_estimates`): the trained
+  critic's discounted value, alone or after H physics steps.
+"""
+
+from admissable_jax.scoring.rollout_scores import MissingnessScores, PolicyFn, score_missingness
+from admissable_jax.scoring.value_estimates import CriticFn, estimate_scores
+
+SCORE_ESTIMATORS = ("rollout", "critic", "horizon")
+
+__all__ = ["SCORE_ESTIMATORS", "CriticFn", "MissingnessScores", "PolicyFn", "estimate_scores", "score_missingness"]

@@ -1,0 +1,185 @@
+"""A video of a trained policy: nothing hidden, beside the same start with u hidden.
+
+``python -m admissable_jax.video RUN_DIR hidden=worst out=FILE.mp4``
+
+The run's deterministic policy (:func:`~admissable_jax.policies.load_policy`) acts in
+Gymnasium's own C-MuJoCo env, the client every trained policy is for: two copies reset with
+the same seed, one seeing everything, one with the features of u zeroed and flagged (the
+paper's m_u). The default u is the worst set of the checkpoint's own scoring (argmin_u a_u).
+Frames come from MuJoCo's renderer through Gymnasium: ``MUJOCO_GL=egl`` (the default here;
+a GPU, or Mesa's software EGL on a headless CPU: Debian/Ubuntu ``libegl1 libgl1-mesa-dri``)
+or ``MUJOCO_GL=osmesa`` (``libosmesa6``). The file is written by imageio-ffmpeg (H.264) at
+the env's real-time frame rate.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")  # read by MuJoCo when it is first imported
+
+import dataclasses  # noqa: E402
+import sys  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from admissable_jax.cli import parse_args, run_from_cli  # noqa: E402
+from admissable_jax.envs import observation_names  # noqa: E402
+from admissable_jax.errors import RunFailed  # noqa: E402
+from admissable_jax.method import candidate_sets, describe_set  # noqa: E402
+from admissable_jax.run_directory import read_jsonl  # noqa: E402
+
+PANEL_WIDTH, PANEL_HEIGHT, LABEL_HEIGHT = 480, 352, 32  # multiples of 16, as H.264 wants
+
+
+def _field(default, help_text: str):
+    return dataclasses.field(default=default, metadata={"help": help_text})
+
+
+@dataclasses.dataclass
+class VideoConfig:
+    run_dir: str = _field("", "a train run directory or an experiment pair's (may be given first, without run_dir=)")
+    hidden: str = _field("worst", "u: feature indices or names, comma separated (e.g. 2 or 'thigh joint angle'); "
+                                  "worst = argmin_u a_u of the checkpoint's scoring")
+    out: str = _field("", "the .mp4 to write (default RUN_DIR/videos/step<STEP>-hidden<u>.mp4)")
+    step: int = _field(-1, "the checkpoint (env step); -1 = the latest")
+    seed: int = _field(0, "reset seed of the start state both sides share")
+    frames: int = _field(1000, "frames at most: the start, then one per env step (Gymnasium's episodes end at 1000 "
+                               "steps, or when the agent falls; the end is then held for a second)")
+
+
+class RenderingUnavailable(RunFailed):
+    """MuJoCo's renderer could not open an OpenGL context (no EGL or OSMesa)."""
+
+
+def check_video_config(config: VideoConfig) -> None:
+    if not config.run_dir:
+        raise ValueError("give the run directory: python -m admissable_jax.video RUN_DIR [hidden=...] [out=FILE.mp4]")
+    if config.frames < 1:
+        raise ValueError(f"frames must be at least 1, got {config.frames}")
+    if config.out and not config.out.endswith(".mp4"):
+        raise ValueError(f"out must be an .mp4 file, got {config.out!r}")
+
+
+@dataclasses.dataclass
+class Video:
+    """What :func:`render_video` wrote: the file, the set, and each side's return and length."""
+
+    path: str
+    hidden: tuple[int, ...]
+    hidden_names: tuple[str, ...]
+    step: int
+    clean_return: float
+    hidden_return: float
+    clean_length: int
+    hidden_length: int
+    frames: int
+
+
+def resolve_hidden(hidden: str, env_name: str, scores: list[dict], step: int, k: int, include_empty: bool) -> tuple[int, ...]:
+    """u from ``hidden``: ``worst`` (argmin of the scoring row at ``step``), or indices and
+    feature names (:func:`~admissable_jax.envs.observation_names`), comma separated."""
+    names = observation_names(env_name)
+    if hidden.strip() == "worst":
+        rows = [row for row in scores if row["env_steps"] == step]
+        if not rows:
+            raise ValueError(f"hidden=worst needs the scoring at env step {step}, which scores.jsonl does not hold; "
+                             "name the features instead (hidden=0,3)")
+        sets = candidate_sets(len(names), k, include_empty)
+        return tuple(int(i) for i in np.flatnonzero(sets[rows[-1]["argmin"]]))
+    lower = [name.lower() for name in names]
+    chosen = []
+    for item in (part.strip() for part in hidden.split(",") if part.strip()):
+        if item.isdigit() and int(item) < len(names):
+            chosen.append(int(item))
+        elif item.lower() in lower:
+            chosen.append(lower.index(item.lower()))
+        else:
+            raise ValueError(f"hidden: {item!r} is neither a feature index below {len(names)} nor a feature name of "
+                             f"{env_name} ({', '.join(names[:4])}, ...; see observation_names)")
+    return tuple(sorted(set(chosen)))
+
+
+def _labelled(frame: np.ndarray, text: str) -> np.ndarray:
+    from PIL import Image, ImageDraw  # Pillow comes with matplotlib
+
+    image = Image.new("RGB", (frame.shape[1], frame.shape[0] + LABEL_HEIGHT), "white")
+    image.paste(Image.fromarray(frame), (0, LABEL_HEIGHT))
+    ImageDraw.Draw(image).text((8, 9), text, fill="black")
+    return np.asarray(image)
+
+
+def render_video(config: VideoConfig) -> Video:
+    """Render ``config``'s video; see the module docstring."""
+    import gymnasium
+    import imageio.v2 as imageio
+
+    from admissable_jax.policies import load_policy
+
+    check_video_config(config)
+    policy = load_policy(config.run_dir, None if config.step < 0 else config.step)
+    train = policy.config
+    if policy.trainer.env.gymnasium_id is None:
+        raise ValueError(f"{train.env} has no Gymnasium env to render")
+    hidden = resolve_hidden(config.hidden, train.env, read_jsonl(os.path.join(config.run_dir, "scores.jsonl")),
+                            policy.step, train.k, train.include_empty_set)
+    names = tuple(observation_names(train.env)[i] for i in hidden)
+    out = config.out or os.path.join(config.run_dir, "videos", f"step{policy.step}-hidden{'-'.join(map(str, hidden)) or 'none'}.mp4")
+    os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
+
+    sides = [(), hidden]
+    envs = [gymnasium.make(policy.trainer.env.gymnasium_id, render_mode="rgb_array", width=PANEL_WIDTH,
+                           height=PANEL_HEIGHT) for _ in sides]  # Gymnasium's own env: its 1000-step limit
+    try:
+        observations = [env.reset(seed=config.seed)[0] for env in envs]
+        try:
+            last = [env.render() for env in envs]
+        except Exception as error:  # MuJoCo's GL errors are long and say little
+            raise RenderingUnavailable(
+                f"MuJoCo could not render with MUJOCO_GL={os.environ.get('MUJOCO_GL')}: {type(error).__name__}; install "
+                "libegl1 and libgl1-mesa-dri (EGL), or libosmesa6 and set MUJOCO_GL=osmesa") from None
+        returns, lengths, running, held = [0.0, 0.0], [0, 0], [True, True], 0
+        fps = envs[0].metadata.get("render_fps", 30)
+        titles = ["nothing hidden", f"hidden {describe_set(np.array(hidden))}: {', '.join(names) or 'nothing'}"]
+        with imageio.get_writer(out, fps=fps, codec="libx264", macro_block_size=16) as writer:
+            for frame in range(config.frames):
+                panels = []
+                for side, env in enumerate(envs):
+                    state = "" if running[side] else " (episode over)"
+                    text = f"{titles[side]}  |  return {returns[side]:.1f} after {lengths[side]} steps{state}"
+                    panels.append(_labelled(last[side], text))
+                writer.append_data(np.concatenate(panels, axis=1))
+                if not any(running):  # hold the end about a second, so that its returns can be read
+                    held += 1
+                    if held > fps:
+                        break
+                    continue
+                for side, env in enumerate(envs):
+                    if running[side]:
+                        action = policy(observations[side], hidden=sides[side])
+                        observations[side], reward, terminated, truncated, _ = env.step(action)
+                        returns[side] += float(reward)
+                        lengths[side] += 1
+                        running[side] = not (terminated or truncated)
+                        last[side] = env.render()
+    finally:
+        for env in envs:
+            env.close()
+    return Video(out, hidden, names, policy.step, returns[0], returns[1], lengths[0], lengths[1], frame + 1)
+
+
+def main(argv: list[str]) -> int:
+    config = parse_args(VideoConfig, argv, "admissable_jax.video",
+                        "A video of a trained policy: nothing hidden beside the same start with u hidden.",
+                        validate=check_video_config, positional="run_dir")
+    video, status = run_from_cli(render_video, config)
+    if status:
+        return status
+    print(f"wrote {video.path}: {video.frames} frames of step {video.step}; nothing hidden: return "
+          f"{video.clean_return:.1f} in {video.clean_length} steps; hidden {list(video.hidden)} "
+          f"({', '.join(video.hidden_names)}): return {video.hidden_return:.1f} in {video.hidden_length} steps")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))

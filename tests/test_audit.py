@@ -1,0 +1,143 @@
+"""Score estimators beyond the paper's rollout (critic, horizon) and the robustness audit.
+
+All on the pure-JAX point mass (seconds to compile), with hand-computed expectations: a
+critic that is a known function, a horizon of one step, and the audit's report against its
+JSON and against ``score_missingness``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from admissable_jax import TrainConfig, candidate_sets, make_env, mask_observation, score_missingness, train_fn
+from admissable_jax.audit import AuditConfig, audit_run, main as audit_main
+from admissable_jax.policies import load_policy
+from admissable_jax.scoring import estimate_scores
+
+ENV = make_env("point_mass", episode_length=12)
+SETS = jnp.asarray(candidate_sets(4, k=1))
+N = 3
+
+
+def steer(params, masked_obs):
+    """A hand-written controller of the masked observation: push towards the origin."""
+    return jnp.clip(-params * masked_obs[:2] - 0.5 * masked_obs[2:4], -1, 1)
+
+
+def known_critic(params, masked_obs, action):
+    """Twin Q as a known function: sum of the masked observation and the action, and 1 more."""
+    q = masked_obs.sum() + action.sum()
+    return jnp.stack([q, q + 1.0])
+
+
+def test_critic_and_one_step_horizon_estimates_by_hand():
+    rng = jax.random.key(3)
+    starts = jax.vmap(ENV.reset)(jax.random.split(rng, N))
+    rows = jnp.concatenate([SETS, jnp.zeros((1, 4))])  # every set, then the clean case
+    gain = jnp.asarray(0.8)
+
+    critic = estimate_scores(ENV, steer, gain, known_critic, None, rng, SETS, N, horizon=0)
+    one_step = estimate_scores(ENV, steer, gain, known_critic, None, rng, SETS, N, horizon=1, gamma=0.9)
+    for row_index, hidden in enumerate(rows):
+        expected_critic, expected_one_step = [], []
+        for i in range(N):
+            start = jax.tree.map(lambda x: x[i], starts)
+            masked = mask_observation(start.obs, hidden)
+            action = steer(gain, masked)
+            expected_critic.append(masked.sum() + action.sum())  # min of the twins
+            after = ENV.step(start, action)
+            masked_after = mask_observation(after.obs, hidden)
+            alive = not bool(after.terminated)
+            expected_one_step.append(after.reward + 0.9 * alive * (masked_after.sum() + steer(gain, masked_after).sum()))
+        np.testing.assert_allclose(critic.returns[row_index], expected_critic, rtol=1e-5)
+        np.testing.assert_allclose(one_step.returns[row_index], expected_one_step, rtol=1e-5)
+    np.testing.assert_allclose(critic.scores, critic.returns[:-1].mean(1), rtol=1e-6)
+    np.testing.assert_allclose(critic.clean_score, critic.returns[-1].mean(), rtol=1e-6)
+    assert int(critic.loop_steps) == 0 and int(one_step.loop_steps) == 1
+
+
+def test_full_horizon_without_discount_is_the_papers_rollout():
+    """γ = 1 and H = the episode limit: no bootstrap is left, and each episode's estimate is
+    its undiscounted return from the start state rollout scoring uses for it."""
+    rng, gain = jax.random.key(5), jnp.asarray(0.8)
+    rollout = score_missingness(ENV, steer, gain, rng, SETS, N)
+    full = estimate_scores(ENV, steer, gain, known_critic, None, rng, SETS, N, horizon=ENV.max_episode_steps, gamma=1.0)
+    np.testing.assert_allclose(full.returns, rollout.returns, rtol=1e-5)
+    np.testing.assert_array_equal(full.lengths, rollout.lengths)
+    with pytest.raises(ValueError, match="horizon must be >= 0"):
+        estimate_scores(ENV, steer, gain, known_critic, None, rng, SETS, N, horizon=-1)
+
+
+@pytest.fixture(scope="module")
+def short_run(tmp_path_factory):
+    """A short adversarial run whose scorings are 3-step horizon estimates."""
+    out = str(tmp_path_factory.mktemp("audit") / "pm")
+    return train_fn(TrainConfig(env="point_mass", total_steps=400, score_every=200, num_envs=4, learning_starts=200,
+                                episode_length=12, score_episodes=2, batch_size=32, buffer_size=1000, hidden_size=16,
+                                score_estimator="horizon", score_horizon=3, progress=False, out=out))
+
+
+def test_training_scores_with_the_chosen_estimator(short_run):
+    """score_estimator=horizon in training: each row says so, every estimate ran at most H = 3
+    steps, and the adversary's p_miss is the inverse-score distribution of the estimates."""
+    for row in short_run.scores:
+        assert row["score_estimator"] == "horizon"
+        assert 0 < row["mean_episode_length"] <= 3
+        inverse = 1 / (np.maximum(np.asarray(row["scores"]), 0.0) + 1e-8)
+        np.testing.assert_allclose(row["p_miss"], inverse / inverse.sum(), rtol=1e-4)
+    assert short_run.scores[-1]["scores"] != short_run.scores[0]["scores"]
+
+
+def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path, capsys):
+    out = str(tmp_path / "audit")
+    assert audit_main([short_run.run_dir, "k=1,2", "episodes=6", f"out={out}", "seed=4"]) == 0
+    printed = capsys.readouterr().out
+    assert sorted(os.listdir(out)) == ["audit.json", "pairs_k2.png", "report.md", "scores_k1.png"]
+    with open(os.path.join(out, "audit.json")) as file:
+        record = json.load(file)
+    assert [len(record["sets"][k]) for k in ("1", "2")] == [4, 6]
+
+    # Every a_u is score_missingness's for the same policy, seed and N (k = 1 and k = 2).
+    policy = load_policy(short_run.run_dir)
+    for k in (1, 2):
+        direct = score_missingness(ENV, policy.trainer.policy, policy.actor_params, jax.random.key(4),
+                                   jnp.asarray(candidate_sets(4, k)), 6)
+        np.testing.assert_allclose([entry["score"] for entry in record["sets"][str(k)]], direct.scores, rtol=1e-5)
+        np.testing.assert_allclose(record["clean_score"], direct.clean_score, rtol=1e-5)
+    pair = record["sets"]["2"][0]
+    assert pair["hidden"] == [0, 1] and pair["names"] == ["x", "y"]
+    returns = np.asarray(pair["returns"])
+    half_width = 2.5706 * returns.std(ddof=1) / np.sqrt(6)  # Student's t, 5 degrees of freedom
+    assert pair["ci95"] == pytest.approx(half_width, rel=1e-4)
+    assert pair["drop_percent"] == pytest.approx(100 * (record["clean_score"] - pair["score"]) / record["clean_score"])
+
+    # The report's table rows are the JSON's worst sets, in order, with the same numbers.
+    with open(os.path.join(out, "report.md")) as file:
+        report = file.read()
+    assert f"{record['clean_score']:.1f} ± {record['clean_ci95']:.1f}" in report
+    for k in ("1", "2"):
+        worst = sorted(record["sets"][k], key=lambda entry: entry["score"])
+        section = report.split(f"## k = {k}:")[1].split("##")[0]
+        table = re.findall(r"^\| (\d+) \| ([^|]+) \| ([^|]+) \| ([-\d.]+) ± ([\d.]+) \| ([-\d.]+)% \|$", section, re.M)
+        assert len(table) == len(worst)
+        for (rank, names, _, score, ci, drop), entry in zip(table, worst):
+            assert names.strip() == ", ".join(entry["names"])
+            assert (float(score), float(ci), float(drop)) == pytest.approx(
+                (entry["score"], entry["ci95"], entry["drop_percent"]), abs=0.051)
+    assert f"k=1: worst {', '.join(sorted(record['sets']['1'], key=lambda e: e['score'])[0]['names'])}" in printed
+
+    # Bad input: one line, exit status 2.
+    with pytest.raises(SystemExit) as refused:  # a bad key stops the parser itself
+        audit_main([short_run.run_dir, "k=0"])
+    assert refused.value.code == 2
+    assert audit_main([str(tmp_path / "nothing"), "k=1"]) == 2
+    errors = capsys.readouterr().err.strip().splitlines()
+    assert errors == ["error: k must be a comma list of set sizes >= 1, got '0'",
+                      f"error: {tmp_path / 'nothing'} is not a run directory (no config.yaml)"]
