@@ -41,6 +41,7 @@ class TrainedPolicy:
     trainer: Trainer
     actor_params: object
     step: int
+    critic_params: object = None  # the twin critic at the same checkpoint (score estimates)
 
     def __post_init__(self):
         self._act = jax.jit(jax.vmap(self.trainer.policy, in_axes=(None, 0)))
@@ -94,4 +95,5 @@ def load_policy(run_dir: str, step: int | None = None) -> TrainedPolicy:
         restored_step, state = checkpoints.read(like, step)
     finally:
         checkpoints.close()
-    return TrainedPolicy(config, trainer, pick(state).sac.actor_params, restored_step)
+    sac = pick(state).sac
+    return TrainedPolicy(config, trainer, sac.actor_params, restored_step, sac.critic_params)

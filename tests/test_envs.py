@@ -23,7 +23,9 @@ from admissable_jax.envs import MAX_EPISODE_STEPS, EnvOptions, contact_frames
 from admissable_jax.envs.parity import gymnasium_transitions, step_from_state
 
 ENV_NAMES = ("hopper", "walker2d", "ant")
-BACKENDS = ("jax", "warp")
+# Warp first: its CPU kernels are built once per machine, and built here first they are on
+# disk before the other test worker's Warp experiment needs the same ones.
+BACKENDS = ("warp", "jax")
 ENV_BACKENDS = [(name, physics) for physics in BACKENDS for name in ENV_NAMES]
 N_TRANSITIONS = 120
 N_RESETS = 4096
