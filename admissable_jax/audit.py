@@ -12,6 +12,9 @@ start states, as the paper scores), the audit reports a_u with its 95% confidenc
 - ``DIR/scores_k1.png``: a bar chart of a_u per hidden feature (k = 1);
 - ``DIR/pairs_k2.png``: a d × d heatmap of a_ij (k = 2).
 
+``score_estimator=critic`` or ``horizon`` audits with the run's critic instead (cheaper;
+discounted values, see :mod:`admissable_jax.scoring`); the report says which.
+
 In Python, :func:`audit` takes any JAX ``policy_fn(params, masked_obs) -> action`` on any of
 our envs, and :func:`write_audit` writes its files.
 """
@@ -29,6 +32,7 @@ import numpy as np
 
 from admissable_jax.cli import enable_compilation_cache, parse_args, run_from_cli
 from admissable_jax.method import candidate_sets, num_candidate_sets
+from admissable_jax.scoring import SCORE_ESTIMATORS
 
 MAX_AUDIT_EPISODES = 200_000  # sets × N stepped in one program; beyond it, audit fewer k or episodes
 
@@ -47,6 +51,9 @@ class AuditConfig:
     seed: int = _field(0, "seed of the N start states")
     top: int = _field(10, "worst sets listed per k in report.md")
     slots: int = _field(0, "envs stepped at once (0 = every episode at once, at most 4096)")
+    score_estimator: str = _field("rollout", "rollout (the paper's a_u) | critic | horizon: the run's critic's discounted "
+                                             "value (see admissable_jax.scoring)")
+    score_horizon: int = _field(100, "H of score_estimator=horizon")
 
 
 def _ks(text: str) -> tuple[int, ...]:
@@ -70,6 +77,8 @@ def check_audit_config(config: AuditConfig) -> None:
         raise ValueError("episodes must be at least 2 for a confidence interval")
     if config.slots < 0:
         raise ValueError(f"slots must be >= 0, got {config.slots}")
+    if config.score_estimator not in SCORE_ESTIMATORS or config.score_horizon < 1:
+        raise ValueError(f"score_estimator must be one of {', '.join(SCORE_ESTIMATORS)} and score_horizon >= 1")
 
 
 @dataclasses.dataclass
@@ -87,6 +96,7 @@ class SetScore:
 @dataclasses.dataclass
 class AuditResult:
     env: str
+    estimator: str  # rollout: undiscounted returns; critic, horizon: discounted values (admissable_jax.scoring)
     n_episodes: int
     clean_score: float
     clean_ci95: float
@@ -107,12 +117,15 @@ def _ci95(returns: np.ndarray) -> float:
 
 
 def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, num_slots: int | None = None,
-          feature_names: list[str] | None = None, source: dict[str, Any] | None = None) -> AuditResult:
-    """Score every set of each size in ``ks`` and the clean case in one batched rollout of
-    :func:`~admissable_jax.scoring.score_missingness` (N = ``n_episodes`` each)."""
+          feature_names: list[str] | None = None, source: dict[str, Any] | None = None, estimator: str = "rollout",
+          critic_fn=None, critic_params=None, horizon: int = 0, gamma: float = 0.99) -> AuditResult:
+    """Score every set of each size in ``ks`` and the clean case in one batch, N =
+    ``n_episodes`` each: by :func:`~admissable_jax.scoring.score_missingness` (``rollout``),
+    or by :func:`~admissable_jax.scoring.estimate_scores` from ``critic_fn`` and
+    ``critic_params`` (``critic``; ``horizon`` after ``horizon`` steps)."""
     import jax
 
-    from admissable_jax.scoring import score_missingness
+    from admissable_jax.scoring import estimate_scores, score_missingness
 
     d = env.observation_size
     total = sum(num_candidate_sets(d, k) for k in ks)
@@ -120,8 +133,16 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
         raise ValueError(f"auditing k={','.join(map(str, ks))} on {env.name} is {total:,} sets x {n_episodes} episodes, "
                          f"over {MAX_AUDIT_EPISODES:,} episodes in one rollout: lower episodes= or drop the largest k")
     blocks = [candidate_sets(d, k) for k in ks]
-    scored = jax.jit(score_missingness, static_argnums=(0, 1, 5, 6, 7))(
-        env, policy_fn, params, jax.random.key(seed), np.concatenate(blocks), n_episodes, None, num_slots)
+    key, sets = jax.random.key(seed), np.concatenate(blocks)
+    if estimator == "rollout":
+        scored = jax.jit(score_missingness, static_argnums=(0, 1, 5, 6, 7))(
+            env, policy_fn, params, key, sets, n_episodes, None, num_slots)
+    elif critic_fn is None:
+        raise ValueError(f"score_estimator={estimator} needs the critic (critic_fn and critic_params)")
+    else:
+        scored = jax.jit(estimate_scores, static_argnums=(0, 1, 3, 7, 8, 9))(
+            env, policy_fn, params, critic_fn, critic_params, key, sets, n_episodes,
+            horizon if estimator == "horizon" else 0, gamma)
     if bool(scored.capacity_exceeded):
         raise ValueError(f"the physics ran out of contact buffers: {env.capacity_message()}")
     returns = np.asarray(scored.returns, np.float64)
@@ -139,7 +160,8 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
                                     returns[row].tolist()))
             row += 1
         sets[k] = entries
-    return AuditResult(env.name, n_episodes, clean_score, _ci95(clean), clean.tolist(), sets, list(names), source or {})
+    return AuditResult(env.name, estimator, n_episodes, clean_score, _ci95(clean), clean.tolist(), sets, list(names),
+                       source or {})
 
 
 def write_audit(result: AuditResult, out: str, top: int = 10) -> list[str]:
@@ -159,12 +181,14 @@ def write_audit(result: AuditResult, out: str, top: int = 10) -> list[str]:
 
 def _report(result: AuditResult, top: int, figures: list[str]) -> str:
     source = ", ".join(f"{key} {value}" for key, value in result.source.items())
+    measure = ("the mean undiscounted return of" if result.estimator == "rollout" else
+               f"the `{result.estimator}` estimate (the critic's discounted value; admissable_jax.scoring) over")
     lines = [
         f"# Robustness audit: {result.env}", "",
         f"{source}. Every set u of the sizes below was hidden for whole episodes (hidden features read 0, "
-        f"with the 0/1 indicator of the paper's masked observation); a_u is the mean undiscounted return of "
+        f"with the 0/1 indicator of the paper's masked observation); a_u is {measure} "
         f"N = {result.n_episodes} deterministic episodes from the same N start states, ± the 95% confidence "
-        f"interval (Student's t); the drop is relative to the clean return.", "",
+        f"interval (Student's t); the drop is relative to the clean case.", "",
         f"**Clean return (nothing hidden): {result.clean_score:.1f} ± {result.clean_ci95:.1f}**", "",
     ]
     for k, entries in result.sets.items():
@@ -240,7 +264,9 @@ def audit_run(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     slots = min(episodes, config.slots or 4096)
     env = make_env(train.env, physics=train.physics, episode_length=train.episode_length, max_batch=slots)
     result = audit(env, policy.trainer.policy, policy.actor_params, ks, config.episodes, config.seed, slots,
-                   observation_names(train.env), {"run": os.path.abspath(config.run_dir), "checkpoint (env step)": policy.step})
+                   observation_names(train.env), {"run": os.path.abspath(config.run_dir), "checkpoint (env step)": policy.step},
+                   config.score_estimator, policy.trainer.critic_values, policy.critic_params, config.score_horizon,
+                   train.gamma)
     out = config.out or os.path.join(config.run_dir, f"audit-step{policy.step}")
     return result, write_audit(result, out, config.top)
 

@@ -133,6 +133,18 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
                 (entry["score"], entry["ci95"], entry["drop_percent"]), abs=0.051)
     assert f"k=1: worst {', '.join(sorted(record['sets']['1'], key=lambda e: e['score'])[0]['names'])}" in printed
 
+    # The critic's estimate instead: estimate_scores's numbers for the same checkpoint.
+    critic_out = str(tmp_path / "critic")
+    assert audit_main([short_run.run_dir, "k=1", "episodes=6", f"out={critic_out}", "seed=4", "score_estimator=critic"]) == 0
+    with open(os.path.join(critic_out, "audit.json")) as file:
+        critic_record = json.load(file)
+    direct = estimate_scores(ENV, policy.trainer.policy, policy.actor_params, policy.trainer.critic_values,
+                             policy.critic_params, jax.random.key(4), jnp.asarray(candidate_sets(4, 1)), 6)
+    assert critic_record["estimator"] == "critic"
+    np.testing.assert_allclose([entry["score"] for entry in critic_record["sets"]["1"]], direct.scores, rtol=1e-5)
+    with open(os.path.join(critic_out, "report.md")) as file:
+        assert "the `critic` estimate" in file.read()
+
     # Bad input: one line, exit status 2.
     with pytest.raises(SystemExit) as refused:  # a bad key stops the parser itself
         audit_main([short_run.run_dir, "k=0"])
