@@ -19,7 +19,7 @@ import pytest
 from admissable_jax import TrainConfig, candidate_sets, make_env, mask_observation, score_missingness, train_fn
 from admissable_jax.audit import AuditConfig, audit_run, main as audit_main
 from admissable_jax.policies import load_policy
-from admissable_jax.scoring import estimate_scores
+from admissable_jax.scoring import beam_search_worst_sets, estimate_scores
 
 ENV = make_env("point_mass", episode_length=12)
 SETS = jnp.asarray(candidate_sets(4, k=1))
@@ -73,6 +73,30 @@ def test_full_horizon_without_discount_is_the_papers_rollout():
     np.testing.assert_array_equal(full.lengths, rollout.lengths)
     with pytest.raises(ValueError, match="horizon must be >= 0"):
         estimate_scores(ENV, steer, gain, known_critic, None, rng, SETS, N, horizon=-1)
+
+
+def test_beam_search_finds_the_known_worst_pair():
+    """The steering controller needs both positions: hiding x and y leaves only damping, the
+    worst pair of all C(4, 2) = 6 (checked exactly here). Greedy and width-2 beam search find
+    it from the single features up, with its exact score."""
+    rng, gain = jax.random.key(7), jnp.asarray(0.8)
+    scored = []
+
+    def rollout_scores(rows):
+        scored.append(len(rows))
+        return score_missingness(ENV, steer, gain, rng, jnp.asarray(rows), 8).scores
+
+    exact = np.asarray(rollout_scores(candidate_sets(4, k=2)))
+    pairs = [tuple(np.flatnonzero(row)) for row in candidate_sets(4, k=2)]
+    assert pairs[int(np.argmin(exact))] == (0, 1)
+    for width in (1, 2):
+        scored.clear()
+        found = beam_search_worst_sets(rollout_scores, 4, k=2, beam_width=width)
+        assert len(found) == width and found[0][0] == (0, 1)
+        assert found[0][1] == pytest.approx(float(exact.min()), rel=1e-5)
+        assert scored[0] == 4 and scored[1] <= width * 3  # singles, then each kept set's extensions
+    with pytest.raises(ValueError, match="need 1 <= k <= d = 4"):
+        beam_search_worst_sets(rollout_scores, 4, k=5)
 
 
 @pytest.fixture(scope="module")
