@@ -30,30 +30,26 @@ from typing import Any
 
 import numpy as np
 
-from admissable_jax.cli import enable_compilation_cache, parse_args, run_from_cli
+from admissable_jax.cli import enable_compilation_cache, parse_args, run_from_cli, setting
 from admissable_jax.method import candidate_sets, num_candidate_sets
 from admissable_jax.scoring import SCORE_ESTIMATORS
 
 MAX_AUDIT_EPISODES = 200_000  # sets × N stepped in one program; beyond it, audit fewer k or episodes
 
 
-def _field(default, help_text: str):
-    return dataclasses.field(default=default, metadata={"help": help_text})
-
-
 @dataclasses.dataclass
 class AuditConfig:
-    run_dir: str = _field("", "a train run directory or an experiment pair's (may be given first, without run_dir=)")
-    k: str = _field("1", "set sizes to audit, comma separated (e.g. 1,2)")
-    episodes: int = _field(50, "N: deterministic episodes per set (the CI narrows as 1/sqrt(N))")
-    out: str = _field("", "where the report goes (default RUN_DIR/audit-step<STEP>)")
-    step: int = _field(-1, "the checkpoint (env step) to audit; -1 = the latest")
-    seed: int = _field(0, "seed of the N start states")
-    top: int = _field(10, "worst sets listed per k in report.md")
-    slots: int = _field(0, "envs stepped at once (0 = every episode at once, at most 4096)")
-    score_estimator: str = _field("rollout", "rollout (the paper's a_u) | critic | horizon: the run's critic's discounted "
-                                             "value (see admissable_jax.scoring)")
-    score_horizon: int = _field(100, "H of score_estimator=horizon")
+    run_dir: str = setting("", "a train run directory or an experiment pair's (may be given first, without run_dir=)")
+    k: str = setting("1", "set sizes to audit, comma separated (e.g. 1,2)")
+    episodes: int = setting(50, "N: deterministic episodes per set (the CI narrows as 1/sqrt(N))")
+    out: str = setting("", "where the report goes (default RUN_DIR/audit-step<STEP>)")
+    step: int = setting(-1, "the checkpoint (env step) to audit; -1 = the latest")
+    seed: int = setting(0, "seed of the N start states")
+    top: int = setting(10, "worst sets listed per k in report.md")
+    slots: int = setting(0, "envs stepped at once (0 = every episode at once, at most 4096)")
+    score_estimator: str = setting("rollout", "rollout (the paper's a_u) | critic | horizon: the run's critic's discounted "
+                                              "value (see admissable_jax.scoring)")
+    score_horizon: int = setting(100, "H of score_estimator=horizon")
 
 
 def _ks(text: str) -> tuple[int, ...]:
@@ -70,9 +66,8 @@ def check_audit_config(config: AuditConfig) -> None:
     if not config.run_dir:
         raise ValueError("give the run directory: python -m admissable_jax.audit RUN_DIR [k=1,2] [episodes=50]")
     _ks(config.k)
-    for name in ("episodes", "top"):
-        if getattr(config, name) < 1:
-            raise ValueError(f"{name} must be at least 1, got {getattr(config, name)}")
+    if config.top < 1:
+        raise ValueError(f"top must be at least 1, got {config.top}")
     if config.episodes < 2:
         raise ValueError("episodes must be at least 2 for a confidence interval")
     if config.slots < 0:

@@ -20,6 +20,11 @@ from admissable_jax.errors import INTERRUPTED, USAGE_ERROR, RunFailed
 ConfigT = TypeVar("ConfigT")
 
 
+def setting(default, help_text: str):
+    """A config dataclass field with the line ``--help`` prints for it."""
+    return dataclasses.field(default=default, metadata={"help": help_text})
+
+
 def _type_name(field: dataclasses.Field) -> str:
     return getattr(field.type, "__name__", str(field.type))
 

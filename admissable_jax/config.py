@@ -11,14 +11,11 @@ import dataclasses
 import jax
 
 from admissable_jax.adversary import MODES
+from admissable_jax.cli import setting
 from admissable_jax.envs import canonical_env_name, observation_size, resolve_physics
 from admissable_jax.loggers import parse_logger_names
 from admissable_jax.missingness import num_candidate_sets
 from admissable_jax.scoring import SCORE_ESTIMATORS
-
-
-def _field(default, help_text: str):
-    return dataclasses.field(default=default, metadata={"help": help_text})
 
 
 @dataclasses.dataclass
@@ -26,54 +23,54 @@ class RunSettings:
     """The settings every run of an experiment shares: task, adversary, SAC, cadence."""
 
     # task and adversary (paper §3, Table of hyperparameters)
-    env: str = _field("hopper", "hopper, walker2d or ant (or Hopper-v5, Walker2d-v5, Ant-v5); point_mass: a "
-                                "seconds-to-compile toy for smoke runs")
-    k: int = _field(1, "features hidden per episode (|u| = k)")
-    include_empty_set: bool = _field(False, "also let the adversary pick 'nothing hidden'")
-    score_every: int = _field(5000, "zeta: env steps (over all envs) between scorings")
-    score_episodes: int = _field(10, "N: deterministic episodes per missing set")
-    score_envs: int = _field(0, "envs stepped at once in a scoring round; 0 = 32 on CPU, all (|U|+1)*N episodes on GPU")
-    score_estimator: str = _field("rollout", "how a_u is scored: rollout (the paper's N whole episodes) | critic (the "
-                                             "critic's discounted value of the N starts, no physics) | horizon "
-                                             "(score_horizon steps, then the critic)")
-    score_horizon: int = _field(100, "H, physics steps of score_estimator=horizon before the critic values the rest")
-    physics: str = _field("auto", "physics backend: auto (warp on an NVIDIA GPU with warp-lang, else jax) | jax | warp")
-    lower_bound: float = _field(0.0, "l: return lower bound; scores below are clipped to it")
-    epsilon: float = _field(1e-8, "eps in p_miss = 1/(a_u - l + eps), normalised")
+    env: str = setting("hopper", "hopper, walker2d or ant (or Hopper-v5, Walker2d-v5, Ant-v5); point_mass: a "
+                                 "seconds-to-compile toy for smoke runs")
+    k: int = setting(1, "features hidden per episode (|u| = k)")
+    include_empty_set: bool = setting(False, "also let the adversary pick 'nothing hidden'")
+    score_every: int = setting(5000, "zeta: env steps (over all envs) between scorings")
+    score_episodes: int = setting(10, "N: deterministic episodes per missing set")
+    score_envs: int = setting(0, "envs stepped at once in a scoring round; 0 = 32 on CPU, all (|U|+1)*N episodes on GPU")
+    score_estimator: str = setting("rollout", "how a_u is scored: rollout (the paper's N whole episodes) | critic (the "
+                                              "critic's discounted value of the N starts, no physics) | horizon "
+                                              "(score_horizon steps, then the critic)")
+    score_horizon: int = setting(100, "H, physics steps of score_estimator=horizon before the critic values the rest")
+    physics: str = setting("auto", "physics backend: auto (warp on an NVIDIA GPU with warp-lang, else jax) | jax | warp")
+    lower_bound: float = setting(0.0, "l: return lower bound; scores below are clipped to it")
+    epsilon: float = setting(1e-8, "eps in p_miss = 1/(a_u - l + eps), normalised")
     # run
-    total_steps: int = _field(1_000_000, "env steps to train, over all envs (rounded up to a multiple of score_every)")
-    num_envs: int = _field(0, "parallel envs; 0 = the largest divisor of score_every up to 8 on CPU, 128 on GPU (125 for 5000)")
-    episode_length: int = _field(1000, "step limit of an episode (Gymnasium v5: 1000)")
+    total_steps: int = setting(1_000_000, "env steps to train, over all envs (rounded up to a multiple of score_every)")
+    num_envs: int = setting(0, "parallel envs; 0 = the largest divisor of score_every up to 8 on CPU, 128 on GPU (125 for 5000)")
+    episode_length: int = setting(1000, "step limit of an episode (Gymnasium v5: 1000)")
     # SAC (Stable-Baselines3 defaults)
-    learning_rate: float = _field(3e-4, "Adam learning rate (actor, critics, alpha)")
-    gamma: float = _field(0.99, "discount")
-    tau: float = _field(0.005, "Polyak coefficient of the target critics")
-    batch_size: int = _field(256, "minibatch size")
-    hidden_size: int = _field(256, "units per hidden layer")
-    hidden_layers: int = _field(2, "hidden layers per network")
-    buffer_size: int = _field(1_000_000, "replay capacity (transitions)")
-    learning_starts: int = _field(10_000, "env steps of uniform random actions before learning (10,000: RL-Zoo's "
-                                          "MuJoCo setting; SB3's library default is 100)")
-    utd: float = _field(1.0, "gradient steps per env step: with n parallel envs an iteration takes n env steps, "
-                             "then n * utd gradient steps")
+    learning_rate: float = setting(3e-4, "Adam learning rate (actor, critics, alpha)")
+    gamma: float = setting(0.99, "discount")
+    tau: float = setting(0.005, "Polyak coefficient of the target critics")
+    batch_size: int = setting(256, "minibatch size")
+    hidden_size: int = setting(256, "units per hidden layer")
+    hidden_layers: int = setting(2, "hidden layers per network")
+    buffer_size: int = setting(1_000_000, "replay capacity (transitions)")
+    learning_starts: int = setting(10_000, "env steps of uniform random actions before learning (10,000: RL-Zoo's "
+                                           "MuJoCo setting; SB3's library default is 100)")
+    utd: float = setting(1.0, "gradient steps per env step: with n parallel envs an iteration takes n env steps, "
+                              "then n * utd gradient steps")
     # output
-    checkpoint_every: int = _field(10, "checkpoint every this many scorings (and at the end)")
-    resume: bool = _field(False, "continue the run in 'out' from its last checkpoint")
-    resume_step: int = _field(-1, "with resume=true: the checkpoint (env step) to continue from; -1 = the latest")
-    progress: bool = _field(True, "show a progress bar")
-    logger: str = _field("none", "also log every scores/metrics row to: none | tensorboard (<run dir>/tensorboard) | "
-                                    "wandb (the wandb extra; $WANDB_PROJECT, WANDB_MODE=offline) | tensorboard,wandb")
-    time_limit: float = _field(0.0, "wall seconds this invocation may train (0 = no limit): it checkpoints and stops "
-                                    "before a scoring interval that would overrun; resume=true continues")
+    checkpoint_every: int = setting(10, "checkpoint every this many scorings (and at the end)")
+    resume: bool = setting(False, "continue the run in 'out' from its last checkpoint")
+    resume_step: int = setting(-1, "with resume=true: the checkpoint (env step) to continue from; -1 = the latest")
+    progress: bool = setting(True, "show a progress bar")
+    logger: str = setting("none", "also log every scores/metrics row to: none | tensorboard (<run dir>/tensorboard) | "
+                                     "wandb (the wandb extra; $WANDB_PROJECT, WANDB_MODE=offline) | tensorboard,wandb")
+    time_limit: float = setting(0.0, "wall seconds this invocation may train (0 = no limit): it checkpoints and stops "
+                                     "before a scoring interval that would overrun; resume=true continues")
 
 
 @dataclasses.dataclass
 class TrainConfig(RunSettings):
     """One training run: the shared settings plus its mode, seed and directory."""
 
-    missingness: str = _field("adversarial", "adversarial | uniform | none")
-    seed: int = _field(0, "PRNG seed")
-    out: str = _field("", "run directory; '' = runs/<env>-<missingness>-s<seed>")
+    missingness: str = setting("adversarial", "adversarial | uniform | none")
+    seed: int = setting(0, "PRNG seed")
+    out: str = setting("", "run directory; '' = runs/<env>-<missingness>-s<seed>")
 
     @property
     def planned_steps(self) -> int:

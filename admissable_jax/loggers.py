@@ -18,7 +18,6 @@ from typing import Any
 
 import numpy as np
 
-LOGGERS = ("none", "tensorboard", "wandb")
 WANDB_PROJECT = "admissable_jax"  # when WANDB_PROJECT is not set
 
 
@@ -27,9 +26,9 @@ def parse_logger_names(names: str) -> tuple[str, ...]:
     ValueError for an unknown name, or for ``wandb`` where its package is not installed (so a
     run is refused before it starts, not after its first scoring)."""
     parsed = tuple(name.strip() for name in names.split(",") if name.strip())
-    unknown = [name for name in parsed if name not in LOGGERS]
+    unknown = [name for name in parsed if name != "none" and name not in _LOGGER_CLASSES]
     if unknown or not parsed or ("none" in parsed and len(parsed) > 1):
-        raise ValueError(f"logger must be none or a comma list of {', '.join(LOGGERS[1:])}, got {names!r}")
+        raise ValueError(f"logger must be none or a comma list of {', '.join(_LOGGER_CLASSES)}, got {names!r}")
     if "wandb" in parsed and importlib.util.find_spec("wandb") is None:
         raise ValueError("logger=wandb needs the wandb package: pip install -e '.[wandb]'")
     return tuple(name for name in parsed if name != "none")
@@ -122,7 +121,7 @@ class WandbLogger:
         self._run.finish()
 
 
-_LOGGER_CLASSES = {"tensorboard": TensorBoardLogger, "wandb": WandbLogger}
+_LOGGER_CLASSES = {"tensorboard": TensorBoardLogger, "wandb": WandbLogger}  # logger= names
 
 
 class Loggers:

@@ -41,7 +41,7 @@ class TrainedPolicy:
     trainer: Trainer
     actor_params: object
     step: int
-    critic_params: object = None  # the twin critic at the same checkpoint (score estimates)
+    critic_params: object  # the twin critic at the same checkpoint (score estimates)
 
     def __post_init__(self):
         self._act = jax.jit(jax.vmap(self.trainer.policy, in_axes=(None, 0)))

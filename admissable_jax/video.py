@@ -23,7 +23,7 @@ import sys  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from admissable_jax.cli import parse_args, run_from_cli  # noqa: E402
+from admissable_jax.cli import parse_args, run_from_cli, setting  # noqa: E402
 from admissable_jax.envs import observation_names  # noqa: E402
 from admissable_jax.errors import RunFailed  # noqa: E402
 from admissable_jax.method import candidate_sets, describe_set  # noqa: E402
@@ -32,20 +32,16 @@ from admissable_jax.run_directory import read_jsonl  # noqa: E402
 PANEL_WIDTH, PANEL_HEIGHT, LABEL_HEIGHT = 480, 352, 32  # multiples of 16, as H.264 wants
 
 
-def _field(default, help_text: str):
-    return dataclasses.field(default=default, metadata={"help": help_text})
-
-
 @dataclasses.dataclass
 class VideoConfig:
-    run_dir: str = _field("", "a train run directory or an experiment pair's (may be given first, without run_dir=)")
-    hidden: str = _field("worst", "u: feature indices or names, comma separated (e.g. 2 or 'thigh joint angle'); "
-                                  "worst = argmin_u a_u of the checkpoint's scoring")
-    out: str = _field("", "the .mp4 to write (default RUN_DIR/videos/step<STEP>-hidden<u>.mp4)")
-    step: int = _field(-1, "the checkpoint (env step); -1 = the latest")
-    seed: int = _field(0, "reset seed of the start state both sides share")
-    frames: int = _field(1000, "frames at most: the start, then one per env step (Gymnasium's episodes end at 1000 "
-                               "steps, or when the agent falls; the end is then held for a second)")
+    run_dir: str = setting("", "a train run directory or an experiment pair's (may be given first, without run_dir=)")
+    hidden: str = setting("worst", "u: feature indices or names, comma separated (e.g. 2 or 'thigh joint angle'); "
+                                   "worst = argmin_u a_u of the checkpoint's scoring")
+    out: str = setting("", "the .mp4 to write (default RUN_DIR/videos/step<STEP>-hidden<u>.mp4)")
+    step: int = setting(-1, "the checkpoint (env step); -1 = the latest")
+    seed: int = setting(0, "reset seed of the start state both sides share")
+    frames: int = setting(1000, "frames at most: the start, then one per env step (Gymnasium's episodes end at 1000 "
+                                "steps, or when the agent falls; the end is then held for a second)")
 
 
 class RenderingUnavailable(RunFailed):

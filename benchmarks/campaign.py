@@ -40,7 +40,7 @@ from admissable_jax.envs import make_env
 from admissable_jax.experiment import ExperimentConfig, pair_configs
 from admissable_jax.host_loop import make_trainer, mode_flags
 from admissable_jax.training import Trainer
-from common import COMMITTED_RESULTS_DIR, RESULTS_DIR, append_record, environment_record
+from common import COMMITTED_RESULTS_DIR, RESULTS_DIR, append_record, environment_record, timed
 
 REFUSED = 3  # plan's exit status for a run that does not fit
 
@@ -66,12 +66,6 @@ def _experiment_trainer(config: ExperimentConfig) -> tuple[Trainer, list, Traine
     return trainer, pairs, Trainer(endless_env, trainer.spec)
 
 
-def _timed(function, *args):
-    start = time.perf_counter()
-    out = jax.block_until_ready(function(*args))
-    return out, time.perf_counter() - start
-
-
 def measure(config: MeasureConfig) -> dict:
     trainer, pairs, endless = _experiment_trainer(config)
     seeds = jax.numpy.array([pair.seed for pair in pairs])
@@ -87,14 +81,14 @@ def measure(config: MeasureConfig) -> dict:
     compile_s = time.perf_counter() - start
     score_full = jax.jit(jax.vmap(endless.score_and_update), donate_argnums=0).lower(state).compile()
 
-    (state, _), first_chunk_s = _timed(chunk, state)  # learning starts within it
-    (state, metrics), chunk_s = _timed(chunk, state)
-    (state, scores), score_s = _timed(score, state)
-    (state, full), score_full_s = _timed(score_full, state)
+    (state, _), first_chunk_s = timed(chunk, state)  # learning starts within it
+    (state, metrics), chunk_s = timed(chunk, state)
+    (state, scores), score_s = timed(score, state)
+    (state, full), score_full_s = timed(score_full, state)
     with tempfile.TemporaryDirectory() as directory:
         checkpoints = Checkpoints(directory)
-        _, save_s = _timed(lambda: checkpoints.save(1, state))
-        (_, state), restore_s = _timed(lambda: checkpoints.restore(state, 1))
+        _, save_s = timed(lambda: checkpoints.save(1, state))
+        (_, state), restore_s = timed(lambda: checkpoints.restore(state, 1))
         checkpoints.close()
     first = pairs[0]
     record = {

@@ -9,6 +9,7 @@ import platform
 import resource
 import subprocess
 import sys
+import time
 from typing import Any, Callable
 
 import jax
@@ -52,6 +53,13 @@ def _commit() -> str:
 
     commit = git("rev-parse", "--short", "HEAD") or "unknown"
     return commit + ("+changes" if git("status", "--porcelain", "--untracked-files=no") else "")
+
+
+def timed(function: Callable, *args) -> tuple[Any, float]:
+    """(``function(*args)`` once its arrays are ready, the seconds that took)."""
+    start = time.perf_counter()
+    out = jax.block_until_ready(function(*args))
+    return out, time.perf_counter() - start
 
 
 def peak_host_memory_mb() -> float:

@@ -31,7 +31,7 @@ from admissable_jax.envs import make_env
 from admissable_jax.method import inverse_score_p_miss
 from admissable_jax.policies import load_policy
 from admissable_jax.scoring import estimate_scores, score_missingness
-from common import append_record
+from common import append_record, timed
 
 
 @dataclasses.dataclass
@@ -50,12 +50,6 @@ def _validate(config: ScoreEstimatorsConfig) -> None:
         raise ValueError("n_episodes must be >= 2 and horizons >= 0")
 
 
-def _timed(compiled, *args):
-    start = time.perf_counter()
-    out = jax.block_until_ready(compiled(*args))
-    return out, time.perf_counter() - start
-
-
 def compare(run_dir: str, step: int, horizons: list[int], n_episodes: int, seed: int) -> list[dict]:
     from scipy import stats
 
@@ -71,7 +65,7 @@ def compare(run_dir: str, step: int, horizons: list[int], n_episodes: int, seed:
                                                                 num_slots=config.score_envs))  # as training scores
     rollout_fn = rollout_fn.lower(policy.actor_params, rng).compile()
     rollout_compile_s = time.perf_counter() - start
-    rollout, rollout_s = _timed(rollout_fn, policy.actor_params, rng)
+    rollout, rollout_s = timed(rollout_fn, policy.actor_params, rng)
     rollout_scores = np.asarray(rollout.scores, np.float64)
     p_rollout = inverse_score_p_miss(rollout_scores, config.lower_bound, config.epsilon)
 
@@ -84,7 +78,7 @@ def compare(run_dir: str, step: int, horizons: list[int], n_episodes: int, seed:
         start = time.perf_counter()
         compiled = jax.jit(estimate).lower(policy.actor_params, policy.critic_params, rng).compile()
         compile_s = time.perf_counter() - start
-        estimated, run_s = _timed(compiled, policy.actor_params, policy.critic_params, rng)
+        estimated, run_s = timed(compiled, policy.actor_params, policy.critic_params, rng)
         scores = np.asarray(estimated.scores, np.float64)
         p_estimate = inverse_score_p_miss(scores, config.lower_bound, config.epsilon)
         records.append({

@@ -34,7 +34,7 @@ from admissable_jax.config import TrainConfig
 from admissable_jax.rollout import random_rollout
 from admissable_jax.host_loop import make_trainer, take_pair
 from admissable_jax.training import Trainer
-from common import append_record, compiled_updates, peak_host_memory_mb, update_flops
+from common import append_record, compiled_updates, peak_host_memory_mb, timed, update_flops
 
 
 @dataclasses.dataclass
@@ -51,18 +51,12 @@ class TrainBenchConfig:
     breakdown: bool = dataclasses.field(default=False, metadata={"help": "also time the iteration and its parts alone, in turn, best of 3: physics, the iteration without learning, the updates (one seed)"})
 
 
-def _timed(function, *args) -> tuple[object, float]:
-    start = time.perf_counter()
-    out = jax.block_until_ready(function(*args))
-    return out, time.perf_counter() - start
-
-
 def matmul_gflops(size: int = 4096, repeats: int = 10) -> float:
     """Measured rate of a square float32 matmul at JAX's default precision."""
     a, b = jax.random.normal(jax.random.key(1), (2, size, size))
     matmul = jax.jit(lambda a, b: a @ b)
     jax.block_until_ready(matmul(a, b))
-    best = min(_timed(matmul, a, b)[1] for _ in range(repeats))
+    best = min(timed(matmul, a, b)[1] for _ in range(repeats))
     return 2 * size**3 / best / 1e9
 
 
@@ -88,7 +82,7 @@ def update_alone(trainer: Trainer, state, updates: int) -> dict:
     """Time ``updates`` SAC updates on one fixed minibatch; FLOPs from XLA's cost analysis."""
     batch = _random_batch(trainer)
     flops = update_flops(trainer.agent.update, state.sac, batch)
-    _, seconds = _timed(compiled_updates(_sac_update(trainer), state.sac, batch, updates))
+    _, seconds = timed(compiled_updates(_sac_update(trainer), state.sac, batch, updates))
     roof = matmul_gflops()
     achieved = flops * updates / seconds / 1e9
     return {
@@ -120,7 +114,7 @@ def iteration_breakdown(trainer: Trainer, state, iterations: int, rounds: int = 
     best = dict.fromkeys(parts, float("inf"))
     for round_index in range(rounds + 1):  # round 0 compiles
         for name, part in parts.items():
-            seconds = _timed(part)[1]
+            seconds = timed(part)[1]
             if round_index:
                 best[name] = min(best[name], seconds)
     return {f"{name}_ms_per_iteration": round(1000 * seconds / iterations, 2) for name, seconds in best.items()}
@@ -141,11 +135,11 @@ def main(argv: list[str]) -> None:
     state = jax.jit(jax.vmap(trainer.init, (0, None, None)))(seeds, True, True)
     run_chunk = jax.jit(jax.vmap(trainer.run_chunk, (0, None)), static_argnums=1, donate_argnums=0)
 
-    (state, _), warmup_s = _timed(run_chunk, state, warmup_iterations)
+    (state, _), warmup_s = timed(run_chunk, state, warmup_iterations)
     start = time.perf_counter()
     compiled = run_chunk.lower(state, bench.iterations).compile()
     compile_s = time.perf_counter() - start
-    (state, metrics), run_s = _timed(compiled, state)
+    (state, metrics), run_s = timed(compiled, state)
     assert bool(metrics["learned"].all())
     env_steps = bench.iterations * bench.num_envs * bench.seeds
     grad_steps = bench.iterations * trainer.spec.updates_per_iteration * bench.seeds

@@ -16,7 +16,6 @@ noise, SB3's deterministic action and squashed-Gaussian log-probabilities, its c
 from __future__ import annotations
 
 import os
-from itertools import count
 
 import gymnasium
 import numpy as np

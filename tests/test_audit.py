@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from admissable_jax import TrainConfig, candidate_sets, make_env, mask_observation, score_missingness, train_fn
-from admissable_jax.audit import AuditConfig, audit_run, main as audit_main
+from admissable_jax.audit import main as audit_main
 from admissable_jax.policies import load_policy
 from admissable_jax.scoring import beam_search_worst_sets, estimate_scores
 

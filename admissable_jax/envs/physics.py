@@ -153,7 +153,8 @@ def _rungekutta4_step(model: mjx.Model, data: mjx.Data) -> mjx.Data:
     compiled step holds four copies of ``forward`` (kinematics, collision, constraints,
     solver), and XLA:CPU spends most of a program's compile time on them
     (``benchmarks/step_compile.py``: Hopper 33 s → 18 s, record ``step_compile.jsonl``).
-    Here all four stages are one scan of four ``forward`` calls: stage 0 is the plain ``forward`` of ``data``, stages 1-3 are MJX's, with the same
+    Here all four stages are one scan of four ``forward`` calls: stage 0 is the plain
+    ``forward`` of ``data``, stages 1-3 are MJX's, with the same
     arithmetic in the same order. XLA fuses the two programs differently, so they agree to
     float32 rounding, not bitwise (after 21 steps: |Δqpos| ≤ 3e-7, |Δqvel| ≤ 2e-5).
     """
