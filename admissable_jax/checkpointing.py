@@ -29,7 +29,8 @@ class Checkpoints:
         options = ocp.CheckpointManagerOptions(
             max_to_keep=max_to_keep, create=True, enable_async_checkpointing=False
         )
-        self._manager = ocp.CheckpointManager(self.directory, options=options)
+        self._manager = ocp.CheckpointManager(self.directory, options=options,
+                                              item_handlers=ocp.StandardCheckpointHandler())
 
     def latest_step(self) -> int | None:
         return self._manager.latest_step()
@@ -73,36 +74,39 @@ class Checkpoints:
             raise CheckpointError(f"no checkpoint {step} in {self.directory}; saved: {sorted(steps)}")
         return step
 
-    def restore(self, like, step: int | None = None) -> tuple[int, object]:
-        """(step, state) of checkpoint ``step`` (default: the latest), shaped like ``like``
-        (a state, or its ``jax.eval_shape``).
+    def restore(self, like, step: int | None = None, resizable_leading_axis: bool = False) -> tuple[int, object]:
+        """(step, state) of checkpoint ``step`` (default: the latest), shaped and placed like
+        ``like`` (a state, or its ``jax.eval_shape``, with shardings or without). With
+        ``resizable_leading_axis`` the saved leading axis (the pairs, padded to the saving
+        run's device count) may differ from ``like``'s: it is cut or zero-padded to fit.
 
         A checkpoint that cannot be read raises a one-line CheckpointError naming it and the
         newest older checkpoint that can (pass that as ``step`` to continue from it).
         Checkpoints newer than a chosen older ``step`` are moved aside to
         ``<directory>-superseded/`` (never deleted), since the run continues from ``step``.
         """
-        step, state = self.read(like, step)
+        step, state = self.read(like, step, resizable_leading_axis)
         self._set_aside_newer_than(step)
         return step, state
 
-    def read(self, like, step: int | None = None) -> tuple[int, object]:
+    def read(self, like, step: int | None = None, resizable_leading_axis: bool = False) -> tuple[int, object]:
         """:meth:`restore` without moving anything: for reading a run (a policy, an audit)
         rather than continuing it."""
         step = self.step_to_restore(step)
         try:
-            return step, self._restore(like, step)
+            return step, self._restore(like, step, resizable_leading_axis)
         except CheckpointError as error:
             older = sorted((s for s in self._manager.all_steps() if s < step), reverse=True)
-            intact = next((s for s in older if self._readable(like, s)), None)
+            intact = next((s for s in older if self._readable(like, s, resizable_leading_axis)), None)
             offer = (f"checkpoint {intact} is intact: resume with resume_step={intact}" if intact is not None
                      else "no older checkpoint is intact")
             raise CheckpointError(f"{error}; {offer}") from error.__cause__
 
-    def _restore(self, like, step: int):
-        abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, _non_empty_leaves(like))
+    def _restore(self, like, step: int, resizable_leading_axis: bool = False):
+        abstract = jax.tree.map(_placed_shape, _non_empty_leaves(like))
         try:
-            saved = self._manager.restore(step, args=ocp.args.StandardRestore(abstract))
+            resize = resizable_leading_axis and self._differs_in_leading_axis_only(abstract, step)
+            saved = self._manager.restore(step, args=ocp.args.StandardRestore(abstract, strict=not resize))
         except Exception as error:  # orbax raises many types for unreadable data
             first_line = str(error).strip().splitlines()[0][:200] if str(error).strip() else type(error).__name__
             raise CheckpointError(
@@ -113,9 +117,19 @@ class Checkpoints:
         leaves = [saved[str(i)] if str(i) in saved else jnp.zeros(leaf.shape, leaf.dtype) for i, leaf in enumerate(leaves)]
         return jax.tree.unflatten(treedef, leaves)
 
-    def _readable(self, like, step: int) -> bool:
+    def _differs_in_leading_axis_only(self, abstract: dict, step: int) -> bool:
+        """Whether checkpoint ``step`` holds the same leaves as ``abstract`` with the same
+        shapes but for the leading axis (which then differs in every leaf)."""
+        saved = self._manager.item_metadata(step)
+        if set(saved) != set(abstract):
+            return False
+        shapes = [(tuple(saved[key].shape), tuple(abstract[key].shape)) for key in abstract]
+        return (all(len(a) == len(b) > 0 and a[1:] == b[1:] for a, b in shapes)
+                and len({a[0] for a, _ in shapes}) == 1 and any(a[0] != b[0] for a, b in shapes))
+
+    def _readable(self, like, step: int, resizable_leading_axis: bool = False) -> bool:
         try:
-            self._restore(like, step)
+            self._restore(like, step, resizable_leading_axis)
         except CheckpointError:
             return False
         return True
@@ -132,6 +146,16 @@ class Checkpoints:
 
     def close(self) -> None:
         self._manager.close()
+
+
+def _placed_shape(leaf) -> jax.ShapeDtypeStruct:
+    """The leaf's shape, dtype and sharding; one without a sharding goes to this process's
+    first device (not where the saving run's devices were, which may not exist here)."""
+    shape = ocp.utils.to_shape_dtype_struct(leaf)
+    if getattr(shape, "sharding", None) is None:
+        shape = jax.ShapeDtypeStruct(shape.shape, shape.dtype,
+                                     sharding=jax.sharding.SingleDeviceSharding(jax.local_devices()[0]))
+    return shape
 
 
 def _non_empty_leaves(state) -> dict[str, jax.Array]:

@@ -5,10 +5,13 @@
 
 The missingness modes differ only in data (the ``adversarial`` and ``masking`` flags of the
 training state), not in code, so every pair's training state is stacked along a leading
-pair axis and the train chunk and the scoring round are ``jax.vmap``-ed over it. Each pair
-writes its own run directory ``<out>/<mode>-s<seed>`` in the format of ``train``
-(``config.yaml``, ``scores.jsonl``, ``metrics.jsonl``); the experiment keeps one orbax
-checkpoint of the whole batch in ``<out>/checkpoints`` and resumes as one unit.
+pair axis and the train chunk and the scoring round are ``jax.vmap``-ed over it. That axis
+is spread over every device (``devices=N``: the first N), and under ``jax.distributed``
+over every process's devices (:mod:`admissable_jax.placement`). Each pair writes its own
+run directory ``<out>/<mode>-s<seed>`` in the format of ``train`` (``config.yaml``,
+``scores.jsonl``, ``metrics.jsonl``), written by the process that holds it; the experiment
+keeps one orbax checkpoint of the whole batch in ``<out>/checkpoints`` and resumes as one
+unit, onto the same device count or another.
 Before anything is allocated the programs are compiled and their memory counted; an
 experiment that would not fit stops with a one-line message (``budget_only=true`` prints
 the budget and stops there).
@@ -22,7 +25,7 @@ import os
 import sys
 
 import jax
-import jax.numpy as jnp
+import numpy as np
 from omegaconf import OmegaConf
 
 from admissable_jax.adversary import MODES
@@ -31,8 +34,9 @@ from admissable_jax.cli import enable_compilation_cache, parse_args, run_from_cl
 from admissable_jax.config import RunSettings, TrainConfig
 from admissable_jax.envs import canonical_env_name
 from admissable_jax.errors import UnusableRunDirectory
-from admissable_jax.host_loop import TrainingLoop, make_trainer, mode_flags, take_pair
-from admissable_jax.run_directory import RunDirectory
+from admissable_jax.host_loop import TrainingLoop, make_trainer, mode_flags
+from admissable_jax.placement import PairPlacement, initialize_distributed
+from admissable_jax.run_directory import RunDirectory, load_config
 from admissable_jax.train import TrainResult
 
 @dataclasses.dataclass
@@ -44,6 +48,8 @@ class ExperimentConfig(RunSettings):
     first_seed: int = dataclasses.field(default=0, metadata={"help": "the first seed"})
     modes: str = dataclasses.field(default="adversarial,uniform", metadata={"help": "comma-separated missingness modes (adversarial, uniform, none)"})
     out: str = dataclasses.field(default="", metadata={"help": "experiment directory; '' = runs/fig1-<env>"})
+    devices: int = dataclasses.field(default=0, metadata={"help": "devices the pairs are spread over: 0 = every device "
+                                                                  "(of every process under jax.distributed), N = the first N"})
     budget_only: bool = dataclasses.field(default=False, metadata={"help": "print the memory budget and stop"})
 
 
@@ -71,38 +77,62 @@ def experiment_dir(pairs: list[TrainConfig]) -> str:
 
 
 def run_experiment(config) -> list[TrainResult]:
-    """Train every (seed, mode) pair of ``config`` in one vmapped program; one result per pair."""
+    """Train every (seed, mode) pair of ``config`` in one program spread over the devices;
+    one result per pair this process holds (every pair, in one process)."""
+    initialize_distributed()
     pairs = pair_configs(config)
     first = pairs[0]
-    trainer = make_trainer(first, num_runs=len(pairs))
+    placement = PairPlacement.over(len(pairs), config.devices)
+    trainer = make_trainer(first, num_runs=placement.pairs_per_device)
     root = experiment_dir(pairs)
-    if config.resume and not os.path.isdir(root):  # checked before anything is created
-        raise CheckpointError(f"nothing to resume: {root} does not exist")
+    experiment_yaml = os.path.join(root, "experiment.yaml")
+    if config.resume:  # checked before anything is created
+        if not os.path.isdir(root):
+            raise CheckpointError(f"nothing to resume: {root} does not exist")
+        check_same_pairs(config, pairs, experiment_yaml)
     try:
         os.makedirs(root, exist_ok=True)
     except OSError as error:
         raise UnusableRunDirectory(f"cannot create the experiment directory {root}: {error.strerror}") from None
     checkpoint_dir = os.path.join(root, "checkpoints")
+    local_pairs = placement.local_pairs
     with contextlib.ExitStack() as held:
         runs = []
-        for pair in pairs:  # each pair's directory stays locked until the experiment ends
-            runs.append(RunDirectory(pair, checkpoint_dir))
+        for index in local_pairs:  # each pair's directory stays locked until the experiment ends
+            runs.append(RunDirectory(pairs[index], checkpoint_dir))
             held.callback(runs[-1].close)
-        OmegaConf.save(OmegaConf.structured(config), os.path.join(root, "experiment.yaml"))
+        if jax.process_index() == 0:
+            OmegaConf.save(OmegaConf.structured(config), experiment_yaml)
 
-        seeds = jnp.array([pair.seed for pair in pairs])
-        adversarial, masking = (jnp.array(flags) for flags in zip(*(mode_flags(pair.missingness) for pair in pairs)))
-        init = lambda: jax.vmap(trainer.init)(seeds, adversarial, masking)
-        loop = TrainingLoop(trainer, first, runs, Checkpoints(checkpoint_dir), init, batched=True)
+        seeds = placement.place(np.array([pair.seed for pair in pairs], np.int32))
+        adversarial, masking = (placement.place(np.array(flags))
+                                for flags in zip(*(mode_flags(pair.missingness) for pair in pairs)))
+        spread_init = jax.jit(placement.spread(trainer.init), out_shardings=placement.sharding)
+        init = lambda: spread_init(seeds, adversarial, masking)
+        loop = TrainingLoop(trainer, first, runs, Checkpoints(checkpoint_dir), init, placement)
         if config.budget_only:
-            print(f"{len(pairs)} pairs x {first.num_envs} envs, {first.env}: {loop.compile().describe()}")
+            print(f"{len(pairs)} pairs x {first.num_envs} envs, {first.env}: {loop.compile().describe()}; "
+                  f"{placement.describe()}")
             loop.checkpoints.close()
             return []
         state = loop.run()
     return [
-        TrainResult(pair, trainer, take_pair(state, index), run.read("scores.jsonl"), run.read("metrics.jsonl"))
-        for index, (pair, run) in enumerate(zip(pairs, runs))
+        TrainResult(pairs[index], trainer, placement.pair_state(state, index), run.read("scores.jsonl"),
+                    run.read("metrics.jsonl"))
+        for index, run in zip(local_pairs, runs)
     ]
+
+
+def check_same_pairs(config, pairs: list[TrainConfig], experiment_yaml: str) -> None:
+    """A resumed experiment must have the pairs, in the order, that its checkpoint holds."""
+    if not os.path.exists(experiment_yaml):
+        raise CheckpointError(f"nothing to resume: {experiment_yaml} does not exist")
+    saved = [(pair.missingness, pair.seed) for pair in pair_configs(load_config(experiment_yaml, ExperimentConfig))]
+    wanted = [(pair.missingness, pair.seed) for pair in pairs]
+    if saved != wanted:
+        names = lambda listed: ", ".join(f"{mode}-s{seed}" for mode, seed in listed)
+        raise ValueError(f"cannot resume with other pairs: the experiment in {experiment_dir(pairs)} has "
+                         f"{names(saved)}, this one {names(wanted)} (keep seeds, first_seed and modes)")
 
 
 def main(argv: list[str]) -> int:

@@ -1,4 +1,4 @@
-"""The host loop over scorings, for one run or a vmapped batch of (seed, mode) pairs.
+"""The host loop over scorings, for one run or a batch of (seed, mode) pairs.
 
 It alternates two jitted functions: ``run_chunk`` (ζ env steps of SAC over the parallel
 envs, on the device) and ``score_and_update`` (every u scored in one batched rollout,
@@ -7,6 +7,8 @@ then the adversary's p_miss update). After each scoring it appends one row to
 ``checkpoint_every`` scorings (and at the end) it saves an orbax checkpoint of the whole
 training state, from which ``resume=true`` continues. Both functions are compiled before
 the state is allocated, so a run that would not fit in memory stops before it starts.
+A batch of pairs runs where its :class:`~admissable_jax.placement.PairPlacement` puts it
+(one device or many, one process or many); this loop only asks it.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from admissable_jax.config import TrainConfig
 from admissable_jax.envs import make_env
 from admissable_jax.errors import Interrupted, RunFailed
 from admissable_jax.memory import MemoryBudget, MemoryBudgetExceeded, memory_budget
+from admissable_jax.placement import PairPlacement
 from admissable_jax.run_directory import RunDirectory, metrics_row, score_row
 from admissable_jax.run_spec import RunSpec
 from admissable_jax.training import Trainer, TrainState
@@ -45,7 +48,8 @@ def mode_flags(missingness: str) -> tuple[bool, bool]:
 
 
 def make_trainer(config: TrainConfig, num_runs: int = 1) -> Trainer:
-    """The env and the trainer for a resolved config, sized for ``num_runs`` vmapped runs."""
+    """The env and the trainer for a resolved config, sized for ``num_runs`` vmapped runs
+    on one device."""
     spec = RunSpec.of(config, num_runs)
     return Trainer(make_env(spec.env, spec.env_options), spec)
 
@@ -70,11 +74,13 @@ def take_pair(tree: Any, index: int) -> Any:
 
 
 class TrainingLoop:
-    """The host loop over scorings for one run or a vmapped batch of runs.
+    """The host loop over scorings for one run or a batch of pairs.
 
-    ``init()`` builds the training state (batched over runs along a leading axis when
-    ``batched``); the train chunk and the scoring round are the trainer's, vmapped over
-    that axis when ``batched``. ``runs[i]`` is run i's directory.
+    ``init()`` builds the training state: one run's, or with a ``placement`` the pairs'
+    stacked along a leading axis that the placement spreads over its devices; the train
+    chunk and the scoring round are the trainer's, run per pair where the placement says.
+    ``runs`` are the directories of the pairs this process holds
+    (``placement.local_pairs``), in that order.
     """
 
     def __init__(
@@ -84,32 +90,53 @@ class TrainingLoop:
         runs: list["RunDirectory"],
         checkpoints: Checkpoints,
         init: Callable[[], TrainState],
-        batched: bool,
+        placement: PairPlacement | None = None,
     ):
         self.trainer, self.config, self.runs, self.checkpoints = trainer, config, runs, checkpoints
-        self.init, self.batched = init, batched
+        self.init, self.placement = init, placement
+        self.num_runs = placement.num_pairs if placement else 1
         run_chunk = lambda state: trainer.run_chunk(state, trainer.spec.iterations_per_scoring)
         score_and_update = trainer.score_and_update
-        self._run_chunk = jax.vmap(run_chunk) if batched else run_chunk
-        self._score_and_update = jax.vmap(score_and_update) if batched else score_and_update
+        self._run_chunk = placement.spread(run_chunk) if placement else run_chunk
+        self._score_and_update = placement.spread(score_and_update) if placement else score_and_update
 
-    def select_pair(self, tree: Any, pair: int) -> Any:
-        """Run ``pair``'s part of a pytree of the loop's (the tree itself for one run)."""
-        return take_pair(tree, pair) if self.batched else tree
+    def host_rows(self, tree: Any) -> Any:
+        """A device pytree of the loop's on the host: this process's pairs along the leading
+        axis (``runs`` order) with a placement, the tree itself for one run."""
+        return self.placement.local_rows(tree) if self.placement else jax.device_get(tree)
+
+    def select_pair(self, rows: Any, index: int) -> Any:
+        """``runs[index]``'s part of ``host_rows``' result (the rows themselves for one run)."""
+        return take_pair(rows, index) if self.placement else rows
+
+    def any_process(self, flag: bool) -> bool:
+        """Whether ``flag`` holds in any process of the job."""
+        return self.placement.any_process(flag) if self.placement else bool(flag)
+
+    def abstract_state(self) -> TrainState:
+        """The state's shapes (and, with a placement, its sharding), nothing allocated."""
+        shapes = jax.eval_shape(self.init)
+        if not self.placement:
+            return shapes
+        sharding = self.placement.sharding
+        return jax.tree.map(lambda leaf: jax.ShapeDtypeStruct(leaf.shape, leaf.dtype, sharding=sharding), shapes)
 
     def compile(self) -> MemoryBudget:
         """Compile both programs without allocating the state; refuse if they won't fit."""
-        abstract_state = jax.eval_shape(self.init)
+        abstract_state = self.abstract_state()
         env = self.trainer.env
         where = f"{self.config.env} ({env.physics_name} physics) on {jax.devices()[0].platform}"
+        shardings = {"in_shardings": self.placement.sharding, "out_shardings": self.placement.sharding} \
+            if self.placement else {}
         # Both programs are traced here, then compiled on two threads at once: XLA compiles
         # outside Python's lock, so on two or more cores the compiles overlap.
-        lowered = [jax.jit(function, donate_argnums=0).lower(abstract_state)
+        lowered = [jax.jit(function, donate_argnums=0, **shardings).lower(abstract_state)
                    for function in (self._run_chunk, self._score_and_update)]
         with _reporting(f"compiling the training step and the scoring round for {where}"):
             with concurrent.futures.ThreadPoolExecutor(max_workers=2) as pool:
                 self.run_chunk, self.score_and_update = pool.map(lambda program: program.compile(), lowered)
-        budget = memory_budget(abstract_state, self.run_chunk, self.score_and_update)
+        budget = memory_budget(abstract_state, self.run_chunk, self.score_and_update,
+                               self.placement.num_devices if self.placement else 1)
         if budget.needed_bytes > budget.available_bytes:
             raise MemoryBudgetExceeded(
                 f"does not fit: {budget.describe()}; use fewer pairs, fewer num_envs or a smaller buffer_size"
@@ -127,16 +154,18 @@ class TrainingLoop:
         if resume_from is not None and resume_from >= config.planned_steps:
             report(f"nothing left to train: the run reached {resume_from} of {config.planned_steps} env steps "
                    f"(raise total_steps to train further)")
-            _, state = self.checkpoints.restore(jax.eval_shape(self.init), resume_from)
+            _, state = self._restore(self.abstract_state(), resume_from)
             self.checkpoints.close()
             return state
         budget = self.compile()
-        report(f"{len(self.runs)} run(s) x {config.num_envs} envs of {config.env} on "
+        report(f"{self.num_runs} run(s) x {config.num_envs} envs of {config.env} on "
                f"{self.trainer.env.physics_name} physics: {budget.describe()}")
-        state = jax.jit(self.init)()
+        if self.placement:
+            report(self.placement.describe())
+        state = self.init()
         start_step = 0
         if resume_from is not None:
-            start_step, state = self.checkpoints.restore(state, resume_from)
+            start_step, state = self._restore(state, resume_from)
             for run in self.runs:
                 for note in run.truncate_logs(start_step):
                     report(note)
@@ -147,39 +176,40 @@ class TrainingLoop:
             for scoring in range(start_step // config.score_every, num_scorings):
                 interval_started = started = time.perf_counter()
                 state, chunk_metrics = self.run_chunk(state)
-                chunk_metrics = jax.device_get(chunk_metrics)
+                chunk_metrics = self.host_rows(chunk_metrics)
                 train_seconds = time.perf_counter() - started
-                env_steps = int(np.max(state.env_steps))
+                env_steps = config.score_every * (scoring + 1)
                 self._check_finite(chunk_metrics, env_steps)
                 self._check_physics(np.any(chunk_metrics["capacity_exceeded"]), env_steps)
 
                 started = time.perf_counter()
                 state, scores = self.score_and_update(state)
-                scores = jax.device_get(scores)
+                scores, p_miss, grad_steps = self.host_rows((scores, state.p_miss, state.grad_steps))
                 self._check_physics(np.any(scores.capacity_exceeded), env_steps)
                 score_seconds = time.perf_counter() - started
                 rows = []
-                for pair, run in enumerate(self.runs):
-                    pick = lambda tree: self.select_pair(tree, pair)
-                    rows.append(score_row(env_steps, pick(scores), pick(state.p_miss), self.trainer.hidden_sets,
-                                            self.trainer.spec.score_estimator))
+                for index, run in enumerate(self.runs):
+                    pick = lambda tree: self.select_pair(tree, index)
+                    rows.append(score_row(env_steps, pick(scores), pick(p_miss), self.trainer.hidden_sets,
+                                          self.trainer.spec.score_estimator))
                     run.append("scores.jsonl", rows[-1])
                     run.append("metrics.jsonl", metrics_row(
-                        env_steps, int(pick(state.grad_steps)), pick(chunk_metrics),
-                        train_seconds, score_seconds, config, len(self.runs)))
+                        env_steps, int(pick(grad_steps)), pick(chunk_metrics),
+                        train_seconds, score_seconds, config, self.num_runs))
 
                 last = scoring == num_scorings - 1
                 now = time.perf_counter()
-                pause = (not last and config.time_limit > 0
-                         and now - started_run + (now - interval_started) > config.time_limit)
+                pause = self.any_process(not last and config.time_limit > 0
+                                         and now - started_run + (now - interval_started) > config.time_limit)
                 if (scoring + 1) % config.checkpoint_every == 0 or last or pause:
                     self.checkpoints.save(env_steps, state)
                 bar.update(config.score_every)
-                bar.set_postfix(
-                    min_a_u=f"{np.mean([row['min_score'] for row in rows]):.1f}",
-                    clean=f"{np.mean([row['clean_score'] for row in rows]):.1f}",
-                    train_sps=f"{config.score_every * len(self.runs) / train_seconds:.0f}",
-                )
+                if rows:
+                    bar.set_postfix(
+                        min_a_u=f"{np.mean([row['min_score'] for row in rows]):.1f}",
+                        clean=f"{np.mean([row['clean_score'] for row in rows]):.1f}",
+                        train_sps=f"{config.score_every * self.num_runs / train_seconds:.0f}",
+                    )
                 if pause:
                     report(f"paused at {env_steps} of {config.planned_steps} env steps: another scoring interval "
                            f"would pass time_limit={config.time_limit:g} s; {self._kept_checkpoint()}; "
@@ -191,6 +221,15 @@ class TrainingLoop:
             bar.close()
             self.checkpoints.close()
         return state
+
+    def _restore(self, like: TrainState, step: int) -> tuple[int, TrainState]:
+        """Checkpoint ``step`` shaped like ``like``. With a placement the checkpoint may come
+        from another device count: its pair axis is padded or cut to this mesh's size and the
+        padding slots filled again (the real pairs are the same: the experiment checks)."""
+        if not self.placement:
+            return self.checkpoints.restore(like, step)
+        step, state = self.checkpoints.restore(like, step, resizable_leading_axis=True)
+        return step, self.placement.refill_padding(state)
 
     def _resume_from(self) -> int | None:
         """The checkpoint step a resumed run continues from (None for a fresh run)."""
@@ -204,18 +243,18 @@ class TrainingLoop:
         return f"{where} in {self.checkpoints.directory}"
 
     def _check_physics(self, exceeded: bool, env_steps: int) -> None:
-        if exceeded:
+        if self.any_process(exceeded):
             raise PhysicsCapacityExceeded(
                 f"at env step {env_steps}: {self.trainer.env.capacity_message()}; {self._kept_checkpoint()}"
             )
 
     def _check_finite(self, chunk_metrics: dict[str, np.ndarray], env_steps: int) -> None:
-        for pair, run in enumerate(self.runs):
-            metrics = self.select_pair(chunk_metrics, pair)
+        diverged = None
+        for index, run in enumerate(self.runs):
+            metrics = self.select_pair(chunk_metrics, index)
             learned = metrics["learned"].astype(bool)
             for name in ("critic_loss", "actor_loss", "alpha"):
-                if not np.all(np.isfinite(metrics[name][learned])):
-                    raise TrainingDiverged(
-                        f"{name} became non-finite before env step {env_steps} in {run.path}; "
-                        f"{self._kept_checkpoint()}"
-                    )
+                if diverged is None and not np.all(np.isfinite(metrics[name][learned])):
+                    diverged = f"{name} became non-finite before env step {env_steps} in {run.path}"
+        if self.any_process(diverged is not None):
+            raise TrainingDiverged(f"{diverged or 'a pair of another process diverged'}; {self._kept_checkpoint()}")

@@ -74,7 +74,7 @@ def load_policy(run_dir: str, step: int | None = None) -> TrainedPolicy:
     if os.path.isdir(own_checkpoints):
         trainer = make_trainer(config)
         like = jax.eval_shape(lambda: trainer.init(config.seed, *mode_flags(config.missingness)))
-        pick = lambda state: state
+        pick = None
         checkpoint_dir = own_checkpoints
     elif os.path.isfile(experiment_yaml):
         experiment = load_config(experiment_yaml, ExperimentConfig)
@@ -91,9 +91,9 @@ def load_policy(run_dir: str, step: int | None = None) -> TrainedPolicy:
     else:
         raise FileNotFoundError(f"{run_dir} has no checkpoints (no checkpoints/ and no experiment.yaml above it)")
     checkpoints = Checkpoints(checkpoint_dir)
-    try:
-        restored_step, state = checkpoints.read(like, step)
+    try:  # an experiment's checkpoint may hold padding pairs after the real ones: cut off
+        restored_step, state = checkpoints.read(like, step, resizable_leading_axis=pick is not None)
     finally:
         checkpoints.close()
-    sac = pick(state).sac
+    sac = (pick(state) if pick else state).sac
     return TrainedPolicy(config, trainer, sac.actor_params, restored_step, sac.critic_params)

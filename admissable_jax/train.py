@@ -13,6 +13,8 @@ import os
 import sys
 from typing import Any
 
+import jax
+
 from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.cli import enable_compilation_cache, parse_args, run_from_cli
 from admissable_jax.config import TrainConfig
@@ -66,8 +68,8 @@ def train_fn(config: TrainConfig) -> TrainResult:
     run = RunDirectory(config, checkpoint_dir)
     try:
         checkpoints = Checkpoints(checkpoint_dir)
-        init = lambda: trainer.init(config.seed, *mode_flags(config.missingness))
-        state = TrainingLoop(trainer, config, [run], checkpoints, init, batched=False).run()
+        init = jax.jit(lambda: trainer.init(config.seed, *mode_flags(config.missingness)))
+        state = TrainingLoop(trainer, config, [run], checkpoints, init).run()
     finally:
         run.close()
     return TrainResult(config, trainer, state, run.read("scores.jsonl"), run.read("metrics.jsonl"))

@@ -1,0 +1,72 @@
+"""Run by tests/test_sharding.py in a process of its own with 4 CPU devices
+(``XLA_FLAGS=--xla_force_host_platform_device_count=4``, which must be set before JAX
+starts): one point-mass experiment of 4 pairs on 4 devices and on 1, then its checkpoint
+read back onto 3 devices (4 pairs padded to 6) and trained on there; and the padding
+slots that such a restore leaves, refilled with the last pair.
+
+    python tests/sharded_experiment.py OUT
+
+writes ``OUT/four`` (4 devices), ``OUT/one`` (1 device) and ``OUT/report.json``: the
+largest difference between the state saved on 4 devices and the state restored onto 3,
+leaf by leaf, and what the resumed run printed. The test reads the report and the files.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import os
+import sys
+
+import jax
+import numpy as np
+
+from admissable_jax.experiment import ExperimentConfig, run_experiment
+from admissable_jax.placement import PairPlacement
+
+EXPERIMENT = dict(
+    env="point_mass", seeds=2, modes="adversarial,uniform", score_every=1000, num_envs=4, physics="jax",
+    learning_starts=500, episode_length=50, score_episodes=2, batch_size=64, buffer_size=5000, hidden_size=32,
+    checkpoint_every=1, progress=False,
+)
+
+
+def largest_difference(first, second) -> float:
+    """The largest absolute difference over every leaf of two states (inf if shapes differ)."""
+    def difference(a, b):
+        a, b = np.asarray(a), np.asarray(b)
+        if a.shape != b.shape:
+            return np.inf
+        return float(np.max(np.abs(a.astype(np.float64) - b.astype(np.float64)))) if a.size else 0.0
+    return max(jax.tree.leaves(jax.tree.map(difference, first, second)))
+
+
+def main(out: str) -> None:
+    assert jax.device_count() == 4, f"needs 4 devices, has {jax.device_count()}"
+    four = run_experiment(ExperimentConfig(**EXPERIMENT, total_steps=2000, devices=4, out=os.path.join(out, "four")))
+    run_experiment(ExperimentConfig(**EXPERIMENT, total_steps=2000, devices=1, out=os.path.join(out, "one")))
+    # Onto 3 devices: nothing left to train at 2000, so this only restores (4 pairs padded to 6).
+    printed = io.StringIO()
+    with contextlib.redirect_stderr(printed):
+        restored = run_experiment(ExperimentConfig(**EXPERIMENT, total_steps=2000, devices=3, resume=True,
+                                                   out=os.path.join(out, "four")))
+        resumed = run_experiment(ExperimentConfig(**EXPERIMENT, total_steps=3000, devices=3, resume=True,
+                                                  out=os.path.join(out, "four")))
+    # What a restore onto a larger padded mesh leaves in the padding slots (zeros), refilled.
+    placement = PairPlacement.over(3, 2)
+    restored_padding = jax.device_put(np.array([[0.0], [1.0], [2.0], [0.0]]), placement.sharding)
+    report = {
+        "refilled": np.asarray(placement.refill_padding(restored_padding)).ravel().tolist(),
+        "restored_pairs": [f"{r.config.missingness}-s{r.config.seed}" for r in restored],
+        "restored_vs_saved": max(largest_difference(a.state, b.state) for a, b in zip(four, restored)),
+        "resumed_steps": [[row["env_steps"] for row in r.scores] for r in resumed],
+        "resumed_finite": all(np.isfinite(row["min_score"]) for r in resumed for row in r.scores),
+        "stderr": printed.getvalue(),
+    }
+    with open(os.path.join(out, "report.json"), "w") as file:
+        json.dump(report, file)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1])

@@ -1,0 +1,108 @@
+"""The pair axis over several devices and processes (``admissable_jax.placement``), on the CPU.
+
+JAX fixes its CPU device count when it starts, so the multi-device runs are processes of
+their own with ``XLA_FLAGS=--xla_force_host_platform_device_count=N``: the 4-device
+scenarios of tests/sharded_experiment.py in one, and a 2-process ``jax.distributed`` run
+on localhost (2 devices each) in two more, started together.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+
+import jax
+import numpy as np
+import pytest
+
+from admissable_jax.placement import PairPlacement, initialize_distributed
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(REPO, "tests"))
+from sharded_experiment import EXPERIMENT  # noqa: E402
+
+PAIRS = ["adversarial-s0", "adversarial-s1", "uniform-s0", "uniform-s1"]
+
+
+def _environment(devices: int, **extra: str) -> dict[str, str]:
+    environment = {**os.environ, "JAX_PLATFORMS": "cpu", **extra}
+    environment["XLA_FLAGS"] = f"{environment.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count={devices}"
+    return environment
+
+
+def _rows(root: str, pair: str) -> list[dict]:
+    with open(os.path.join(root, pair, "scores.jsonl")) as file:
+        return [json.loads(line) for line in file]
+
+
+def _free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("localhost", 0))
+        return probe.getsockname()[1]
+
+
+def test_pairs_over_devices_and_processes(tmp_path):
+    port = _free_port()
+    settings = [f"{key}={value}" for key, value in EXPERIMENT.items()] + ["total_steps=2000"]
+    distributed = [
+        subprocess.Popen(
+            [sys.executable, "-m", "admissable_jax.experiment", *settings, f"out={tmp_path / 'two_processes'}"],
+            env=_environment(2, JAX_COORDINATOR_ADDRESS=f"localhost:{port}", JAX_NUM_PROCESSES="2",
+                             JAX_PROCESS_ID=str(process)),
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
+        )
+        for process in range(2)
+    ]
+    scenarios = subprocess.run([sys.executable, os.path.join(REPO, "tests", "sharded_experiment.py"), str(tmp_path)],
+                               env=_environment(4), capture_output=True, text=True, cwd=REPO)
+    outputs = [process.communicate(timeout=600) for process in distributed]
+    assert scenarios.returncode == 0, scenarios.stderr[-3000:]
+    for process, (stdout, stderr) in zip(distributed, outputs):
+        assert process.returncode == 0, stderr[-3000:]
+    report = json.loads((tmp_path / "report.json").read_text())
+    four, one = tmp_path / "four", tmp_path / "one"
+
+    # 4 devices (1 pair each) against 1 device (4 pairs): the same pairs, in the same
+    # directories; the first scoring agrees to float round-off (a batch of 1 and one of 4
+    # compile to different code), later ones drift apart as SAC amplifies it.
+    for pair in PAIRS:
+        rows_four, rows_one = _rows(four, pair)[:2], _rows(one, pair)
+        assert [row["env_steps"] for row in rows_four] == [row["env_steps"] for row in rows_one] == [1000, 2000]
+        np.testing.assert_allclose(rows_four[0]["scores"], rows_one[0]["scores"], rtol=1e-5)
+        np.testing.assert_allclose(rows_four[0]["p_miss"], rows_one[0]["p_miss"], rtol=1e-5)
+    assert _rows(four, "adversarial-s0")[0]["scores"] != _rows(four, "adversarial-s1")[0]["scores"]
+
+    # Saved on 4 devices, restored onto 3 (padded to 6): every leaf of every pair bitwise.
+    assert report["restored_pairs"] == PAIRS
+    assert report["restored_vs_saved"] == 0.0
+    assert "4 pair(s) on 3 cpu device(s), 2 per device" in report["stderr"]
+    assert "2 copy(ies) of the last pair pad the batch" in report["stderr"]
+    assert report["resumed_steps"] == [[1000, 2000, 3000]] * 4 and report["resumed_finite"]
+    assert report["refilled"] == [0.0, 1.0, 2.0, 2.0]
+
+    # Two processes of 2 devices each, 1 pair per device as on 4 devices in one process:
+    # the same histories, bitwise; each process reports only the pairs it holds.
+    for pair in PAIRS:
+        assert _rows(tmp_path / "two_processes", pair) == _rows(four, pair)[:2]
+    held = [[os.path.basename(line.rsplit("run in ", 1)[1]) for line in stdout.splitlines() if "run in " in line]
+            for stdout, _ in outputs]
+    assert held == [PAIRS[:2], PAIRS[2:]]
+
+
+def test_placement_pads_or_refuses_with_one_line(monkeypatch):
+    placement = PairPlacement.over(3, 1)
+    assert (placement.num_devices, placement.pairs_per_device, placement.padded_pairs) == (1, 3, 3)
+    assert "pad" not in placement.describe()
+    values = placement.place(np.array([5, 6, 7]))
+    assert values.shape == (3,) and placement.local_pairs == [0, 1, 2]
+    np.testing.assert_array_equal(placement.local_rows({"v": values})["v"], [5, 6, 7])
+    with pytest.raises(ValueError, match=f"devices must be 0 \\(all\\) or 1..{jax.device_count()} here"):
+        PairPlacement.over(4, jax.device_count() + 1)
+    monkeypatch.setenv("JAX_COORDINATOR_ADDRESS", "localhost:1")
+    monkeypatch.delenv("JAX_PROCESS_ID", raising=False)
+    monkeypatch.setenv("JAX_NUM_PROCESSES", "2")
+    with pytest.raises(ValueError, match="JAX_COORDINATOR_ADDRESS is set, so JAX_PROCESS_ID must be too"):
+        initialize_distributed()
