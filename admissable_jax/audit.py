@@ -15,6 +15,12 @@ start states, as the paper scores), the audit reports a_u with its 95% confidenc
 ``score_estimator=critic`` or ``horizon`` audits with the run's critic instead (cheaper;
 discounted values, see :mod:`admissable_jax.scoring`); the report says which.
 
+Where C(d, k) sets are too many (Ant: 5,460 pairs), ``search=beam`` finds the worst sets of
+each k > 1 by beam search of width ``beam_width`` (:mod:`admissable_jax.scoring.set_search`),
+ranking the candidates by ``ranker`` (rollout, or the critic's cheaper estimates), and
+scores only the finalists by ``score_estimator`` (by default rollouts confirm them): at most
+d + (k − 1) · b · d sets ranked instead of C(d, k). k = 1 is always scored exactly.
+
 In Python, :func:`audit` takes any JAX ``policy_fn(params, masked_obs) -> action`` on any of
 our envs, and :func:`write_audit` writes its files.
 """
@@ -35,6 +41,7 @@ from admissable_jax.method import candidate_sets, num_candidate_sets
 from admissable_jax.scoring import SCORE_ESTIMATORS
 
 MAX_AUDIT_EPISODES = 200_000  # sets × N stepped in one program; beyond it, audit fewer k or episodes
+SEARCHES = ("exact", "beam")
 
 
 @dataclasses.dataclass
@@ -50,6 +57,10 @@ class AuditConfig:
     score_estimator: str = setting("rollout", "rollout (the paper's a_u) | critic | horizon: the run's critic's discounted "
                                               "value (see admissable_jax.scoring)")
     score_horizon: int = setting(100, "H of score_estimator=horizon")
+    search: str = setting("exact", "exact (every set of each k) | beam (k > 1: beam search for the worst sets, "
+                                   "finalists confirmed by score_estimator)")
+    beam_width: int = setting(4, "b of search=beam: sets kept per level, and finalists per k")
+    ranker: str = setting("rollout", "what ranks the candidates of search=beam: rollout | critic | horizon")
 
 
 def _ks(text: str) -> tuple[int, ...]:
@@ -74,6 +85,16 @@ def check_audit_config(config: AuditConfig) -> None:
         raise ValueError(f"slots must be >= 0, got {config.slots}")
     if config.score_estimator not in SCORE_ESTIMATORS or config.score_horizon < 1:
         raise ValueError(f"score_estimator must be one of {', '.join(SCORE_ESTIMATORS)} and score_horizon >= 1")
+    check_search(config.search, config.beam_width, config.ranker)
+
+
+def check_search(search: str, beam_width: int, ranker: str) -> None:
+    if search not in SEARCHES:
+        raise ValueError(f"search must be one of {', '.join(SEARCHES)}, got {search!r}")
+    if beam_width < 1:
+        raise ValueError(f"beam_width must be >= 1, got {beam_width}")
+    if ranker not in SCORE_ESTIMATORS:
+        raise ValueError(f"ranker must be one of {', '.join(SCORE_ESTIMATORS)}, got {ranker!r}")
 
 
 @dataclasses.dataclass
@@ -96,9 +117,10 @@ class AuditResult:
     clean_score: float
     clean_ci95: float
     clean_returns: list[float]
-    sets: dict[int, list[SetScore]]  # by k, in candidate_sets order
+    sets: dict[int, list[SetScore]]  # by k: every set in candidate_sets order, or a search's finalists
     feature_names: list[str]
     source: dict[str, Any]  # what was audited (run directory, step), for the report
+    search: dict[int, dict[str, Any]] = dataclasses.field(default_factory=dict)  # by searched k: how, and ranks
 
     def worst(self, k: int, top: int) -> list[SetScore]:
         return sorted(self.sets[k], key=lambda entry: entry.score)[:top]
@@ -113,34 +135,57 @@ def _ci95(returns: np.ndarray) -> float:
 
 def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, num_slots: int | None = None,
           feature_names: list[str] | None = None, source: dict[str, Any] | None = None, estimator: str = "rollout",
-          critic_fn=None, critic_params=None, horizon: int = 0, gamma: float = 0.99) -> AuditResult:
+          critic_fn=None, critic_params=None, horizon: int = 0, gamma: float = 0.99, search: str = "exact",
+          beam_width: int = 4, ranker: str = "rollout") -> AuditResult:
     """Score every set of each size in ``ks`` and the clean case in one batch, N =
-    ``n_episodes`` each: by :func:`~admissable_jax.scoring.score_missingness` (``rollout``),
-    or by :func:`~admissable_jax.scoring.estimate_scores` from ``critic_fn`` and
-    ``critic_params`` (``critic``; ``horizon`` after ``horizon`` steps)."""
+    ``n_episodes`` each from the same N start states, by
+    :func:`~admissable_jax.scoring.score_missingness` with ``estimator`` (``critic`` and
+    ``horizon`` from ``critic_fn`` and ``critic_params``; H = ``horizon``). With
+    ``search="beam"`` the sets of each k > 1 are the ``beam_width`` finalists of a beam
+    search ranked by ``ranker`` instead of all C(d, k)."""
     import jax
 
-    from admissable_jax.scoring import estimate_scores, score_missingness
+    from admissable_jax.scoring import beam_search_worst_sets, score_missingness
 
+    check_search(search, beam_width, ranker)
     d = env.observation_size
-    total = sum(num_candidate_sets(d, k) for k in ks)
-    if (total + 1) * n_episodes > MAX_AUDIT_EPISODES:
-        raise ValueError(f"auditing k={','.join(map(str, ks))} on {env.name} is {total:,} sets x {n_episodes} episodes, "
-                         f"over {MAX_AUDIT_EPISODES:,} episodes in one rollout: lower episodes= or drop the largest k")
-    blocks = [candidate_sets(d, k) for k in ks]
-    key, sets = jax.random.key(seed), np.concatenate(blocks)
-    if estimator == "rollout":
-        scored = jax.jit(score_missingness, static_argnums=(0, 1, 5, 6, 7))(
-            env, policy_fn, params, key, sets, n_episodes, None, num_slots)
-    elif critic_fn is None:
-        raise ValueError(f"score_estimator={estimator} needs the critic (critic_fn and critic_params)")
-    else:
-        scored = jax.jit(estimate_scores, static_argnums=(0, 1, 3, 7, 8, 9))(
-            env, policy_fn, params, critic_fn, critic_params, key, sets, n_episodes,
-            horizon if estimator == "horizon" else 0, gamma)
-    if bool(scored.capacity_exceeded):
-        raise ValueError(f"the physics ran out of contact buffers: {env.capacity_message()}")
-    returns = np.asarray(scored.returns, np.float64)
+    searched = [k for k in ks if search == "beam" and k > 1]
+    scored_sets = sum(beam_width if k in searched else num_candidate_sets(d, k) for k in ks)
+    _check_size(env, scored_sets, n_episodes, ks, search)
+    scorer = jax.jit(score_missingness, static_argnums=(0, 1, 5, 6, 7), static_argnames=(
+        "score_estimator", "critic_fn", "score_horizon", "gamma"))
+    key = jax.random.key(seed)
+
+    def score(rows: np.ndarray, how: str):
+        scored = scorer(env, policy_fn, params, key, rows, n_episodes, None, num_slots, score_estimator=how,
+                        critic_fn=critic_fn, critic_params=critic_params, score_horizon=horizon, gamma=gamma)
+        if bool(scored.capacity_exceeded):
+            raise ValueError(f"the physics ran out of contact buffers: {env.capacity_message()}")
+        return scored
+
+    search_info, blocks = {}, []
+    for k in ks:
+        if k not in searched:
+            blocks.append(candidate_sets(d, k))
+            continue
+        ranked_rows = beam_width * d  # every level's candidates fit: one compiled size for all levels
+        _check_size(env, ranked_rows, n_episodes, ks, search)
+        ranked = []
+
+        def rank(rows: np.ndarray) -> np.ndarray:
+            padded = np.concatenate([rows, np.repeat(rows[:1], ranked_rows - len(rows), axis=0)])
+            ranked.append(len(rows))
+            return np.asarray(score(padded, ranker).scores)[: len(rows)]
+
+        finalists = beam_search_worst_sets(rank, d, k, beam_width)
+        rows = np.zeros((len(finalists), d), np.float32)
+        for row, (hidden, _) in zip(rows, finalists):
+            row[list(hidden)] = 1.0
+        blocks.append(rows)
+        search_info[k] = {"method": "beam", "beam_width": beam_width, "ranker": ranker, "sets_ranked": sum(ranked),
+                          "sets_in_all": num_candidate_sets(d, k),
+                          "ranker_scores": [[list(hidden), score_] for hidden, score_ in finalists]}
+    returns = np.asarray(score(np.concatenate(blocks), estimator).returns, np.float64)
     clean = returns[-1]
     clean_score = float(clean.mean())
     names = feature_names or [str(i) for i in range(d)]
@@ -149,14 +194,23 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
         entries = []
         for hidden_row in block:
             hidden = tuple(int(i) for i in np.flatnonzero(hidden_row))
-            score = float(returns[row].mean())
-            drop = 100.0 * (clean_score - score) / abs(clean_score) if clean_score else float("nan")
-            entries.append(SetScore(hidden, tuple(names[i] for i in hidden), score, _ci95(returns[row]), drop,
+            score_ = float(returns[row].mean())
+            drop = 100.0 * (clean_score - score_) / abs(clean_score) if clean_score else float("nan")
+            entries.append(SetScore(hidden, tuple(names[i] for i in hidden), score_, _ci95(returns[row]), drop,
                                     returns[row].tolist()))
             row += 1
         sets[k] = entries
     return AuditResult(env.name, estimator, n_episodes, clean_score, _ci95(clean), clean.tolist(), sets, list(names),
-                       source or {})
+                       source or {}, search_info)
+
+
+def _check_size(env, num_sets: int, n_episodes: int, ks, search: str) -> None:
+    """Refuse a batch of more than MAX_AUDIT_EPISODES episodes, in one line."""
+    if (num_sets + 1) * n_episodes > MAX_AUDIT_EPISODES:
+        offer = "lower episodes=, drop the largest k" + (" or use search=beam" if search == "exact" else
+                                                        " or lower beam_width=")
+        raise ValueError(f"auditing k={','.join(map(str, ks))} on {env.name} is {num_sets:,} sets x {n_episodes} "
+                         f"episodes in one rollout, over {MAX_AUDIT_EPISODES:,}: {offer}")
 
 
 def write_audit(result: AuditResult, out: str, top: int = 10) -> list[str]:
@@ -167,7 +221,7 @@ def write_audit(result: AuditResult, out: str, top: int = 10) -> list[str]:
         json.dump(dataclasses.asdict(result), file, indent=1)
     if 1 in result.sets:
         written.append(_bar_chart(result, os.path.join(out, "scores_k1.png")))
-    if 2 in result.sets:
+    if 2 in result.sets and 2 not in result.search:  # a search scores too few pairs for a map
         written.append(_pair_heatmap(result, os.path.join(out, "pairs_k2.png")))
     with open(written[1], "w") as file:
         file.write(_report(result, top, [os.path.basename(path) for path in written[2:]]))
@@ -188,8 +242,16 @@ def _report(result: AuditResult, top: int, figures: list[str]) -> str:
     ]
     for k, entries in result.sets.items():
         worst = result.worst(k, top)
-        lines += [f"## k = {k}: the {len(worst)} worst of {len(entries)} sets", "",
-                  "| rank | hidden features | indices | a_u ± 95% CI | drop |", "|---|---|---|---|---|"]
+        searched = result.search.get(k)
+        if searched:
+            lines += [f"## k = {k}: the {len(worst)} worst found by beam search", "",
+                      f"Beam search of width {searched['beam_width']} ranked {searched['sets_ranked']:,} candidate sets "
+                      f"(of all {searched['sets_in_all']:,}) by `{searched['ranker']}`; its {len(entries)} finalists "
+                      f"are scored here as every set above. A search may miss the worst set: "
+                      f"`search=exact` scores them all.", ""]
+        else:
+            lines += [f"## k = {k}: the {len(worst)} worst of {len(entries)} sets", ""]
+        lines += ["| rank | hidden features | indices | a_u ± 95% CI | drop |", "|---|---|---|---|---|"]
         for rank, entry in enumerate(worst, 1):
             lines.append(f"| {rank} | {', '.join(entry.names)} | {', '.join(map(str, entry.hidden))} | "
                          f"{entry.score:.1f} ± {entry.ci95:.1f} | {entry.drop_percent:.1f}% |")
@@ -256,12 +318,12 @@ def audit_run(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     train = policy.config
     ks = _ks(config.k)
     episodes = (sum(num_candidate_sets(policy.observation_size, k) for k in ks) + 1) * config.episodes
-    slots = min(episodes, config.slots or 4096)
+    slots = min(episodes, config.slots or 4096)  # a bound on every batch the audit steps
     env = make_env(train.env, physics=train.physics, episode_length=train.episode_length, max_batch=slots)
     result = audit(env, policy.trainer.policy, policy.actor_params, ks, config.episodes, config.seed, slots,
                    observation_names(train.env), {"run": os.path.abspath(config.run_dir), "checkpoint (env step)": policy.step},
                    config.score_estimator, policy.trainer.critic_values, policy.critic_params, config.score_horizon,
-                   train.gamma)
+                   train.gamma, config.search, config.beam_width, config.ranker)
     out = config.out or os.path.join(config.run_dir, f"audit-step{policy.step}")
     return result, write_audit(result, out, config.top)
 

@@ -23,7 +23,7 @@ from admissable_jax.agent import SAC, SACBatch, SACState
 from admissable_jax.envs import EnvState, reset_where_done
 from admissable_jax.missingness import candidate_sets, mask_observation, sample_set_indices
 from admissable_jax.run_spec import RunSpec
-from admissable_jax.scoring import MissingnessScores, estimate_scores, score_missingness
+from admissable_jax.scoring import MissingnessScores, score_missingness
 
 
 @struct.dataclass
@@ -181,16 +181,11 @@ class Trainer:
         """Score every u (N = ``score_episodes`` episodes each, by the spec's estimator: one
         batched rollout, or the critic's estimate) and update p_miss (adversarial mode only)."""
         rng, score_rng = jax.random.split(state.rng)
-        if self.spec.score_estimator == "rollout":
-            scores = score_missingness(
-                self.env, self.policy, state.sac.actor_params, score_rng, self.hidden_sets, self.spec.score_episodes,
-                num_slots=self.spec.score_envs,
-            )
-        else:
-            scores = estimate_scores(
-                self.env, self.policy, state.sac.actor_params, self.critic_values, state.sac.critic_params, score_rng,
-                self.hidden_sets, self.spec.score_episodes, self.spec.score_horizon, self.spec.sac.gamma,
-            )
+        scores = score_missingness(
+            self.env, self.policy, state.sac.actor_params, score_rng, self.hidden_sets, self.spec.score_episodes,
+            num_slots=self.spec.score_envs, score_estimator=self.spec.score_estimator, critic_fn=self.critic_values,
+            critic_params=state.sac.critic_params, score_horizon=self.spec.score_horizon, gamma=self.spec.sac.gamma,
+        )
         p_miss = update_p_miss(
             state.p_miss, scores.scores, state.adversarial, self.spec.lower_bound, self.spec.epsilon
         )

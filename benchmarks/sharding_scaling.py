@@ -44,10 +44,11 @@ class ScalingBenchConfig:
 
 def measure(bench: ScalingBenchConfig, devices: int) -> dict:
     """Time one chunk and one scoring round of ``bench.pairs`` pairs on ``devices`` devices."""
-    warmup_iterations = 2
+    batch_size = 64
+    warmup_iterations = -(-batch_size // bench.num_envs) + 1  # then every iteration learns
     config = TrainConfig(
         env=bench.env, num_envs=bench.num_envs, score_every=bench.num_envs * bench.iterations,
-        learning_starts=bench.num_envs * (warmup_iterations - 1), batch_size=64, buffer_size=bench.buffer_size,
+        learning_starts=batch_size, batch_size=batch_size, buffer_size=bench.buffer_size,
         score_episodes=bench.score_episodes, episode_length=bench.episode_length, physics=bench.physics,
     ).resolved()
     placement = PairPlacement.over(bench.pairs, devices)
@@ -68,7 +69,7 @@ def measure(bench: ScalingBenchConfig, devices: int) -> dict:
     (_, _), score_s = timed(compiled_score, state)
     env_steps = bench.iterations * bench.num_envs * bench.pairs
     return {
-        "env": trainer.env.gymnasium_id, "physics": trainer.env.physics_name, "pairs": bench.pairs,
+        "env": trainer.env.gymnasium_id or config.env, "physics": trainer.env.physics_name, "pairs": bench.pairs,
         "devices": devices, "pairs_per_device": placement.pairs_per_device, "num_envs": bench.num_envs,
         "iterations": bench.iterations, "compile_chunk_s": round(compile_s, 1), "chunk_s": round(run_s, 2),
         "aggregate_env_steps_per_s": round(env_steps / run_s, 1), "score_round_s": round(score_s, 2),

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from admissable_jax import TrainConfig, candidate_sets, make_env, mask_observation, score_missingness, train_fn
-from admissable_jax.audit import main as audit_main
+from admissable_jax.audit import audit, main as audit_main
 from admissable_jax.policies import load_policy
 from admissable_jax.scoring import beam_search_worst_sets, estimate_scores
 
@@ -98,6 +98,16 @@ def test_beam_search_finds_the_known_worst_pair():
     with pytest.raises(ValueError, match="need 1 <= k <= d = 4"):
         beam_search_worst_sets(rollout_scores, 4, k=5)
 
+    # The audit's search=beam: the same finalists, confirmed by a rollout from the same N
+    # start states (so with the exact scores); k = 1 stays exact.
+    result = audit(ENV, steer, gain, ks=(1, 2), n_episodes=8, seed=7, search="beam", beam_width=2)
+    assert [entry.hidden for entry in result.sets[1]] == [(0,), (1,), (2,), (3,)]
+    assert len(result.sets[2]) == 2 and result.worst(2, 1)[0].hidden == (0, 1)
+    assert result.worst(2, 1)[0].score == pytest.approx(float(exact.min()), rel=1e-5)
+    assert result.search[2]["ranker"] == "rollout" and 4 < result.search[2]["sets_ranked"] <= 4 + 2 * 3
+    with pytest.raises(ValueError, match="score_estimator=critic needs the critic"):
+        audit(ENV, steer, gain, ks=(2,), n_episodes=2, search="beam", ranker="critic")
+
 
 @pytest.fixture(scope="module")
 def short_run(tmp_path_factory):
@@ -168,6 +178,22 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
     np.testing.assert_allclose([entry["score"] for entry in critic_record["sets"]["1"]], direct.scores, rtol=1e-5)
     with open(os.path.join(critic_out, "report.md")) as file:
         assert "the `critic` estimate" in file.read()
+
+    # search=beam ranked by the critic, finalists confirmed by rollout: score_missingness's numbers.
+    beam_out = str(tmp_path / "beam")
+    assert audit_main([short_run.run_dir, "k=2", "episodes=6", f"out={beam_out}", "seed=4", "search=beam",
+                       "beam_width=2", "ranker=critic"]) == 0
+    with open(os.path.join(beam_out, "audit.json")) as file:
+        beam_record = json.load(file)
+    finalists = np.zeros((2, 4), np.float32)
+    for row, entry in zip(finalists, beam_record["sets"]["2"]):
+        row[entry["hidden"]] = 1.0
+    direct = score_missingness(ENV, policy.trainer.policy, policy.actor_params, jax.random.key(4), finalists, 6)
+    np.testing.assert_allclose([entry["score"] for entry in beam_record["sets"]["2"]], direct.scores, rtol=1e-5)
+    assert beam_record["search"]["2"]["ranker"] == "critic" and beam_record["estimator"] == "rollout"
+    assert sorted(os.listdir(beam_out)) == ["audit.json", "report.md"]
+    with open(os.path.join(beam_out, "report.md")) as file:
+        assert "worst found by beam search" in file.read()
 
     # Bad input: one line, exit status 2.
     with pytest.raises(SystemExit) as refused:  # a bad key stops the parser itself

@@ -1,18 +1,19 @@
 """The scores a_u of the candidate sets: the paper's rollout and cheaper estimates.
 
-- :func:`score_missingness` (``rollout``, :mod:`.rollout_scores`): the paper's a_u, N whole
-  episodes per set in one batched rollout; the default everywhere.
-- :func:`estimate_scores` (``critic``, ``horizon``, :mod:`.value_estimates`): the trained
-  critic's discounted value, alone or after H physics steps.
+- :func:`score_missingness` (:mod:`.estimators`): every set's a_u by ``score_estimator``:
+
+  - ``rollout`` (:mod:`.rollout_scores`): the paper's a_u, N whole episodes per set in one
+    batched rollout; the default everywhere;
+  - ``critic``, ``horizon`` (:func:`estimate_scores`, :mod:`.value_estimates`): the trained
+    critic's discounted value, alone or after H physics steps.
 - :func:`beam_search_worst_sets` (:mod:`.set_search`): the worst sets of k features by
   beam search, where C(d, k) sets are too many to score.
 """
 
-from admissable_jax.scoring.rollout_scores import MissingnessScores, PolicyFn, score_missingness
+from admissable_jax.scoring.estimators import SCORE_ESTIMATORS, score_missingness
+from admissable_jax.scoring.rollout_scores import MissingnessScores, PolicyFn
 from admissable_jax.scoring.set_search import SetScorer, beam_search_worst_sets
 from admissable_jax.scoring.value_estimates import CriticFn, estimate_scores
-
-SCORE_ESTIMATORS = ("rollout", "critic", "horizon")
 
 __all__ = ["SCORE_ESTIMATORS", "CriticFn", "MissingnessScores", "PolicyFn", "SetScorer", "beam_search_worst_sets",
            "estimate_scores", "score_missingness"]

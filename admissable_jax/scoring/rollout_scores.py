@@ -1,4 +1,5 @@
-"""Adversarial scores a_u for every candidate set, in one batched rollout (paper §3).
+"""Adversarial scores a_u for every candidate set, in one batched rollout (paper §3): the
+``rollout`` estimator of :func:`~admissable_jax.scoring.score_missingness`.
 
 a_u = v̂_u^π(s_0): the mean undiscounted return of N episodes of the deterministic policy
 with the features in u hidden, run to termination or the env's step limit. All
@@ -46,7 +47,7 @@ class MissingnessScores:
         return jnp.argmin(self.scores)
 
 
-def score_missingness(
+def score_by_rollout(
     env,
     policy_fn: PolicyFn,
     params: Any,

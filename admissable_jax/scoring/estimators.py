@@ -1,0 +1,51 @@
+"""``score_missingness``: every set's a_u by the chosen estimator, one call for all three.
+
+- ``rollout`` (the default, the paper's): N whole episodes per set in one batched rollout
+  (:func:`~admissable_jax.scoring.rollout_scores.score_by_rollout`).
+- ``critic`` and ``horizon``: the trained critic's discounted value, alone or after
+  ``score_horizon`` physics steps
+  (:func:`~admissable_jax.scoring.value_estimates.estimate_scores`; its docstring defines both
+  and says how p_miss reads discounted values).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+
+from admissable_jax.scoring.rollout_scores import MissingnessScores, PolicyFn, score_by_rollout
+from admissable_jax.scoring.value_estimates import CriticFn, estimate_scores
+
+SCORE_ESTIMATORS = ("rollout", "critic", "horizon")
+
+
+def score_missingness(
+    env,
+    policy_fn: PolicyFn,
+    params: Any,
+    rng: jax.Array,
+    hidden_sets: jax.Array,
+    n_episodes: int = 10,
+    max_steps: int | None = None,
+    num_slots: int | None = None,
+    *,
+    score_estimator: str = "rollout",
+    critic_fn: CriticFn | None = None,
+    critic_params: Any = None,
+    score_horizon: int = 100,
+    gamma: float = 0.99,
+) -> MissingnessScores:
+    """Score every u in ``hidden_sets`` ((|U|, d) 0/1 rows) and the clean case, N =
+    ``n_episodes`` from the same N start states, by ``score_estimator``. ``max_steps`` and
+    ``num_slots`` concern ``rollout`` (see ``score_by_rollout``); ``critic_fn(critic_params,
+    masked_obs, action) -> (2,)`` twin Q, ``score_horizon`` (H) and ``gamma`` the other two.
+    Jit-able with ``env``, the functions, the sizes and the estimator's settings static."""
+    if score_estimator == "rollout":
+        return score_by_rollout(env, policy_fn, params, rng, hidden_sets, n_episodes, max_steps, num_slots)
+    if score_estimator not in SCORE_ESTIMATORS:
+        raise ValueError(f"score_estimator must be one of {', '.join(SCORE_ESTIMATORS)}, got {score_estimator!r}")
+    if critic_fn is None:
+        raise ValueError(f"score_estimator={score_estimator} needs the critic (critic_fn and critic_params)")
+    horizon = score_horizon if score_estimator == "horizon" else 0
+    return estimate_scores(env, policy_fn, params, critic_fn, critic_params, rng, hidden_sets, n_episodes, horizon, gamma)
