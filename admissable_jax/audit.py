@@ -168,22 +168,14 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
         if k not in searched:
             blocks.append(candidate_sets(d, k))
             continue
-        ranked_rows = beam_width * d  # every level's candidates fit: one compiled size for all levels
-        _check_size(env, ranked_rows, n_episodes, ks, search)
-        ranked = []
-
-        def rank(rows: np.ndarray) -> np.ndarray:
-            padded = np.concatenate([rows, np.repeat(rows[:1], ranked_rows - len(rows), axis=0)])
-            ranked.append(len(rows))
-            return np.asarray(score(padded, ranker).scores)[: len(rows)]
-
-        finalists = beam_search_worst_sets(rank, d, k, beam_width)
-        rows = np.zeros((len(finalists), d), np.float32)
-        for row, (hidden, _) in zip(rows, finalists):
-            row[list(hidden)] = 1.0
-        blocks.append(rows)
-        search_info[k] = {"method": "beam", "beam_width": beam_width, "ranker": ranker, "sets_ranked": sum(ranked),
-                          "sets_in_all": num_candidate_sets(d, k),
+        _check_size(env, beam_width * d, n_episodes, ks, search)  # each level ranks b · d rows in one batch
+        found = beam_search_worst_sets(lambda rows: score(rows, ranker).scores, d, k, beam_width)
+        finalists = [(tuple(int(i) for i in np.flatnonzero(row)), float(score_))
+                     for row, score_, kept in zip(np.asarray(found.rows), np.asarray(found.scores),
+                                                  np.asarray(found.found)) if kept]
+        blocks.append(np.asarray(found.rows)[np.asarray(found.found)])
+        search_info[k] = {"method": "beam", "beam_width": beam_width, "ranker": ranker,
+                          "sets_ranked": int(found.num_ranked), "sets_in_all": num_candidate_sets(d, k),
                           "ranker_scores": [[list(hidden), score_] for hidden, score_ in finalists]}
     returns = np.asarray(score(np.concatenate(blocks), estimator).returns, np.float64)
     clean = returns[-1]

@@ -34,6 +34,12 @@ class RunSettings:
                                               "critic's discounted value of the N starts, no physics) | horizon "
                                               "(score_horizon steps, then the critic)")
     score_horizon: int = setting(100, "H, physics steps of score_estimator=horizon before the critic values the rest")
+    pool_size: int = setting(0, "0: score all C(d, k) sets every round (exact U); P > 0: score a pool of P sets, the "
+                                "worst a beam search of width P finds (ranked by pool_ranker), refreshed every round: "
+                                "for U too big to score whole (Ant at k = 2: 5,460 sets)")
+    pool_ranker: str = setting("critic", "what ranks the pool search's candidates: critic | horizon | rollout")
+    pool_explore: float = setting(0.1, "with pool_size > 0: share of adversarial episodes that hide a uniformly random "
+                                       "set of all C(d, k) instead of one drawn from the pool by p_miss")
     physics: str = setting("auto", "physics backend: auto (warp on an NVIDIA GPU with warp-lang, else jax) | jax | warp")
     lower_bound: float = setting(0.0, "l: return lower bound; scores below are clipped to it")
     epsilon: float = setting(1e-8, "eps in p_miss = 1/(a_u - l + eps), normalised")
@@ -89,8 +95,10 @@ class TrainConfig(RunSettings):
         validate(config)
         config.env = canonical_env_name(config.env)
         config.physics = resolve_physics(config.physics)
+        check_pool(config)
         if config.score_envs == 0:
-            num_sets = num_candidate_sets(observation_size(config.env), config.k, config.include_empty_set)
+            num_sets = config.pool_size or num_candidate_sets(observation_size(config.env), config.k,
+                                                              config.include_empty_set)
             config.score_envs = default_score_envs((num_sets + 1) * config.score_episodes)
         if config.num_envs == 0:
             config.num_envs = default_num_envs(config.score_every)
@@ -118,6 +126,22 @@ def default_score_envs(num_episodes: int) -> int:
     return min(num_episodes, 32) if jax.default_backend() == "cpu" else num_episodes
 
 
+def check_pool(config: RunSettings) -> None:
+    """ValueError in one line for a ``pool_size`` the beam search cannot fill, or one that
+    is no smaller than U (the env's name must be valid)."""
+    if config.pool_size == 0:
+        return
+    d = observation_size(canonical_env_name(config.env))
+    num_sets = num_candidate_sets(d, config.k)
+    if config.include_empty_set:
+        raise ValueError("pool_size > 0 searches sets of exactly k features: it excludes include_empty_set=true")
+    if config.pool_size >= num_sets:
+        raise ValueError(f"pool_size={config.pool_size} is not below C({d}, {config.k}) = {num_sets}: score all sets "
+                         f"with pool_size=0")
+    if config.pool_size > d or 2 * config.k > d:
+        raise ValueError(f"pool_size must be <= d = {d} and k <= d/2 (the beam search starts from the single features)")
+
+
 def validate(config: TrainConfig) -> None:
     """Raise ValueError/TypeError with a one-line message for any bad setting."""
     if not isinstance(config, TrainConfig):
@@ -132,6 +156,12 @@ def validate(config: TrainConfig) -> None:
     parse_logger_names(config.logger)
     if config.score_estimator not in SCORE_ESTIMATORS:
         raise ValueError(f"score_estimator must be one of {', '.join(SCORE_ESTIMATORS)}, got {config.score_estimator!r}")
+    if config.pool_ranker not in SCORE_ESTIMATORS:
+        raise ValueError(f"pool_ranker must be one of {', '.join(SCORE_ESTIMATORS)}, got {config.pool_ranker!r}")
+    if config.pool_size < 0:
+        raise ValueError(f"pool_size must be >= 0 (0 = score all sets), got {config.pool_size}")
+    if not 0 <= config.pool_explore <= 1:
+        raise ValueError(f"pool_explore must be in [0, 1], got {config.pool_explore}")
     if config.score_horizon < 1:
         raise ValueError(f"score_horizon must be >= 1, got {config.score_horizon}")
     if config.missingness not in MODES:

@@ -184,14 +184,15 @@ class TrainingLoop:
 
                 started = time.perf_counter()
                 state, scores = self.score_and_update(state)
-                scores, p_miss, grad_steps = self.host_rows((scores, state.p_miss, state.grad_steps))
+                scores, p_miss, pool, grad_steps = self.host_rows((scores, state.p_miss, state.pool, state.grad_steps))
                 self._check_physics(np.any(scores.capacity_exceeded), env_steps)
                 score_seconds = time.perf_counter() - started
                 rows = []
                 for index, run in enumerate(self.runs):
                     pick = lambda tree: self.select_pair(tree, index)
-                    rows.append(score_row(env_steps, pick(scores), pick(p_miss), self.trainer.hidden_sets,
-                                          self.trainer.spec.score_estimator))
+                    rows.append(score_row(env_steps, pick(scores), pick(p_miss),
+                                          np.asarray(self.trainer.scored_sets(pick(pool))),
+                                          self.trainer.spec.score_estimator, listed=self.trainer.pooled))
                     run.append("scores.jsonl", rows[-1])
                     run.append("metrics.jsonl", metrics_row(
                         env_steps, int(pick(grad_steps)), pick(chunk_metrics),

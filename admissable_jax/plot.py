@@ -14,7 +14,9 @@ and PDF:
   whose rows are named after Gymnasium's observation entries ("torso z", ...) and whose
   cells are centred on their scoring steps;
 * ``p_miss_<mode>.*`` — the adversary's distribution over time (mean over seeds), or a
-  note that it stayed uniform;
+  note that it stayed uniform; for a run with a candidate pool (``pool_size`` > 0), whose
+  scored sets change every round, both heatmaps have a row per feature instead: the lowest
+  a_u of the pool's sets that hide it (blank where none does) and the p_miss mass on them;
 * ``summary.md`` (CLI) — :func:`summary_table`: final and AUC min_u a_u per mode.
 
 A window longer than the runs' records is shortened to their length, and the figures and
@@ -52,12 +54,14 @@ class Run:
     mode: str
     seed: int
     env_steps: np.ndarray  # (T,)
-    scores: np.ndarray  # (T, |U|) a_u
+    scores: np.ndarray  # (T, |U|) a_u; with a pool (T, d): the lowest a_u of the pool's sets hiding each feature
     min_score: np.ndarray  # (T,)
     clean_score: np.ndarray  # (T,)
-    p_miss: np.ndarray  # (T, |U|)
-    set_names: list[str]  # (|U|,) the hidden features of each candidate set
+    p_miss: np.ndarray  # (T, |U|); with a pool (T, d): the p_miss mass on the pool's sets hiding each feature
+    set_names: list[str]  # (|U|,) the hidden features of each candidate set; with a pool each feature's name
     score_episodes: int  # N: episodes behind each a_u
+    pooled: bool = False  # scores and p_miss are per feature (a run with a candidate pool)
+    uniform_draws: bool = False  # p_miss stayed uniform at every scoring
 
 
 def set_names(env: str, k: int, include_empty: bool) -> list[str]:
@@ -79,13 +83,31 @@ def load_run(path: str) -> Run:
     if not rows:
         raise ValueError(f"{path} has no scoring rows yet")
     column = lambda key: np.asarray([row[key] for row in rows], dtype=float)
+    scores, p_miss = column("scores"), column("p_miss")
+    names = set_names(str(config.env), int(config.k), bool(config.include_empty_set))
+    if "sets" in rows[0]:  # a pool: per feature
+        names = observation_names(str(config.env))
+        scores, p_miss = per_feature(rows, len(names))
     return Run(
         path=path, env=str(config.env), mode=str(config.missingness), seed=int(config.seed),
-        env_steps=column("env_steps"), scores=column("scores"), min_score=column("min_score"),
-        clean_score=column("clean_score"), p_miss=column("p_miss"),
-        set_names=set_names(str(config.env), int(config.k), bool(config.include_empty_set)),
-        score_episodes=int(config.score_episodes),
+        env_steps=column("env_steps"), scores=scores, min_score=column("min_score"),
+        clean_score=column("clean_score"), p_miss=p_miss, set_names=names,
+        score_episodes=int(config.score_episodes), pooled="sets" in rows[0],
+        uniform_draws=bool(np.allclose(column("p_miss"), 1.0 / column("p_miss").shape[-1])),
     )
+
+
+def per_feature(rows: list[dict], num_features: int) -> tuple[np.ndarray, np.ndarray]:
+    """(T, d) from the rows of a run with a pool: per feature, the lowest a_u of the
+    pool's sets that hide it (NaN where none does) and the p_miss mass on those sets."""
+    scores = np.full((len(rows), num_features), np.nan)
+    p_miss = np.zeros((len(rows), num_features))
+    for t, row in enumerate(rows):
+        for hidden, score, weight in zip(row["sets"], row["scores"], row["p_miss"]):
+            features = [int(i) for i in hidden.strip("{}").split(",") if i]
+            scores[t, features] = np.fmin(scores[t, features], score)
+            p_miss[t, features] += weight
+    return scores, p_miss
 
 
 def find_runs(paths: list[str]) -> list[str]:
@@ -216,20 +238,25 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 40) -> list[str]:
     for mode, mode_runs in sorted(by_mode.items()):
         names = mode_runs[0].set_names
         height = max(4.0, 0.12 * len(names) + 1.5)
-        for attribute, label, name in (("scores", "$a_u$ (mean over seeds)", "scores"), ("p_miss", "$p_{miss}(u)$ (mean over seeds)", "p_miss")):
+        labels = (("lowest $a_u$ of the pool's sets hiding it", "$p_{miss}$ mass on them") if mode_runs[0].pooled
+                  else ("$a_u$", "$p_{miss}(u)$"))
+        for attribute, label, name in zip(("scores", "p_miss"), (f"{text} (mean over seeds)" for text in labels),
+                                          ("scores", "p_miss")):
             steps, values = _aligned(mode_runs, attribute)
             figure, ax = plt.subplots(figsize=(10, height))
             ax.set_title(f"{envs[0]}, {mode} missingness ({_seeds(len(mode_runs))}): {label}")
-            if attribute == "p_miss" and np.allclose(values, 1.0 / values.shape[-1]):
-                ax.text(0.5, 0.5, f"$p_{{miss}}$ stayed uniform: 1/{values.shape[-1]} = {1.0 / values.shape[-1]:.4f} "
-                        f"for every u,\nat all {len(steps)} scorings ({int(steps[0])} to {int(steps[-1])} env steps)",
+            if attribute == "p_miss" and all(run.uniform_draws for run in mode_runs):
+                every = ("every set of U drawn alike" if mode_runs[0].pooled else
+                         f"1/{values.shape[-1]} = {1.0 / values.shape[-1]:.4f} for every u")
+                ax.text(0.5, 0.5, f"$p_{{miss}}$ stayed uniform: {every},\nat all {len(steps)} scorings "
+                        f"({int(steps[0])} to {int(steps[-1])} env steps)",
                         ha="center", va="center", transform=ax.transAxes, fontsize=12)
                 ax.set_axis_off()
                 figure.set_size_inches(10, 2.5)
             else:
                 _heatmap(ax, figure, steps, values.mean(axis=0), names, label)
                 ax.set_xlabel("env steps (each column one scoring)")
-                ax.set_ylabel("hidden features u")
+                ax.set_ylabel("feature (over the pool's sets hiding it)" if mode_runs[0].pooled else "hidden features u")
             written += _save(figure, out_dir, f"{name}_{mode}")
     return written
 

@@ -73,12 +73,15 @@ def load_config(path: str, cls=TrainConfig):
     return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(cls), load_config_yaml(path)))
 
 
-def score_row(env_steps: int, scores: MissingnessScores, p_miss, hidden_sets, estimator: str) -> dict[str, Any]:
+def score_row(env_steps: int, scores: MissingnessScores, p_miss, hidden_sets, estimator: str,
+              listed: bool = False) -> dict[str, Any]:
     """One ``scores.jsonl`` row: every a_u, the minimum and its set, the clean score, p_miss,
     and which estimator made the scores (``rollout``: the paper's undiscounted returns;
     ``critic``/``horizon``: discounted values, whose ``mean_episode_length`` counts the
-    physics steps each estimate ran)."""
+    physics steps each estimate ran). ``hidden_sets`` are the scored sets' rows; ``listed``
+    adds them as ``sets`` (a pool's sets change from row to row; U's are the same in all)."""
     argmin = int(scores.argmin)
+    sets = {"sets": [describe_set(row) for row in np.asarray(hidden_sets)]} if listed else {}
     return {
         "env_steps": env_steps,
         "score_estimator": estimator,
@@ -89,6 +92,7 @@ def score_row(env_steps: int, scores: MissingnessScores, p_miss, hidden_sets, es
         "scores": np.asarray(scores.scores).tolist(),
         "p_miss": np.asarray(p_miss).tolist(),
         "mean_episode_length": float(np.asarray(scores.lengths).mean()),
+        **sets,
     }
 
 

@@ -14,7 +14,7 @@ import dataclasses
 
 from admissable_jax.agent import SACHyperparams
 from admissable_jax.config import TrainConfig
-from admissable_jax.envs import EnvOptions
+from admissable_jax.envs import EnvOptions, observation_size
 from admissable_jax.replay import buffer_capacity
 
 
@@ -28,7 +28,10 @@ class RunSpec:
     score_envs: int  # envs stepped at once in a scoring round
     score_episodes: int  # N
     score_estimator: str  # rollout | critic | horizon (admissable_jax.scoring)
-    score_horizon: int  # H of the horizon estimator; 0 for critic
+    score_horizon: int  # H of the horizon estimator (of the score or the pool ranker)
+    pool_size: int  # P sets scored per round, found by beam search; 0 = all of U
+    pool_ranker: str  # the estimator that ranks the pool search's candidates
+    pool_explore: float  # share of adversarial episodes hiding a uniform set of all U
     iterations_per_scoring: int  # ζ / num_envs
     updates_per_iteration: int  # num_envs · utd, at least 1
     buffer_capacity: int  # replay rows (a multiple of num_envs)
@@ -48,7 +51,7 @@ class RunSpec:
             env_options=EnvOptions(
                 episode_length=config.episode_length,
                 physics=config.physics,
-                max_batch=num_runs * max(config.num_envs, config.score_envs),
+                max_batch=num_runs * max(config.num_envs, config.score_envs, horizon_ranker_batch(config)),
             ),
             k=config.k,
             include_empty_set=config.include_empty_set,
@@ -56,7 +59,10 @@ class RunSpec:
             score_envs=config.score_envs,
             score_episodes=config.score_episodes,
             score_estimator=config.score_estimator,
-            score_horizon=config.score_horizon if config.score_estimator == "horizon" else 0,
+            score_horizon=config.score_horizon,
+            pool_size=config.pool_size,
+            pool_ranker=config.pool_ranker,
+            pool_explore=config.pool_explore,
             iterations_per_scoring=config.score_every // config.num_envs,
             updates_per_iteration=config.updates_per_iteration,
             buffer_capacity=buffer_capacity(config.buffer_size, config.num_envs),
@@ -68,3 +74,11 @@ class RunSpec:
             lower_bound=config.lower_bound,
             epsilon=config.epsilon,
         )
+
+
+def horizon_ranker_batch(config: TrainConfig) -> int:
+    """Envs stepped at once by the pool search when ``pool_ranker=horizon`` (every level
+    steps its b · d candidates' N episodes and the clean case's together), else 0."""
+    if config.pool_size == 0 or config.pool_ranker != "horizon":
+        return 0
+    return (config.pool_size * observation_size(config.env) + 1) * config.score_episodes

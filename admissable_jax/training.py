@@ -5,7 +5,17 @@ its own missing set u), writes the transitions to the replay buffer, starts new 
 where one ended (drawing a fresh u ~ p_miss for each, paper §3), and takes
 ``num_envs · utd`` SAC gradient steps once ``learning_starts`` env steps are collected.
 ``run_chunk`` scans iterations on the device; ``score_and_update`` scores every u in one
-batched rollout and applies the adversary's update. Both are pure functions of
+batched rollout and applies the adversary's update.
+
+The candidate sets U are all C(d, k) sets of k features, and ``set_index`` indexes them.
+With ``pool_size`` P > 0 (where U is too big to score every round: Ant at k = 2 has 5,460
+sets) the adversary works on a pool instead: every scoring round a beam search of width P
+(:func:`~admissable_jax.scoring.beam_search_worst_sets`), ranked by the cheap
+``pool_ranker`` (the critic by default), picks the P sets of U it finds worst, fresh each
+round; only these are scored by ``score_estimator`` and p_miss is over them. An adversarial
+episode draws its set from the pool by p_miss, or with probability ``pool_explore`` a
+uniformly random set of all U, so the agent (and the critic that ranks the next search)
+keeps meeting sets outside the pool. Uniform mode draws uniformly from all U. Both are pure functions of
 :class:`TrainState`, so they jit, and vmap over seeds or over (seed, mode) pairs: the mode
 is data (``adversarial``, ``masking``), not code. The trainer reads a frozen
 :class:`~admissable_jax.run_spec.RunSpec`, never the user's config.
@@ -23,7 +33,7 @@ from admissable_jax.agent import SAC, SACBatch, SACState
 from admissable_jax.envs import EnvState, reset_where_done
 from admissable_jax.missingness import candidate_sets, mask_observation, sample_set_indices
 from admissable_jax.run_spec import RunSpec
-from admissable_jax.scoring import MissingnessScores, score_missingness
+from admissable_jax.scoring import MissingnessScores, beam_search_worst_sets, score_missingness
 
 
 @struct.dataclass
@@ -32,12 +42,13 @@ class TrainState:
     buffer: replay.ReplayBuffer
     env_states: EnvState  # batched over num_envs
     set_index: jax.Array  # (num_envs,) each env's current missing set (index into U)
-    p_miss: jax.Array  # (|U|,)
+    p_miss: jax.Array  # (P,) over the pool's sets; P = |U| without a pool
     adversarial: jax.Array  # () bool: update p_miss from the scores
     masking: jax.Array  # () bool: False in mode "none" (nothing hidden in training)
     rng: jax.Array  # raw uint32 key
     env_steps: jax.Array  # () int32, over all envs
     grad_steps: jax.Array  # () int32
+    pool: jax.Array  # (P,) int32 indices into U of the sets scored and drawn by p_miss; (0,) = all of U
 
 
 class Trainer:
@@ -48,6 +59,8 @@ class Trainer:
         self.spec = spec
         self.hidden_sets = jnp.asarray(candidate_sets(env.observation_size, spec.k, spec.include_empty_set))
         self.num_sets = int(self.hidden_sets.shape[0])
+        self.pooled = spec.pool_size > 0
+        self.num_scored = spec.pool_size or self.num_sets  # P
         self.agent = SAC(2 * env.observation_size, env.action_low, env.action_high, spec.sac)
 
     # --- construction -------------------------------------------------------------------
@@ -55,24 +68,48 @@ class Trainer:
         """A fresh run. ``seed`` is an int (traced: vmap over seeds works)."""
         rng = jax.random.PRNGKey(seed)
         rng, agent_rng, env_rng, set_rng = jax.random.split(rng, 4)
-        p_miss = uniform_p_miss(self.num_sets)
+        p_miss = uniform_p_miss(self.num_scored)
+        if self.pooled:  # until the first search: P random sets
+            set_rng, pool_rng = jax.random.split(set_rng)
+            pool = jax.random.choice(pool_rng, self.num_sets, (self.num_scored,), replace=False).astype(jnp.int32)
+        else:
+            pool = jnp.zeros((0,), jnp.int32)
+        adversarial = jnp.asarray(mode_adversarial, bool)
         return TrainState(
             sac=self.agent.init(agent_rng),
             buffer=replay.init_buffer(self.spec.buffer_capacity, self.env.observation_size, self.env.action_size),
             env_states=jax.vmap(self.env.reset)(jax.random.split(env_rng, self.spec.num_envs)),
-            set_index=sample_set_indices(set_rng, p_miss, (self.spec.num_envs,)),
+            set_index=self._draw_sets(set_rng, p_miss, pool, adversarial),
             p_miss=p_miss,
-            adversarial=jnp.asarray(mode_adversarial, bool),
+            adversarial=adversarial,
             masking=jnp.asarray(mode_masking, bool),
             rng=rng,
             env_steps=jnp.zeros((), jnp.int32),
             grad_steps=jnp.zeros((), jnp.int32),
+            pool=pool,
         )
 
     # --- pieces -------------------------------------------------------------------------
     def hidden_rows(self, state: TrainState, set_index: jax.Array) -> jax.Array:
         """The 0/1 rows hidden for these set indices (all zeros when not masking)."""
         return self.hidden_sets[set_index] * state.masking.astype(jnp.float32)
+
+    def scored_sets(self, pool: jax.Array) -> jax.Array:
+        """The 0/1 rows of the sets a scoring round scores: the pool's, or all of U."""
+        return self.hidden_sets[pool] if self.pooled else self.hidden_sets
+
+    def _draw_sets(self, rng: jax.Array, p_miss: jax.Array, pool: jax.Array, adversarial: jax.Array) -> jax.Array:
+        """Each env's set for a new episode, u ~ p_miss, as indices into U (paper §3). With a
+        pool, p_miss is over the pool's sets, and with probability ``pool_explore`` (1 in
+        uniform mode: uniform over all U) an episode takes a uniformly random set of U."""
+        shape = (self.spec.num_envs,)
+        if not self.pooled:
+            return sample_set_indices(rng, p_miss, shape)
+        pick_rng, explore_rng, anywhere_rng = jax.random.split(rng, 3)
+        from_pool = pool[sample_set_indices(pick_rng, p_miss, shape)]
+        anywhere = jax.random.randint(anywhere_rng, shape, 0, self.num_sets, jnp.int32)
+        explore = jax.random.uniform(explore_rng, shape) < jnp.where(adversarial, self.spec.pool_explore, 1.0)
+        return jnp.where(explore, anywhere, from_pool)
 
     def policy(self, actor_params, masked_obs: jax.Array) -> jax.Array:
         """Deterministic policy on one masked observation, as scoring runs it."""
@@ -144,7 +181,7 @@ class Trainer:
         env_states = jax.vmap(reset_where_done, (None, 0, 0))(
             self.env, stepped, jax.random.split(reset_rng, self.spec.num_envs)
         )
-        new_sets = sample_set_indices(set_rng, state.p_miss, (self.spec.num_envs,))
+        new_sets = self._draw_sets(set_rng, state.p_miss, state.pool, state.adversarial)
         state = state.replace(
             buffer=buffer,
             env_states=env_states,
@@ -179,14 +216,33 @@ class Trainer:
 
     def score_and_update(self, state: TrainState) -> tuple[TrainState, MissingnessScores]:
         """Score every u (N = ``score_episodes`` episodes each, by the spec's estimator: one
-        batched rollout, or the critic's estimate) and update p_miss (adversarial mode only)."""
+        batched rollout, or the critic's estimate) and update p_miss (adversarial mode only).
+        With a pool: search the pool afresh first, then score its sets (module docstring)."""
         rng, score_rng = jax.random.split(state.rng)
-        scores = score_missingness(
-            self.env, self.policy, state.sac.actor_params, score_rng, self.hidden_sets, self.spec.score_episodes,
-            num_slots=self.spec.score_envs, score_estimator=self.spec.score_estimator, critic_fn=self.critic_values,
-            critic_params=state.sac.critic_params, score_horizon=self.spec.score_horizon, gamma=self.spec.sac.gamma,
-        )
+        pool = state.pool
+        if self.pooled:
+            score_rng, search_rng = jax.random.split(score_rng)
+            pool = self._search_pool(state, search_rng)
+        scores = self._score(state, score_rng, self.scored_sets(pool), self.spec.score_estimator)
         p_miss = update_p_miss(
             state.p_miss, scores.scores, state.adversarial, self.spec.lower_bound, self.spec.epsilon
         )
-        return state.replace(p_miss=p_miss, rng=rng), scores
+        return state.replace(p_miss=p_miss, pool=pool, rng=rng), scores
+
+    def _score(self, state: TrainState, rng: jax.Array, hidden_sets: jax.Array, estimator: str) -> MissingnessScores:
+        """``hidden_sets``' scores by ``estimator`` with the state's actor and critic."""
+        return score_missingness(
+            self.env, self.policy, state.sac.actor_params, rng, hidden_sets, self.spec.score_episodes,
+            num_slots=self.spec.score_envs, score_estimator=estimator, critic_fn=self.critic_values,
+            critic_params=state.sac.critic_params, score_horizon=self.spec.score_horizon, gamma=self.spec.sac.gamma,
+        )
+
+    def _search_pool(self, state: TrainState, rng: jax.Array) -> jax.Array:
+        """The P sets of U that a beam search of width P, ranked by ``pool_ranker``, finds
+        worst, as indices into U."""
+        found = beam_search_worst_sets(
+            lambda rows: self._score(state, rng, rows, self.spec.pool_ranker).scores,
+            self.env.observation_size, self.spec.k, self.num_scored,
+        )
+        # A found set of k features overlaps its own row of U in k features, every other row in fewer.
+        return jnp.argmax(found.rows @ self.hidden_sets.T, axis=1).astype(jnp.int32)

@@ -80,21 +80,24 @@ def test_beam_search_finds_the_known_worst_pair():
     worst pair of all C(4, 2) = 6 (checked exactly here). Greedy and width-2 beam search find
     it from the single features up, with its exact score."""
     rng, gain = jax.random.key(7), jnp.asarray(0.8)
-    scored = []
 
     def rollout_scores(rows):
-        scored.append(len(rows))
         return score_missingness(ENV, steer, gain, rng, jnp.asarray(rows), 8).scores
 
     exact = np.asarray(rollout_scores(candidate_sets(4, k=2)))
     pairs = [tuple(np.flatnonzero(row)) for row in candidate_sets(4, k=2)]
     assert pairs[int(np.argmin(exact))] == (0, 1)
+    search = jax.jit(beam_search_worst_sets, static_argnums=(0, 1, 2, 3))  # it runs under jit, as in training
     for width in (1, 2):
-        scored.clear()
-        found = beam_search_worst_sets(rollout_scores, 4, k=2, beam_width=width)
-        assert len(found) == width and found[0][0] == (0, 1)
-        assert found[0][1] == pytest.approx(float(exact.min()), rel=1e-5)
-        assert scored[0] == 4 and scored[1] <= width * 3  # singles, then each kept set's extensions
+        found = search(rollout_scores, 4, 2, width)
+        assert found.found.all() and tuple(np.flatnonzero(found.rows[0])) == (0, 1)
+        assert float(found.scores[0]) == pytest.approx(float(exact.min()), rel=1e-5)
+        # 4 singles, then each kept single's 3 extensions, the pair both share ranked once.
+        assert int(found.num_ranked) == 4 + 3 * width - (width - 1)
+    # Width 3 on d = 3, k = 3: one set of 3 exists; the other two beam slots stay empty.
+    few = beam_search_worst_sets(lambda rows: -rows.sum(axis=1), 3, 3, 3)
+    np.testing.assert_array_equal(few.found, [True, False, False])
+    np.testing.assert_array_equal(few.rows[0], [1, 1, 1])
     with pytest.raises(ValueError, match="need 1 <= k <= d = 4"):
         beam_search_worst_sets(rollout_scores, 4, k=5)
 

@@ -199,6 +199,68 @@ def test_missing_set_fixed_within_episode_and_drawn_from_p_miss():
     assert (np.abs(frequencies - np.asarray(p_miss)) < tolerance).all(), frequencies
 
 
+def test_candidate_pool_for_k2_search_draws_and_records(tmp_path):
+    """k = 2 with a pool of P = 3 of the C(4, 2) = 6 pairs: every round a beam search of
+    width 3 (ranked here by rollouts) picks the pool, only the pool is scored and p_miss is
+    over it; adversarial episodes draw from the pool by p_miss or, with probability
+    pool_explore, any pair of U; uniform mode draws every pair alike; an episode keeps its
+    pair when the pool changes under it. End to end, scores.jsonl lists each row's pool and
+    plot draws per-feature heatmaps."""
+    from admissable_jax.plot import load_run, plot_runs
+    from admissable_jax.scoring import beam_search_worst_sets
+
+    config = dataclasses.replace(POINT_MASS, k=2, pool_size=3, pool_ranker="rollout", pool_explore=0.3, num_envs=20,
+                                 episode_length=5, hidden_size=32, learning_starts=128, logger="none",
+                                 out=str(tmp_path / "pool")).resolved()
+    trainer = Trainer(make_env("point_mass", episode_length=5), RunSpec.of(config))
+    pairs = [tuple(np.flatnonzero(row)) for row in np.asarray(trainer.hidden_sets)]
+    state = trainer.init(0, True, True)
+    assert state.p_miss.shape == (3,) and len(set(np.asarray(state.pool).tolist())) == 3
+
+    scored_state, scores = jax.jit(trainer.score_and_update)(state)
+    _, score_rng = jax.random.split(state.rng)
+    score_rng, search_rng = jax.random.split(score_rng)
+    rank = lambda rng: lambda rows: score_missingness(trainer.env, trainer.policy, state.sac.actor_params, rng, rows,
+                                                      config.score_episodes).scores
+    found = beam_search_worst_sets(rank(search_rng), 4, 2, 3)
+    assert [pairs[i] for i in np.asarray(scored_state.pool)] == [tuple(np.flatnonzero(r)) for r in found.rows]
+    pool_rows = trainer.hidden_sets[scored_state.pool]
+    np.testing.assert_allclose(scores.scores, rank(score_rng)(pool_rows), rtol=1e-5)
+    weights = 1 / np.asarray(scores.scores)
+    np.testing.assert_allclose(scored_state.p_miss, weights / weights.sum(), rtol=1e-5)
+
+    # Draws: adversarial with a fixed pool and p_miss, then uniform; the pool changes mid-run.
+    pool, p_miss = jnp.array([0, 2, 5]), jnp.array([0.6, 0.3, 0.1])
+
+    def draws(adversarial):
+        start = trainer.init(1, adversarial, True).replace(pool=pool, p_miss=p_miss)
+
+        def record(state, t):
+            state = state.replace(pool=jnp.where(t == 150, jnp.array([1, 3, 4]), state.pool))
+            state, _ = trainer.iteration(state)
+            return state, (state.set_index, state.env_states.step_count)
+
+        _, (set_index, step_count) = jax.jit(lambda s: jax.lax.scan(record, s, jnp.arange(300)))(start)
+        set_index, step_count = np.asarray(set_index), np.asarray(step_count)
+        starts = step_count[1:] == 0
+        assert not ((set_index[1:] != set_index[:-1]) & ~starts).any(), "u changed within an episode"
+        return set_index[1:][starts & (np.arange(1, 300) < 150)[:, None]]
+
+    adversarial_draws, uniform_draws = draws(True), draws(False)
+    expected = np.full(6, 0.3 / 6)
+    expected[[0, 2, 5]] += 0.7 * np.asarray(p_miss)
+    for drawn, p in ((adversarial_draws, expected), (uniform_draws, np.full(6, 1 / 6))):
+        frequencies = np.bincount(drawn, minlength=6) / len(drawn)
+        assert (np.abs(frequencies - p) < 4 * np.sqrt(p * (1 - p) / len(drawn))).all(), frequencies
+
+    result = train_fn(dataclasses.replace(config, total_steps=3000, score_every=1000, checkpoint_every=1))
+    rows = result.scores
+    assert len(rows) == 3 and all(len(set(row["sets"])) == 3 == len(row["scores"]) for row in rows)
+    run = load_run(config.out)
+    assert run.scores.shape == (3, 4) and np.allclose(run.p_miss.sum(axis=1), 2.0)  # each pair counts for 2 features
+    assert any("scores_adversarial.png" in path for path in plot_runs([config.out], str(tmp_path / "figures")))
+
+
 def _feature_zero_controller(gain, masked_obs):
     """Pushes x home using only feature 0 (x); blind to everything else."""
     return jnp.clip(jnp.array([-gain * masked_obs[0], 0.0]), -1.0, 1.0)
@@ -287,6 +349,8 @@ def test_corrupt_checkpoint_and_divergence_keep_finished_work(tmp_path):
         (["physics=cuda"], "physics must be one of auto, jax, warp"),
         (["logger=tensorboard,mlflow"], "logger must be none or a comma list of tensorboard, wandb, got 'tensorboard,mlflow'"),
         (["score_estimator=guess"], "score_estimator must be one of rollout, critic, horizon"),
+        (["env=hopper", "k=2", "pool_size=55"], "pool_size=55 is not below C(11, 2) = 55"),
+        (["pool_ranker=guess"], "pool_ranker must be one of rollout, critic, horizon"),
     ],
 )
 def test_cli_rejects_bad_input_with_one_line(args, message, tmp_path, capsys):

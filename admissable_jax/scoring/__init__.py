@@ -12,8 +12,8 @@
 
 from admissable_jax.scoring.estimators import SCORE_ESTIMATORS, score_missingness
 from admissable_jax.scoring.rollout_scores import MissingnessScores, PolicyFn
-from admissable_jax.scoring.set_search import SetScorer, beam_search_worst_sets
+from admissable_jax.scoring.set_search import SearchResult, SetScorer, beam_search_worst_sets
 from admissable_jax.scoring.value_estimates import CriticFn, estimate_scores
 
-__all__ = ["SCORE_ESTIMATORS", "CriticFn", "MissingnessScores", "PolicyFn", "SetScorer", "beam_search_worst_sets",
-           "estimate_scores", "score_missingness"]
+__all__ = ["SCORE_ESTIMATORS", "CriticFn", "MissingnessScores", "PolicyFn", "SearchResult", "SetScorer",
+           "beam_search_worst_sets", "estimate_scores", "score_missingness"]

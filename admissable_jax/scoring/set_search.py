@@ -1,39 +1,61 @@
 """Searching for the worst sets of k hidden features where C(d, k) is too many to score.
 
-Beam search of width b (greedy at b = 1): level 1 scores every single feature; each later
-level extends each of the b sets kept so far by every feature not yet in it, scores all
-the extensions in one batch, and keeps the b lowest. After k levels it has scored at most
-d + (k − 1) · b · d sets instead of C(d, k). Any scorer ranks the candidates: the paper's
-rollout, or a cheaper estimate (``admissable_jax.scoring``), whose finalists a rollout can
-then confirm.
+Beam search of width b (greedy at b = 1): level 1 ranks every single feature; each later
+level extends each of the b sets kept so far by every feature not yet in it, ranks all the
+distinct extensions in one batch, and keeps the b lowest. After k levels it has ranked at
+most d + (k − 1) · b · d sets instead of C(d, k). Any scorer ranks the candidates: the
+paper's rollout, or a cheaper estimate (``admissable_jax.scoring``), whose finalists a
+rollout can then confirm.
+
+Every level hands the scorer the same number of rows, b · d (each kept set with each
+feature added; rows that repeat a set, or extend a set by a feature it holds, or extend an
+empty beam slot, are scored too but never kept), so the search is one fixed-shape program:
+it runs under ``jit`` (the trainer's candidate pool, :mod:`admissable_jax.training`) and
+eagerly with one compiled scorer (the audit).
 """
 
 from __future__ import annotations
 
 from typing import Callable
 
-import numpy as np
+import jax
+import jax.numpy as jnp
+from flax import struct
 
-SetScorer = Callable[[np.ndarray], np.ndarray]  # (m, d) 0/1 rows -> (m,) scores; lower hurts more
+SetScorer = Callable[[jax.Array], jax.Array]  # (m, d) 0/1 rows -> (m,) scores; lower hurts more
 
 
-def beam_search_worst_sets(score_sets: SetScorer, num_features: int, k: int, beam_width: int = 1
-                           ) -> list[tuple[tuple[int, ...], float]]:
-    """The ``beam_width`` sets of ``k`` features that ``score_sets`` found worst, lowest
-    first, each with its score. Raises ValueError unless 1 <= k <= num_features."""
+@struct.dataclass
+class SearchResult:
+    """The sets a beam search kept, lowest score first."""
+
+    rows: jax.Array  # (b, d) 0/1 rows of the k-feature sets kept
+    scores: jax.Array  # (b,) the scorer's scores; inf where not ``found``
+    found: jax.Array  # (b,) bool: False only where fewer than b distinct sets of k exist
+    num_ranked: jax.Array  # () distinct sets the scorer ranked over all levels
+
+
+def beam_search_worst_sets(score_sets: SetScorer, num_features: int, k: int, beam_width: int = 1) -> SearchResult:
+    """The ``beam_width`` sets of ``k`` features that ``score_sets`` finds worst (module
+    docstring). ``score_sets`` maps (b · d, d) rows to (b · d,) scores and may be traced;
+    ``num_features``, ``k`` and ``beam_width`` are static. Raises ValueError unless
+    1 <= k <= num_features and beam_width >= 1."""
     if not 1 <= k <= num_features or beam_width < 1:
         raise ValueError(f"need 1 <= k <= d = {num_features} and beam_width >= 1, got k={k}, beam_width={beam_width}")
-    kept: list[tuple[int, ...]] = [()]
-    scores = np.zeros(1)
-    for _ in range(k):
-        candidates = sorted({tuple(sorted((*kept_set, feature))) for kept_set in kept
-                             for feature in range(num_features) if feature not in kept_set})
-        rows = np.zeros((len(candidates), num_features), np.float32)
-        for row, candidate in zip(rows, candidates):
-            row[list(candidate)] = 1.0
-        scores = np.asarray(score_sets(rows), np.float64)
-        if scores.shape != (len(candidates),):
-            raise ValueError(f"score_sets returned shape {scores.shape} for {len(candidates)} sets")
-        order = np.argsort(scores, kind="stable")[:beam_width]
-        kept, scores = [candidates[i] for i in order], scores[order]
-    return [(hidden, float(score)) for hidden, score in zip(kept, scores)]
+    d, b = num_features, beam_width
+    kept = jnp.zeros((b, d), jnp.float32)
+    kept_found = jnp.arange(b) == 0  # level 0 keeps one set: the empty one
+    kept_scores = jnp.zeros(b)
+    num_ranked = jnp.zeros((), jnp.int32)
+    earlier = jnp.tril(jnp.ones((b * d, b * d), bool), k=-1)  # earlier[i, j]: candidate j comes before i
+    for size in range(1, k + 1):
+        candidates = jnp.maximum(kept[:, None, :], jnp.eye(d)[None]).reshape(b * d, d)  # kept set i plus feature f
+        new = (kept_found[:, None] & (kept == 0)).reshape(b * d)  # a set of ``size`` features
+        same = (candidates @ candidates.T) > size - 0.5  # two sets of ``size`` features that overlap in all
+        new = new & ~jnp.any(same & earlier & new[None, :], axis=1)  # the first copy of each set only
+        scores = jnp.where(new, score_sets(candidates), jnp.inf)
+        num_ranked = num_ranked + new.sum()
+        order = jnp.argsort(scores, stable=True)[:b]
+        kept, kept_scores, kept_found = candidates[order], scores[order], new[order]
+    return SearchResult(rows=kept, scores=jnp.where(kept_found, kept_scores, jnp.inf), found=kept_found,
+                        num_ranked=num_ranked)
