@@ -170,13 +170,13 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
             continue
         _check_size(env, beam_width * d, n_episodes, ks, search)  # each level ranks b · d rows in one batch
         found = beam_search_worst_sets(lambda rows: score(rows, ranker).scores, d, k, beam_width)
-        finalists = [(tuple(int(i) for i in np.flatnonzero(row)), float(score_))
-                     for row, score_, kept in zip(np.asarray(found.rows), np.asarray(found.scores),
-                                                  np.asarray(found.found)) if kept]
-        blocks.append(np.asarray(found.rows)[np.asarray(found.found)])
+        kept = np.asarray(found.found)
+        finalists, ranker_scores = np.asarray(found.rows)[kept], np.asarray(found.scores)[kept]
+        blocks.append(finalists)
         search_info[k] = {"method": "beam", "beam_width": beam_width, "ranker": ranker,
                           "sets_ranked": int(found.num_ranked), "sets_in_all": num_candidate_sets(d, k),
-                          "ranker_scores": [[list(hidden), score_] for hidden, score_ in finalists]}
+                          "ranker_scores": [[np.flatnonzero(row).tolist(), float(score_)]
+                                            for row, score_ in zip(finalists, ranker_scores)]}
     returns = np.asarray(score(np.concatenate(blocks), estimator).returns, np.float64)
     clean = returns[-1]
     clean_score = float(clean.mean())

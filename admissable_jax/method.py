@@ -49,6 +49,11 @@ def describe_set(hidden) -> str:
     return "{" + ",".join(str(i) for i in np.flatnonzero(np.asarray(hidden))) + "}"
 
 
+def parse_set(text: str) -> list[int]:
+    """The feature indices of a set written by :func:`describe_set` (``"{1,4}"`` -> [1, 4])."""
+    return [int(index) for index in text.strip("{}").split(",") if index]
+
+
 def hidden_row(hidden, num_features: int) -> np.ndarray:
     """u's 0/1 float32 row of length d from its feature indices (ints), or from a 0/1 row
     given as floats or bools; ValueError for an index outside [0, d)."""

@@ -41,6 +41,7 @@ from scipy import stats  # noqa: E402
 
 from admissable_jax.cli import fail, parse_args  # noqa: E402
 from admissable_jax.envs import observation_names  # noqa: E402
+from admissable_jax.method import parse_set  # noqa: E402
 from admissable_jax.missingness import candidate_sets  # noqa: E402
 from admissable_jax.run_directory import TornLine, load_config_yaml, read_jsonl  # noqa: E402
 
@@ -84,16 +85,17 @@ def load_run(path: str) -> Run:
         raise ValueError(f"{path} has no scoring rows yet")
     column = lambda key: np.asarray([row[key] for row in rows], dtype=float)
     scores, p_miss = column("scores"), column("p_miss")
+    uniform_draws = bool(np.allclose(p_miss, 1.0 / p_miss.shape[-1]))
     names = set_names(str(config.env), int(config.k), bool(config.include_empty_set))
-    if "sets" in rows[0]:  # a pool: per feature
+    pooled = "sets" in rows[0]
+    if pooled:  # per feature
         names = observation_names(str(config.env))
         scores, p_miss = per_feature(rows, len(names))
     return Run(
         path=path, env=str(config.env), mode=str(config.missingness), seed=int(config.seed),
         env_steps=column("env_steps"), scores=scores, min_score=column("min_score"),
         clean_score=column("clean_score"), p_miss=p_miss, set_names=names,
-        score_episodes=int(config.score_episodes), pooled="sets" in rows[0],
-        uniform_draws=bool(np.allclose(column("p_miss"), 1.0 / column("p_miss").shape[-1])),
+        score_episodes=int(config.score_episodes), pooled=pooled, uniform_draws=uniform_draws,
     )
 
 
@@ -104,7 +106,7 @@ def per_feature(rows: list[dict], num_features: int) -> tuple[np.ndarray, np.nda
     p_miss = np.zeros((len(rows), num_features))
     for t, row in enumerate(rows):
         for hidden, score, weight in zip(row["sets"], row["scores"], row["p_miss"]):
-            features = [int(i) for i in hidden.strip("{}").split(",") if i]
+            features = parse_set(hidden)
             scores[t, features] = np.fmin(scores[t, features], score)
             p_miss[t, features] += weight
     return scores, p_miss

@@ -45,7 +45,6 @@ def beam_search_worst_sets(score_sets: SetScorer, num_features: int, k: int, bea
     d, b = num_features, beam_width
     kept = jnp.zeros((b, d), jnp.float32)
     kept_found = jnp.arange(b) == 0  # level 0 keeps one set: the empty one
-    kept_scores = jnp.zeros(b)
     num_ranked = jnp.zeros((), jnp.int32)
     earlier = jnp.tril(jnp.ones((b * d, b * d), bool), k=-1)  # earlier[i, j]: candidate j comes before i
     for size in range(1, k + 1):
@@ -57,5 +56,4 @@ def beam_search_worst_sets(score_sets: SetScorer, num_features: int, k: int, bea
         num_ranked = num_ranked + new.sum()
         order = jnp.argsort(scores, stable=True)[:b]
         kept, kept_scores, kept_found = candidates[order], scores[order], new[order]
-    return SearchResult(rows=kept, scores=jnp.where(kept_found, kept_scores, jnp.inf), found=kept_found,
-                        num_ranked=num_ranked)
+    return SearchResult(rows=kept, scores=kept_scores, found=kept_found, num_ranked=num_ranked)
