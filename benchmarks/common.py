@@ -47,12 +47,14 @@ def _warp_version() -> str | None:
 
 
 def _commit() -> str:
-    """The repository's commit, marked ``+changes`` when the tree differs from it."""
+    """The repository's commit, marked ``+changes`` when the code differs from it (the records
+    under ``benchmarks/results/`` do not count: appending a record must not mark the next)."""
     def git(*args: str) -> str:
         return subprocess.run(["git", *args], capture_output=True, text=True, cwd=os.path.dirname(__file__)).stdout.strip()
 
     commit = git("rev-parse", "--short", "HEAD") or "unknown"
-    return commit + ("+changes" if git("status", "--porcelain", "--untracked-files=no") else "")
+    return commit + ("+changes" if git("status", "--porcelain", "--untracked-files=no", "--",
+                                              ":(top)", ":(top,exclude)benchmarks/results") else "")
 
 
 def timed(function: Callable, *args) -> tuple[Any, float]:
