@@ -17,7 +17,8 @@ and PDF:
   note that it stayed uniform; for a run with a candidate pool (``pool_size`` > 0), whose
   scored sets change every round, both heatmaps have a row per feature instead: the lowest
   a_u of the pool's sets that hide it (blank where none does) and the p_miss mass on them;
-* ``summary.md`` (CLI) — :func:`summary_table`: final and AUC min_u a_u per mode.
+* ``summary.md`` (CLI) — :func:`summary_table`: final and AUC min_u a_u per mode, and
+  :func:`comparison_table`: adversarial − uniform with Welch's 95% interval and p-value.
 
 A window longer than the runs' records is shortened to their length, and the figures and
 the summary say so. ``python -m admissable_jax.plot runs/fig1-hopper [window=40] [out=DIR]``
@@ -91,6 +92,9 @@ def load_run(path: str) -> Run:
     if pooled:  # per feature
         names = observation_names(str(config.env))
         scores, p_miss = per_feature(rows, len(names))
+    elif scores.ndim != 2 or scores.shape[1] != len(names) or p_miss.shape != scores.shape:
+        raise ValueError(f"{scores_path}: each row must hold {len(names)} scores and p_miss values "
+                         f"(one per set of {config.env} with k={config.k}), got {scores.shape[1:]} and {p_miss.shape[1:]}")
     return Run(
         path=path, env=str(config.env), mode=str(config.missingness), seed=int(config.seed),
         env_steps=column("env_steps"), scores=scores, min_score=column("min_score"),
@@ -268,13 +272,18 @@ def _estimate(values: np.ndarray) -> str:
     return f"{mean[0]:.1f} ± {mean[0] - low[0]:.1f}" if len(values) > 1 else f"{mean[0]:.1f}"
 
 
+def _by_env_and_mode(run_dirs: list[str]) -> dict[tuple[str, str], list[Run]]:
+    by_mode: dict[tuple[str, str], list[Run]] = collections.defaultdict(list)
+    for run in (load_run(path) for path in run_dirs):
+        by_mode[(run.env, run.mode)].append(run)
+    return by_mode
+
+
 def summary_table(run_dirs: list[str]) -> str:
     """Markdown table per mode: final and area-under-curve min_u a_u and the final clean
     return, mean ± 95% t-interval half-width over seeds. The AUC is the mean of min_u a_u
     over all records (the area under the curve divided by its length in records)."""
-    by_mode: dict[str, list[Run]] = collections.defaultdict(list)
-    for run in (load_run(path) for path in run_dirs):
-        by_mode[(run.env, run.mode)].append(run)
+    by_mode = _by_env_and_mode(run_dirs)
     lines = [
         "| env | mode | seeds | env steps | final min_u a_u | AUC min_u a_u (mean over records) | final clean return |",
         "|---|---|---|---|---|---|---|",
@@ -286,6 +295,74 @@ def summary_table(run_dirs: list[str]) -> str:
             f"| {env} | {mode} | {len(runs)} | {int(steps[-1])} | {_estimate(minimum[:, -1])} | "
             f"{_estimate(minimum.mean(axis=1))} | {_estimate(clean[:, -1])} |"
         )
+    return "\n".join(lines) + "\n"
+
+
+@dataclasses.dataclass
+class Difference:
+    """Adversarial minus uniform on one per-seed quantity, with Welch's 95% t-interval and
+    two-sided p-value (seeds of one mode are independent of the other's)."""
+    metric: str
+    adversarial: np.ndarray  # (seeds,)
+    uniform: np.ndarray  # (seeds,)
+
+    @property
+    def mean(self) -> float:
+        return float(self.adversarial.mean() - self.uniform.mean())
+
+    def interval(self, confidence: float = 0.95) -> tuple[float, float, float] | None:
+        """(low, high, p), or None with fewer than two seeds in a mode (no variance to test)."""
+        if min(len(self.adversarial), len(self.uniform)) < 2:
+            return None
+        test = stats.ttest_ind(self.adversarial, self.uniform, equal_var=False)
+        low, high = test.confidence_interval(confidence)
+        return float(low), float(high), float(test.pvalue)
+
+    def reading(self) -> str:
+        """The difference in words: which mode is higher, or that seeds cannot tell them apart."""
+        interval = self.interval()
+        if interval is None:
+            return "one seed in a mode: not tested"
+        low, high, _ = interval
+        if low > 0:
+            return "adversarial higher"
+        if high < 0:
+            return "uniform higher"
+        return "not distinguishable (95% interval holds 0)"
+
+
+def mode_differences(run_dirs: list[str]) -> dict[str, list[Difference]]:
+    """Per env with both adversarial and uniform runs: the paper's comparison (final and AUC
+    min_u a_u) and the price of robustness (final clean return), adversarial − uniform."""
+    by_mode = _by_env_and_mode(run_dirs)
+    differences = {}
+    for env in sorted({env for env, _ in by_mode}):
+        if (env, "adversarial") not in by_mode or (env, "uniform") not in by_mode:
+            continue
+        # Both modes over the records every run of the env shares, so the AUCs cover the same steps.
+        _, minimum = _aligned(by_mode[(env, "adversarial")] + by_mode[(env, "uniform")], "min_score")
+        _, clean = _aligned(by_mode[(env, "adversarial")] + by_mode[(env, "uniform")], "clean_score")
+        n = len(by_mode[(env, "adversarial")])
+        differences[env] = [
+            Difference(name, values[:n], values[n:]) for name, values in (
+                ("final min_u a_u", minimum[:, -1]), ("AUC min_u a_u", minimum.mean(axis=1)),
+                ("final clean return", clean[:, -1]))
+        ]
+    return differences
+
+
+def comparison_table(run_dirs: list[str]) -> str:
+    """Markdown: adversarial − uniform per env and metric (Welch), '' without both modes."""
+    differences = mode_differences(run_dirs)
+    if not differences:
+        return ""
+    lines = ["| env | metric | adversarial − uniform | 95% interval (Welch) | p (two-sided) | reading |",
+             "|---|---|---|---|---|---|"]
+    for env, rows in differences.items():
+        for difference in rows:
+            interval = difference.interval()
+            low_high, p = ("—", "—") if interval is None else (f"[{interval[0]:.1f}, {interval[1]:.1f}]", f"{interval[2]:.3g}")
+            lines.append(f"| {env} | {difference.metric} | {difference.mean:+.1f} | {low_high} | {p} | {difference.reading()} |")
     return "\n".join(lines) + "\n"
 
 
@@ -318,10 +395,14 @@ def main(argv: list[str]) -> int:
         out_dir = config.out or new_folder(os.path.join(paths[0], "figures"))
         written = plot_runs(runs, out_dir, config.window)
         table = summary_table(runs)
+        comparison = comparison_table(runs)
     except (ValueError, FileNotFoundError, KeyError) as error:
         fail(str(error))
     table += (f"\nFigures: mean over seeds of the {_window_note(config.window, used)}. Table: the last "
               "record itself (final) and the mean over all records (AUC), unsmoothed.\n")
+    if comparison:
+        table += ("\nAdversarial − uniform, per env (over the records both modes share; seeds independent, "
+                  "so Welch's t):\n\n" + comparison)
     with open(os.path.join(out_dir, "summary.md"), "w") as file:
         file.write(table)
     print(table)

@@ -21,6 +21,8 @@
 #   run(command="bash .dev/b/finish.sh && CAMPAIGN_DEADLINE=<device s left> bash benchmarks/gpu_campaign.sh speed", carry=[".dev/b"])
 #   run(command="CAMPAIGN_DEADLINE=<device s left> bash benchmarks/gpu_campaign.sh speed")  # while it exits 75
 # Run directories live in runs/campaign/ (ignored; kept while the machine stays warm).
+# Step 5 runs here, on the CPU, from the tarballs that came back: unpack each into
+# benchmarks/results/ and run `python benchmarks/figure1.py hopper=DIR walker2d=DIR ant=DIR`.
 #
 # Settings (environment):
 #   CAMPAIGN_DEADLINE       device seconds left for this step (needed to start a run; `status` says)

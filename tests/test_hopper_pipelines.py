@@ -156,6 +156,22 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
         assert [row["scores"] for row in rows] == [row["scores"] for row in straight.scores]
         assert [row["p_miss"] for row in rows] == [row["p_miss"] for row in straight.scores]
 
+    # Step 5 on what came back: FIGURE1.md from the unpacked runs, computed, never typed in.
+    with tarfile.open(os.path.join(directory, "out", "campaign-hopper.tar.gz")) as tar:
+        tar.extractall(tmp_path / "back", filter="data")
+    figure1 = subprocess.run(
+        [sys.executable, os.path.join(os.path.dirname(__file__), "..", "benchmarks", "figure1.py"),
+         f"hopper={tmp_path / 'back' / 'hopper'}", "window=2", f"out={tmp_path / 'FIGURE1.md'}"],
+        capture_output=True, text=True, env={**os.environ, "JAX_PLATFORMS": "cpu"})
+    assert figure1.returncode == 0, figure1.stdout + figure1.stderr
+    text = (tmp_path / "FIGURE1.md").read_text()
+    assert "(3 runs, 80 env steps each, not the paper's 1M)" in text
+    assert "AUC min_u a_u: adversarial − uniform = " in text and "(one seed in a mode: no test)" in text
+    clean = json.loads(packed["./hopper/none-s0/scores.jsonl"].splitlines()[-1])["clean_score"]
+    assert f"Clean SAC (mode `none`, 1 seed): final clean return {clean:.1f} against" in text
+    assert "not comparable yet" in text
+    assert (tmp_path / "back" / "hopper" / "figures" / "min_score.png").exists()
+
 
 def test_capacity_overflow_is_detected_and_stops_the_run_in_one_line(tmp_path, monkeypatch):
     """A batch larger than the env's max_batch overflows Warp's shared contact buffer and the

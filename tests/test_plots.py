@@ -10,8 +10,8 @@ from omegaconf import OmegaConf
 
 from admissable_jax.config import TrainConfig
 from admissable_jax.plot import (
-    _cell_edges, _seeds, effective_window, find_runs, load_run, main, mean_and_interval, moving_average, plot_runs,
-    set_names, summary_table,
+    Difference, _cell_edges, _seeds, comparison_table, effective_window, find_runs, load_run, main, mean_and_interval,
+    moving_average, plot_runs, set_names, summary_table,
 )
 
 
@@ -62,14 +62,14 @@ def test_plot_runs_writes_every_figure(tmp_path):
 
 
 def _run_with_minimums(root, mode, seed, minimums, final_clean):
-    """A run whose scorings have the given min_u a_u (the other sets score 10 and 20 more)."""
+    """A Hopper run whose scorings have the given min_u a_u (the other 10 sets score 10, 20, ... more)."""
     path = os.path.join(root, f"{mode}-s{seed}")
     os.makedirs(path)
     OmegaConf.save(OmegaConf.structured(TrainConfig(env="hopper", missingness=mode, seed=seed)), os.path.join(path, "config.yaml"))
     with open(os.path.join(path, "scores.jsonl"), "w") as file:
         for t, minimum in enumerate(minimums):
-            file.write(json.dumps({"env_steps": 5000 * (t + 1), "scores": [minimum + 10, minimum, minimum + 20],
-                                   "min_score": minimum, "clean_score": final_clean, "p_miss": [1 / 3] * 3}) + "\n")
+            file.write(json.dumps({"env_steps": 5000 * (t + 1), "scores": [minimum + 10 * i for i in range(11)],
+                                   "min_score": minimum, "clean_score": final_clean, "p_miss": [1 / 11] * 11}) + "\n")
     return path
 
 
@@ -89,6 +89,38 @@ def test_summary_table_reports_final_and_auc_per_mode(tmp_path):
     assert cells(adversarial) == ["hopper", "adversarial", "2", "20000", "50.0 ± 127.1", "32.5 ± 95.3", "110.0 ± 127.1"]
     # One seed: the values alone, no interval (AUC: mean(5, 6, 7, 8) = 6.5).
     assert cells(uniform) == ["hopper", "uniform", "1", "20000", "8.0", "6.5", "90.0"]
+
+
+def test_adversarial_minus_uniform_is_welchs_t(tmp_path):
+    """The verdict's numbers: adversarial − uniform with Welch's interval (unequal variances,
+    Welch–Satterthwaite df), hand-computed, and its reading in words."""
+    # Finals 40, 60 against 8, 10: difference 41, se = √(200/2 + 2/2) = √101,
+    # df = 101² / (100² + 1²) = 1.02, t(0.975, 1.02) = 12.132: half-width 121.93, p = 0.149.
+    # (A pooled-variance t would give df 2 and half-width 43.2.)
+    difference = Difference("final", np.array([40.0, 60.0]), np.array([8.0, 10.0]))
+    low, high, p = difference.interval()
+    assert difference.mean == 41.0
+    np.testing.assert_allclose([low, high, p], [41 - 121.929, 41 + 121.929, 0.1493], atol=1e-3)
+    assert difference.reading() == "not distinguishable (95% interval holds 0)"
+    tight_high, tight_low = np.array([100.0, 101.0, 102.0]), np.array([10.0, 11.0, 12.0])
+    assert Difference("x", tight_high, tight_low).reading() == "adversarial higher"
+    assert Difference("x", tight_low, tight_high).reading() == "uniform higher"
+    assert Difference("x", np.array([5.0]), tight_low).interval() is None
+
+    # From run directories: final, AUC and clean return, over the records both modes share
+    # (AUC: mean(25, 40) − mean(6.5, 7.5) = 25.5; clean: 110 − 92 = 18).
+    paths = [
+        _run_with_minimums(str(tmp_path), "adversarial", 0, [10, 20, 30, 40], 100),
+        _run_with_minimums(str(tmp_path), "adversarial", 1, [20, 30, 50, 60], 120),
+        _run_with_minimums(str(tmp_path), "uniform", 0, [5, 6, 7, 8], 90),
+        _run_with_minimums(str(tmp_path), "uniform", 1, [5, 6, 9, 10], 94),
+    ]
+    cells = lambda row: [cell.strip() for cell in row.strip("|").split("|")]
+    rows = [cells(row) for row in comparison_table(paths).splitlines()[2:]]
+    assert [row[:3] for row in rows] == [["hopper", "final min_u a_u", "+41.0"], ["hopper", "AUC min_u a_u", "+25.5"],
+                                         ["hopper", "final clean return", "+18.0"]]
+    assert rows[0][3:] == ["[-80.9, 162.9]", "0.149", "not distinguishable (95% interval holds 0)"]
+    assert comparison_table(paths[:2]) == ""  # one mode: nothing to compare
 
 
 def test_plots_say_what_they_show(tmp_path, capsys):
@@ -119,3 +151,11 @@ def test_plots_say_what_they_show(tmp_path, capsys):
         main([root, "window=0"])
     assert exit_info.value.code == 2
     assert capsys.readouterr().err.strip().splitlines()[-1] == "error: window must be an int >= 1, got 0"
+    # Rows that do not hold one score per candidate set: one line naming the file, exit 2.
+    narrow = _fake_run(str(tmp_path / "narrow"), "uniform", 0, records=2, sets=3)
+    with pytest.raises(SystemExit) as exit_info:
+        main([narrow])
+    assert exit_info.value.code == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        f"error: {narrow}/scores.jsonl: each row must hold 11 scores and p_miss values (one per set of hopper "
+        "with k=1), got (3,) and (3,)")

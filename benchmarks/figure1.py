@@ -1,0 +1,161 @@
+"""FIGURE1.md: the paper's Figure 1 question answered from the campaign's runs.
+
+    python benchmarks/figure1.py hopper=benchmarks/results/fig1-hopper-1m \\
+        walker2d=benchmarks/results/fig1-walker2d-1m ant=benchmarks/results/fig1-ant [window=40] \\
+        [out=benchmarks/results/FIGURE1.md]
+
+Each ``ENV=DIR`` is an experiment's folder (its ``<mode>-s<seed>/`` run directories with
+``config.yaml`` and ``scores.jsonl``, as ``gpu_campaign.sh`` brings them back). Per env it
+draws the figures (``plot_runs``, into a new ``DIR/figures``), and writes: the settings the
+runs used; final and AUC min_u a_u and the final clean return per mode, mean ± 95%
+t-interval over seeds (``summary_table``); adversarial − uniform with Welch's 95% interval
+and p-value (``comparison_table``); the verdict those numbers give, in words; and mode
+``none``'s clean return against the SB3 RL-Zoo SAC at 1M env steps. Everything in the
+file is computed from the runs; what you suspect or noticed goes under it by hand.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import os
+import subprocess
+import sys
+
+import numpy as np
+
+from admissable_jax.cli import fail, parse_args
+from admissable_jax.plot import (
+    Difference, comparison_table, find_runs, load_run, mean_and_interval, mode_differences, new_folder, plot_runs,
+    summary_table,
+)
+from admissable_jax.run_directory import load_config_yaml
+
+# The SB3 RL-Zoo's SAC at 1M env steps (mean ± std over its evaluations; v3 envs): the
+# reference the campaign issue names for our clean SAC (mode ``none``).
+SB3_ZOO_SAC = {"hopper": (2326.0, 1130.0), "walker2d": (3863.0, 254.0), "ant": (4616.0, 1354.0)}
+PAPER_STEPS = 1_000_000
+SETTINGS = ("physics", "num_envs", "score_every", "score_episodes", "k", "lower_bound", "epsilon", "learning_starts",
+            "batch_size", "buffer_size")
+
+
+@dataclasses.dataclass
+class Figure1Config:
+    hopper: str = dataclasses.field(default="", metadata={"help": "Hopper-v5 experiment folder ('' = none)"})
+    walker2d: str = dataclasses.field(default="", metadata={"help": "Walker2d-v5 experiment folder ('' = none)"})
+    ant: str = dataclasses.field(default="", metadata={"help": "Ant-v5 experiment folder ('' = none)"})
+    window: int = dataclasses.field(default=40, metadata={"help": "the figures' moving-average window (records)"})
+    out: str = dataclasses.field(default="benchmarks/results/FIGURE1.md", metadata={"help": "the file to write"})
+
+
+def _settings(run_dirs: list[str]) -> str:
+    """The settings every run shares, and those that differ (listed per value)."""
+    configs = [load_config_yaml(os.path.join(path, "config.yaml")) for path in run_dirs]
+    parts = []
+    for key in SETTINGS:
+        values = sorted({str(config[key]) for config in configs if key in config})
+        if values:
+            parts.append(f"{key}={'/'.join(values)}")
+    return ", ".join(parts)
+
+
+def _verdict(difference: Difference) -> str:
+    """One sentence: the difference, its interval and p, and what they say."""
+    interval = difference.interval()
+    if interval is None:
+        return f"{difference.metric}: adversarial − uniform = {difference.mean:+.1f} (one seed in a mode: no test)."
+    low, high, p = interval
+    words = {"adversarial higher": "adversarial training is higher, and 0 lies outside the 95% interval",
+             "uniform higher": "uniform training is higher, and 0 lies outside the 95% interval",
+             }.get(difference.reading(), "the seeds cannot tell the modes apart (the 95% interval holds 0)")
+    return f"{difference.metric}: adversarial − uniform = {difference.mean:+.1f} [{low:.1f}, {high:.1f}], p = {p:.3g}: {words}."
+
+
+def _clean_sac_line(env: str, run_dirs: list[str]) -> str:
+    """Mode ``none``'s final clean return against the SB3 RL Zoo's SAC at 1M env steps."""
+    runs = [run for run in (load_run(path) for path in run_dirs) if run.mode == "none"]
+    if not runs:
+        return "No mode `none` runs: no clean-SAC check."
+    length = min(len(run.clean_score) for run in runs)
+    finals = np.array([run.clean_score[length - 1] for run in runs])
+    mean, low, high = (float(value[0]) for value in mean_and_interval(finals[:, None]))
+    steps = int(runs[0].env_steps[length - 1])
+    reference, spread = SB3_ZOO_SAC[env]
+    if high < reference - spread:
+        words = "clearly below SB3's (our 95% upper bound is under its mean − 1 sd)"
+    elif low > reference + spread:
+        words = "clearly above SB3's (our 95% lower bound is over its mean + 1 sd)"
+    else:
+        words = "within SB3's spread"
+    partial = "" if steps >= PAPER_STEPS else f" (at {steps:,} env steps, not the reference's 1M: not comparable yet)"
+    interval = f" [{low:.1f}, {high:.1f}]" if len(runs) > 1 else ""
+    return (f"Clean SAC (mode `none`, {len(runs)} seed{'s' if len(runs) > 1 else ''}): final clean return {mean:.1f}"
+            f"{interval} against the SB3 RL-Zoo SAC at 1M, {reference:,.0f} ± {spread:,.0f} (v3 envs): {words}{partial}.")
+
+
+def env_section(env: str, folder: str, window: int, out_file: str) -> tuple[str, list[str]]:
+    """(the env's Markdown section, one summary row per Difference for the top table)."""
+    run_dirs = find_runs([folder])
+    if not run_dirs:
+        raise ValueError(f"no run directories (config.yaml + scores.jsonl) under {folder}")
+    runs = [load_run(path) for path in run_dirs]
+    others = sorted({run.env for run in runs} - {env})
+    if others:
+        raise ValueError(f"{env}={folder} holds runs of {', '.join(others)}")
+    steps = min(int(run.env_steps[-1]) for run in runs)
+    figures = new_folder(os.path.join(folder, "figures"))
+    plot_runs(run_dirs, figures, window)
+    differences = mode_differences(run_dirs).get(env, [])
+    partial = "" if steps >= PAPER_STEPS else ", not the paper's 1M"
+    figure = os.path.relpath(os.path.join(figures, "min_score.png"), os.path.dirname(os.path.abspath(out_file)))
+    lines = [
+        f"## {env}", "",
+        f"Runs: `{folder}` ({len(run_dirs)} runs, {steps:,} env steps each{partial}). "
+        f"Settings: {_settings(run_dirs)}.", "",
+        summary_table(run_dirs), comparison_table(run_dirs) or "Not both adversarial and uniform runs: no comparison.\n",
+        "**Verdict (computed):**", "",
+        *(f"- {_verdict(difference)}" for difference in differences),
+        f"- {_clean_sac_line(env, run_dirs)}", "",
+        f"![min_u a_u and clean return]({figure})", "",
+    ]
+    rows = [f"| {env} | {steps:,} | {d.metric} | {d.mean:+.1f} | {d.reading()} |" for d in differences[:2]]
+    return "\n".join(lines), rows
+
+
+def _commit() -> str:
+    return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                          cwd=os.path.dirname(os.path.abspath(__file__))).stdout.strip() or "unknown"
+
+
+def main(argv: list[str]) -> int:
+    config = parse_args(Figure1Config, argv, "benchmarks/figure1.py ENV=DIR ...", __doc__.splitlines()[0])
+    folders = {env: getattr(config, env) for env in SB3_ZOO_SAC if getattr(config, env)}
+    if not folders:
+        fail("give at least one of hopper=DIR, walker2d=DIR, ant=DIR")
+    sections, rows = [], []
+    try:
+        for env, folder in folders.items():
+            section, env_rows = env_section(env, folder, config.window, config.out)
+            sections.append(section)
+            rows += env_rows
+    except (ValueError, FileNotFoundError, KeyError) as error:
+        fail(str(error))
+    command = " ".join(["python", "benchmarks/figure1.py", *argv])
+    text = "\n".join([
+        "# Figure 1: adversarial against uniform missingness (min_u a_u)", "",
+        f"Written by `{command}` on {datetime.date.today()} at commit {_commit()}, from the runs' `scores.jsonl` "
+        "and `config.yaml`. Final: the last scoring; AUC: the mean of min_u a_u over all scorings; ± and [ ]: 95% "
+        "t-intervals over seeds; adversarial − uniform by Welch's t (seeds independent across modes).", "",
+        "| env | env steps | metric | adversarial − uniform | reading |", "|---|---|---|---|---|", *rows, "",
+        *sections,
+    ])
+    os.makedirs(os.path.dirname(os.path.abspath(config.out)), exist_ok=True)
+    with open(config.out, "w") as file:
+        file.write(text)
+    print(text)
+    print(f"written: {config.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))

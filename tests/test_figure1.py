@@ -1,0 +1,48 @@
+"""benchmarks/figure1.py: the campaign's FIGURE1.md, computed from run directories
+(synthetic histories; no training)."""
+
+import os
+import subprocess
+import sys
+
+from test_plots import _run_with_minimums
+
+FIGURE1 = os.path.join(os.path.dirname(__file__), "..", "benchmarks", "figure1.py")
+
+
+def _figure1(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, FIGURE1, *args], capture_output=True, text=True,
+                          env={**os.environ, "JAX_PLATFORMS": "cpu"})
+
+
+def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path):
+    """Hand-computed: adversarial finals 40, 60 against uniform 8, 10 (Welch: +41.0
+    [-80.9, 162.9], p = 0.149); mode none's final clean returns 1000 and 1100 against SB3's
+    Hopper 2,326 ± 1,130: mean 1050, t(0.975, 1) · 70.7 / √2 = 635.3, so [414.7, 1685.3]
+    reaches over 2326 − 1130 = 1196: within SB3's spread; at 20,000 env steps, not comparable yet."""
+    root = tmp_path / "hopper"
+    _run_with_minimums(str(root), "adversarial", 0, [10, 20, 30, 40], 100)
+    _run_with_minimums(str(root), "adversarial", 1, [20, 30, 50, 60], 120)
+    _run_with_minimums(str(root), "uniform", 0, [5, 6, 7, 8], 90)
+    _run_with_minimums(str(root), "uniform", 1, [5, 6, 9, 10], 94)
+    _run_with_minimums(str(root), "none", 0, [1, 2, 3, 4], 1000)
+    _run_with_minimums(str(root), "none", 1, [1, 2, 3, 4], 1100)
+    out = tmp_path / "FIGURE1.md"
+    result = _figure1(f"hopper={root}", "window=2", f"out={out}")
+    assert result.returncode == 0, result.stdout + result.stderr
+    text = out.read_text()
+    assert "| hopper | 20,000 | final min_u a_u | +41.0 | not distinguishable (95% interval holds 0) |" in text
+    assert ("- final min_u a_u: adversarial − uniform = +41.0 [-80.9, 162.9], p = 0.149: the seeds cannot tell "
+            "the modes apart (the 95% interval holds 0).") in text
+    assert ("Clean SAC (mode `none`, 2 seeds): final clean return 1050.0 [414.7, 1685.3] against the SB3 RL-Zoo "
+            "SAC at 1M, 2,326 ± 1,130 (v3 envs): within SB3's spread (at 20,000 env steps, not the reference's 1M: "
+            "not comparable yet).") in text
+    assert "(6 runs, 20,000 env steps each, not the paper's 1M)" in text
+    assert "![min_u a_u and clean return](hopper/figures/min_score.png)" in text
+    assert (root / "figures" / "min_score.png").exists()
+
+    # A folder given for the wrong env, or none at all: one line, exit 2, nothing written.
+    wrong = _figure1(f"walker2d={root}", f"out={tmp_path / 'wrong.md'}")
+    assert wrong.returncode == 2 and wrong.stderr.strip() == f"error: walker2d={root} holds runs of hopper"
+    assert not (tmp_path / "wrong.md").exists()
+    assert _figure1().stderr.strip() == "error: give at least one of hopper=DIR, walker2d=DIR, ant=DIR"
