@@ -26,7 +26,7 @@ import numpy as np
 
 from admissable_jax.cli import fail, parse_args
 from admissable_jax.plot import (
-    Difference, comparison_table, find_runs, load_run, mean_and_interval, mode_differences, new_folder, plot_runs,
+    Difference, Run, comparison_table, find_runs, load_run, mean_and_interval, mode_differences, new_folder, plot_runs,
     summary_table,
 )
 from admissable_jax.run_directory import load_config_yaml
@@ -71,9 +71,9 @@ def _verdict(difference: Difference) -> str:
     return f"{difference.metric}: adversarial − uniform = {difference.mean:+.1f} [{low:.1f}, {high:.1f}], p = {p:.3g}: {words}."
 
 
-def _clean_sac_line(env: str, run_dirs: list[str]) -> str:
+def _clean_sac_line(env: str, all_runs: list[Run]) -> str:
     """Mode ``none``'s final clean return against the SB3 RL Zoo's SAC at 1M env steps."""
-    runs = [run for run in (load_run(path) for path in run_dirs) if run.mode == "none"]
+    runs = [run for run in all_runs if run.mode == "none"]
     if not runs:
         return "No mode `none` runs: no clean-SAC check."
     length = min(len(run.clean_score) for run in runs)
@@ -115,7 +115,7 @@ def env_section(env: str, folder: str, window: int, out_file: str) -> tuple[str,
         summary_table(run_dirs), comparison_table(run_dirs) or "Not both adversarial and uniform runs: no comparison.\n",
         "**Verdict (computed):**", "",
         *(f"- {_verdict(difference)}" for difference in differences),
-        f"- {_clean_sac_line(env, run_dirs)}", "",
+        f"- {_clean_sac_line(env, runs)}", "",
         f"![min_u a_u and clean return]({figure})", "",
     ]
     rows = [f"| {env} | {steps:,} | {d.metric} | {d.mean:+.1f} | {d.reading()} |" for d in differences[:2]]
