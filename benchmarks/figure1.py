@@ -81,16 +81,18 @@ def _clean_sac_line(env: str, all_runs: list[Run]) -> str:
     mean, low, high = (float(value[0]) for value in mean_and_interval(finals[:, None]))
     steps = int(runs[0].env_steps[length - 1])
     reference, spread = SB3_ZOO_SAC[env]
-    if high < reference - spread:
-        words = "clearly below SB3's (our 95% upper bound is under its mean − 1 sd)"
+    ours = "our 95% interval" if len(runs) > 1 else "our one seed"
+    if steps < PAPER_STEPS:
+        words = f"not comparable yet (at {steps:,} env steps, not the reference's 1M)"
+    elif high < reference - spread:
+        words = f"clearly below SB3's ({ours} lies under its mean − 1 sd)"
     elif low > reference + spread:
-        words = "clearly above SB3's (our 95% lower bound is over its mean + 1 sd)"
+        words = f"clearly above SB3's ({ours} lies over its mean + 1 sd)"
     else:
-        words = "within SB3's spread"
-    partial = "" if steps >= PAPER_STEPS else f" (at {steps:,} env steps, not the reference's 1M: not comparable yet)"
+        words = f"within SB3's spread ({ours} reaches its mean ± 1 sd)"
     interval = f" [{low:.1f}, {high:.1f}]" if len(runs) > 1 else ""
     return (f"Clean SAC (mode `none`, {len(runs)} seed{'s' if len(runs) > 1 else ''}): final clean return {mean:.1f}"
-            f"{interval} against the SB3 RL-Zoo SAC at 1M, {reference:,.0f} ± {spread:,.0f} (v3 envs): {words}{partial}.")
+            f"{interval} against the SB3 RL-Zoo SAC at 1M, {reference:,.0f} ± {spread:,.0f} (v3 envs): {words}.")
 
 
 def env_section(env: str, folder: str, window: int, out_file: str) -> tuple[str, list[str]]:

@@ -17,16 +17,17 @@ def _figure1(*args: str) -> subprocess.CompletedProcess:
 
 def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path):
     """Hand-computed: adversarial finals 40, 60 against uniform 8, 10 (Welch: +41.0
-    [-80.9, 162.9], p = 0.149); mode none's final clean returns 1000 and 1100 against SB3's
-    Hopper 2,326 ± 1,130: mean 1050, t(0.975, 1) · 70.7 / √2 = 635.3, so [414.7, 1685.3]
-    reaches over 2326 − 1130 = 1196: within SB3's spread; at 20,000 env steps, not comparable yet."""
+    [-80.9, 162.9], p = 0.149). Mode none's final clean returns at 1M env steps against SB3's
+    Hopper 2,326 ± 1,130 (mean − 1 sd = 1196), two seeds so ± t(0.975, 1) · 70.7 / √2 = 635.3:
+    500 and 600 give [-85.3, 1185.3], under 1196: clearly below; 1000 and 1100 give
+    [414.7, 1685.3]: within. The same at 20,000 env steps: not comparable yet."""
     root = tmp_path / "hopper"
     _run_with_minimums(str(root), "adversarial", 0, [10, 20, 30, 40], 100)
     _run_with_minimums(str(root), "adversarial", 1, [20, 30, 50, 60], 120)
     _run_with_minimums(str(root), "uniform", 0, [5, 6, 7, 8], 90)
     _run_with_minimums(str(root), "uniform", 1, [5, 6, 9, 10], 94)
-    _run_with_minimums(str(root), "none", 0, [1, 2, 3, 4], 1000)
-    _run_with_minimums(str(root), "none", 1, [1, 2, 3, 4], 1100)
+    _run_with_minimums(str(root), "none", 0, [1, 2, 3, 4], 500, score_every=250_000)
+    _run_with_minimums(str(root), "none", 1, [1, 2, 3, 4], 600, score_every=250_000)
     out = tmp_path / "FIGURE1.md"
     result = _figure1(f"hopper={root}", "window=2", f"out={out}")
     assert result.returncode == 0, result.stdout + result.stderr
@@ -34,12 +35,21 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path):
     assert "| hopper | 20,000 | final min_u a_u | +41.0 | not distinguishable (95% interval holds 0) |" in text
     assert ("- final min_u a_u: adversarial − uniform = +41.0 [-80.9, 162.9], p = 0.149: the seeds cannot tell "
             "the modes apart (the 95% interval holds 0).") in text
-    assert ("Clean SAC (mode `none`, 2 seeds): final clean return 1050.0 [414.7, 1685.3] against the SB3 RL-Zoo "
-            "SAC at 1M, 2,326 ± 1,130 (v3 envs): within SB3's spread (at 20,000 env steps, not the reference's 1M: "
-            "not comparable yet).") in text
+    assert ("Clean SAC (mode `none`, 2 seeds): final clean return 550.0 [-85.3, 1185.3] against the SB3 RL-Zoo "
+            "SAC at 1M, 2,326 ± 1,130 (v3 envs): clearly below SB3's (our 95% interval lies under its mean − 1 sd).") in text
     assert "(6 runs, 20,000 env steps each, not the paper's 1M)" in text
     assert "![min_u a_u and clean return](hopper/figures/min_score.png)" in text
     assert (root / "figures" / "min_score.png").exists()
+
+    within, young = tmp_path / "within", tmp_path / "young"
+    for seed, clean in enumerate((1000, 1100)):
+        _run_with_minimums(str(within), "none", seed, [1, 2, 3, 4], clean, score_every=250_000)
+        _run_with_minimums(str(young), "none", seed, [1, 2, 3, 4], clean)
+    assert _figure1(f"hopper={within}", f"out={out}").returncode == 0
+    assert ("final clean return 1050.0 [414.7, 1685.3] against the SB3 RL-Zoo SAC at 1M, 2,326 ± 1,130 (v3 envs): "
+            "within SB3's spread (our 95% interval reaches its mean ± 1 sd).") in out.read_text()
+    assert _figure1(f"hopper={young}", f"out={out}").returncode == 0
+    assert "(v3 envs): not comparable yet (at 20,000 env steps, not the reference's 1M)." in out.read_text()
 
     # A folder given for the wrong env, or none at all: one line, exit 2, nothing written.
     wrong = _figure1(f"walker2d={root}", f"out={tmp_path / 'wrong.md'}")

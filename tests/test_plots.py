@@ -61,14 +61,14 @@ def test_plot_runs_writes_every_figure(tmp_path):
         find_runs([str(tmp_path / "missing")])
 
 
-def _run_with_minimums(root, mode, seed, minimums, final_clean):
+def _run_with_minimums(root, mode, seed, minimums, final_clean, score_every=5000):
     """A Hopper run whose scorings have the given min_u a_u (the other 10 sets score 10, 20, ... more)."""
     path = os.path.join(root, f"{mode}-s{seed}")
     os.makedirs(path)
     OmegaConf.save(OmegaConf.structured(TrainConfig(env="hopper", missingness=mode, seed=seed)), os.path.join(path, "config.yaml"))
     with open(os.path.join(path, "scores.jsonl"), "w") as file:
         for t, minimum in enumerate(minimums):
-            file.write(json.dumps({"env_steps": 5000 * (t + 1), "scores": [minimum + 10 * i for i in range(11)],
+            file.write(json.dumps({"env_steps": score_every * (t + 1), "scores": [minimum + 10 * i for i in range(11)],
                                    "min_score": minimum, "clean_score": final_clean, "p_miss": [1 / 11] * 11}) + "\n")
     return path
 
