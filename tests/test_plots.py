@@ -121,6 +121,10 @@ def test_adversarial_minus_uniform_is_welchs_t(tmp_path):
                                          ["hopper", "final clean return", "+18.0"]]
     assert rows[0][3:] == ["[-80.9, 162.9]", "0.149", "not distinguishable (95% interval holds 0)"]
     assert comparison_table(paths[:2]) == ""  # one mode: nothing to compare
+    # The CLI's summary.md carries it under the per-mode table.
+    assert main([str(tmp_path), f"out={tmp_path / 'figures'}"]) == 0
+    summary = (tmp_path / "figures" / "summary.md").read_text()
+    assert "| hopper | final min_u a_u | +41.0 | [-80.9, 162.9] | 0.149 |" in summary
 
 
 def test_plots_say_what_they_show(tmp_path, capsys):
