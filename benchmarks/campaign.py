@@ -14,11 +14,14 @@ every episode runs its full ``episode_length`` (the env built with Gymnasium's
 saving and restoring the whole training state (replay buffers included) as a checkpoint.
 It appends one record to ``campaign_speed.jsonl`` in the results folder.
 
-``plan`` reads the newest matching record (same env, pairs, envs per pair, physics and
-device) and projects a run's wall time conservatively: every scoring round at full length,
-and every device call (``call_seconds`` each) paying the compile and a checkpoint restore
-and save. It prints the projection and exits 0 if the run fits in ``deadline`` seconds,
-3 if not. With ``total_steps=0`` it finds the longest run that fits (at least
+``plan`` reads the newest matching record (same env, envs per pair, physics and device;
+the same number of pairs, else the fewest pairs above it: a program of fewer pairs does no
+more work, so its time bounds the run's) and projects a run's wall time conservatively:
+one compile, every scoring round at full length, and a checkpoint save every
+``checkpoint_every`` scorings and at the end. (The campaign runs each experiment in one
+process that outlives the device calls following it, so nothing is restored or compiled
+again per call.) It prints the projection and exits 0 if the run fits in ``deadline``
+seconds, 3 if not. With ``total_steps=0`` it finds the longest run that fits (at least
 ``min_steps``, at most ``max_steps``) and prints ``total_steps=N`` last.
 """
 
@@ -53,7 +56,6 @@ class MeasureConfig(ExperimentConfig):
 @dataclasses.dataclass
 class PlanConfig(ExperimentConfig):
     deadline: float = dataclasses.field(default=1800.0, metadata={"help": "device seconds left for this run"})
-    call_seconds: float = dataclasses.field(default=540.0, metadata={"help": "seconds one device call may run"})
     min_steps: int = dataclasses.field(default=200_000, metadata={"help": "with total_steps=0: refuse a run shorter than this"})
     max_steps: int = dataclasses.field(default=1_000_000, metadata={"help": "with total_steps=0: never plan more than this"})
 
@@ -112,12 +114,14 @@ def measure(config: MeasureConfig) -> dict:
     return record
 
 
-def speed_record(config: ExperimentConfig) -> dict:
-    """The newest ``campaign_speed`` record for this experiment's shape on this device, from
-    this campaign's records or the committed ones. (The run's length does not matter:
-    ``total_steps=0``, "find the longest", is read as one scoring interval.)"""
+def speed_record(config: ExperimentConfig) -> tuple[dict, int]:
+    """(the newest ``campaign_speed`` record for this experiment's shape on this device, from
+    this campaign's records or the committed ones: one of the same number of pairs, else one
+    of the fewest pairs above it (an upper bound); and the experiment's number of pairs). The
+    run's length does not matter (``total_steps=0``, "find the longest", is read as one
+    scoring interval)."""
     trainer, pairs, _ = _experiment_trainer(dataclasses.replace(config, total_steps=max(1, config.total_steps)))
-    want = {"env": trainer.env.gymnasium_id, "physics": trainer.env.physics_name, "pairs": len(pairs),
+    want = {"env": trainer.env.gymnasium_id, "physics": trainer.env.physics_name,
             "num_envs": pairs[0].num_envs, "score_episodes": pairs[0].score_episodes,
             "episode_length": pairs[0].episode_length, "score_every": pairs[0].score_every,
             "device": environment_record()["device"]}
@@ -126,51 +130,50 @@ def speed_record(config: ExperimentConfig) -> dict:
     for path in filter(os.path.exists, paths):
         with open(path) as file:
             records += [json.loads(line) for line in file if line.strip()]
-    matching = [r for r in records if all(r.get(key) == value for key, value in want.items())]
-    if not matching:
-        raise ValueError(f"no speed record in {' or '.join(paths)} for {want}: run the campaign's speed step first")
-    return matching[-1]
+    shaped = [r for r in records if all(r.get(key) == value for key, value in want.items()) and r["pairs"] >= len(pairs)]
+    if not shaped:
+        raise ValueError(f"no speed record in {' or '.join(paths)} for {dict(want, pairs=len(pairs))} (or more pairs): "
+                         f"run the campaign's speed step first")
+    fewest = min(r["pairs"] for r in shaped)
+    return [r for r in shaped if r["pairs"] == fewest][-1], len(pairs)
 
 
 @dataclasses.dataclass(frozen=True)
 class Projection:
     scorings: int
-    calls: int
-    interval_s: float  # one chunk plus one full-length scoring round
-    per_call_s: float  # compile, checkpoint restore and save
+    saves: int
     total_s: float
 
     def describe(self, record: dict) -> str:
-        return (f"{self.scorings} scorings x (chunk {record['chunk_s']:.1f} s + full-length scoring "
-                f"{record['score_full_s']:.1f} s) + {self.calls} call(s) x (compile {record['compile_s']:.0f} s + "
-                f"checkpoint {record['checkpoint_restore_s'] + record['checkpoint_save_s']:.0f} s) "
-                f"= {self.total_s:,.0f} s ({self.total_s / 60:.1f} min)")
+        return (f"compile {record['compile_s']:.0f} s + {self.scorings} scorings x (chunk {record['chunk_s']:.1f} s + "
+                f"full-length scoring {record['score_full_s']:.1f} s) + {self.saves} checkpoint save(s) x "
+                f"{record['checkpoint_save_s']:.1f} s = {self.total_s:,.0f} s ({self.total_s / 60:.1f} min)")
 
 
-def project(record: dict, scorings: int, call_seconds: float) -> Projection:
-    """Conservative wall time of ``scorings`` scoring intervals run in calls of ``call_seconds``."""
+def project(record: dict, scorings: int, checkpoint_every: int) -> Projection:
+    """Conservative wall time of a run of ``scorings`` scoring intervals in one process."""
+    saves = math.ceil(scorings / checkpoint_every)  # every checkpoint_every scorings, and at the end
     interval = record["chunk_s"] + record["score_full_s"]
-    per_call = record["compile_s"] + record["checkpoint_restore_s"] + record["checkpoint_save_s"]
-    per_call_intervals = max(1, math.floor((call_seconds - per_call) / interval))
-    calls = math.ceil(scorings / per_call_intervals)
-    return Projection(scorings, calls, interval, per_call, calls * per_call + scorings * interval)
+    return Projection(scorings, saves, record["compile_s"] + scorings * interval + saves * record["checkpoint_save_s"])
 
 
 def plan(config: PlanConfig) -> int:
-    record = speed_record(config)
-    shape = f"{record['env']}, {record['pairs']} pairs x {record['num_envs']} envs ({record['physics']} on {record['device']})"
+    record, pairs = speed_record(config)
+    timed_with = "" if record["pairs"] == pairs else f", timed with {record['pairs']} (an upper bound)"
+    shape = (f"{record['env']}, {pairs} pairs x {record['num_envs']} envs{timed_with} "
+             f"({record['physics']} on {record['device']})")
     if config.total_steps > 0:
         scorings = math.ceil(config.total_steps / config.score_every)
-        projection = project(record, scorings, config.call_seconds)
+        projection = project(record, scorings, config.checkpoint_every)
         fits = projection.total_s <= config.deadline
         print(f"projected wall time for {shape}, {scorings * config.score_every:,} env steps: "
               f"{projection.describe(record)}; device time left {config.deadline:,.0f} s: "
               f"{'fits' if fits else 'does not fit, refused'}")
         return 0 if fits else REFUSED
     scorings, most = 1, max(1, config.max_steps // config.score_every)
-    while scorings < most and project(record, scorings + 1, config.call_seconds).total_s <= config.deadline:
+    while scorings < most and project(record, scorings + 1, config.checkpoint_every).total_s <= config.deadline:
         scorings += 1
-    projection = project(record, scorings, config.call_seconds)
+    projection = project(record, scorings, config.checkpoint_every)
     steps = scorings * config.score_every
     if steps < config.min_steps or projection.total_s > config.deadline:
         print(f"the longest run of {shape} that fits in {config.deadline:,.0f} s is {steps:,} env steps "
