@@ -35,9 +35,12 @@
 # benchmarks/results/ and run `python benchmarks/figure1.py hopper=DIR walker2d=DIR ant=DIR`.
 #
 # Settings (environment):
-#   CAMPAIGN_DEADLINE       device seconds left for this step (needed to start a run; `status` says);
+#   CAMPAIGN_DEADLINE       device seconds this step may use (needed to start a run): status's
+#                           budget_left_s less about 60 s for the last call's pack and return;
 #                           read when the worker starts
 #   CAMPAIGN_CALL_SECONDS   seconds one call follows the worker (default 540: 9 minutes)
+#   CAMPAIGN_PACK_SECONDS   a following call also packs every this many seconds (default 60), so
+#                           that a call cut short still brings back what its $OUT held
 #   CAMPAIGN_SMOKE=1        every step end to end on the CPU at a tiny size (warp physics, 80 env
 #                           steps, 2-3 pairs), records kept apart; tests run this
 #   CAMPAIGN_DIR            where runs, records and the step's state go (default runs/campaign,
@@ -59,6 +62,7 @@ repo=$(cd "$(dirname "$0")/.." && pwd)
 cd "$repo"
 smoke=${CAMPAIGN_SMOKE:-0}
 call_seconds=${CAMPAIGN_CALL_SECONDS:-540}
+pack_seconds=${CAMPAIGN_PACK_SECONDS:-60}
 py=${PYTHON:-python3}
 if [ "$smoke" = 1 ]; then dir=${CAMPAIGN_DIR:-runs/campaign-smoke}; else dir=${CAMPAIGN_DIR:-runs/campaign}; fi
 mkdir -p "$dir/state" "$dir/results"
@@ -244,7 +248,12 @@ elif [ ! -e "$statusfile" ]; then
   [ -s "$pidfile" ] || { echo "the $step worker did not start (setsid?); see $log" >&2; exit 1; }
   echo "started the $step worker (pid $(cat "$pidfile")) in a process session of its own; its log: $log"
 fi
-while alive "$pidfile" && [ "$SECONDS" -lt "$call_seconds" ]; do show_log; sleep 2; done
+packed_at=$SECONDS
+while alive "$pidfile" && [ "$SECONDS" -lt "$call_seconds" ]; do
+  show_log; sleep 2
+  # Pack now and then too: what lies in $OUT comes back even from a call cut short.
+  if [ $((SECONDS - packed_at)) -ge "$pack_seconds" ]; then pack; packed_at=$SECONDS; fi
+done
 show_log
 if alive "$pidfile"; then
   echo "call again: the $step worker (pid $(cat "$pidfile")) runs on; run the same command at once to follow it"

@@ -160,9 +160,10 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     assert started.returncode == CALL_AGAIN, started.stdout + started.stderr
     pid = started.stdout.split("started the hopper worker (pid ")[1].split(")")[0]
     assert f"call again: the hopper worker (pid {pid}) runs on" in started.stdout
-    followed = _campaign("hopper", directory)
+    followed = _campaign("hopper", directory, CAMPAIGN_PACK_SECONDS="1")
     assert followed.returncode == 0, followed.stdout + followed.stderr
     assert f"following the hopper worker (pid {pid})" in followed.stdout
+    assert followed.stdout.count("packed ") >= 2  # while following, and at the end
     assert "resume=true" in followed.stdout + started.stdout and "step hopper complete" in followed.stdout
     packed = _packed(directory, "hopper")
     assert b"paused at 40 of 80 env steps" in packed["./hopper.log"]
