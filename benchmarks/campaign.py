@@ -4,6 +4,7 @@
     python benchmarks/campaign.py plan env=hopper modes=adversarial,uniform,none seeds=5 \\
         total_steps=1000000 deadline=1500
     python benchmarks/campaign.py plan env=ant seeds=5 total_steps=0 min_steps=200000 deadline=1500
+    python benchmarks/campaign.py projections seeds=5 deadline=1500   # all of the above
 
 ``measure`` builds the experiment exactly as ``python -m admissable_jax.experiment`` would
 for these settings (every (seed, mode) pair vmapped in one program) and times its parts on
@@ -46,6 +47,7 @@ from admissable_jax.training import Trainer
 from common import COMMITTED_RESULTS_DIR, RESULTS_DIR, append_record, environment_record, timed
 
 REFUSED = 3  # plan's exit status for a run that does not fit
+ALL_MODES, PAIRED_MODES = "adversarial,uniform,none", "adversarial,uniform"
 
 
 @dataclasses.dataclass
@@ -68,7 +70,7 @@ def _experiment_trainer(config: ExperimentConfig) -> tuple[Trainer, list, Traine
     return trainer, pairs, Trainer(endless_env, trainer.spec)
 
 
-def measure(config: MeasureConfig) -> dict:
+def measure(config: MeasureConfig) -> int:
     trainer, pairs, endless = _experiment_trainer(config)
     seeds = jax.numpy.array([pair.seed for pair in pairs])
     adversarial, masking = (jax.numpy.array(flags) for flags in zip(*(mode_flags(p.missingness) for p in pairs)))
@@ -111,7 +113,7 @@ def measure(config: MeasureConfig) -> dict:
         f"({record['score_loop_steps']} loop steps), at full length {score_full_s:.2f} s "
         f"({record['score_full_loop_steps']} loop steps); checkpoint save {save_s:.1f} s, restore {restore_s:.1f} s"
     )
-    return record
+    return 0
 
 
 def speed_record(config: ExperimentConfig) -> tuple[dict, int]:
@@ -184,17 +186,35 @@ def plan(config: PlanConfig) -> int:
     return 0
 
 
+def projections(config: PlanConfig) -> int:
+    """The campaign's runs projected for one lease of ``deadline`` device seconds: Hopper and
+    Walker2d with all 15 pairs and with the 10 adversarial/uniform ones at ``total_steps``,
+    and the longest Ant run of the 10 (the speed step ends with these). An env without a
+    speed record is named and skipped."""
+    runs = [(env, modes, config.total_steps) for env in ("hopper", "walker2d") for modes in (ALL_MODES, PAIRED_MODES)]
+    for env, modes, total_steps in runs + [("ant", PAIRED_MODES, 0)]:
+        try:
+            plan(dataclasses.replace(config, env=env, modes=modes, total_steps=total_steps))
+        except ValueError as error:
+            print(f"{env} ({modes}): not projected: {error}")
+    return 0
+
+
+VERBS = {"measure": (MeasureConfig, measure), "plan": (PlanConfig, plan), "projections": (PlanConfig, projections)}
+
+
 def main(argv: list[str]) -> int:
-    if not argv or argv[0] not in ("measure", "plan"):
-        print("usage: python benchmarks/campaign.py measure|plan key=value ... (--help after the verb)", file=sys.stderr)
+    if not argv or argv[0] not in VERBS:
+        print(f"usage: python benchmarks/campaign.py {'|'.join(VERBS)} key=value ... (--help after the verb)",
+              file=sys.stderr)
         return 2
     verb, rest = argv[0], argv[1:]
+    config_type, action = VERBS[verb]
+    config = parse_args(config_type, rest, f"benchmarks/campaign.py {verb}", __doc__.splitlines()[0])
     if verb == "measure":
         enable_compilation_cache()  # as the experiment it measures: its programs then start the run compiled
-        measure(parse_args(MeasureConfig, rest, "benchmarks/campaign.py measure", __doc__.splitlines()[0]))
-        return 0
     try:
-        return plan(parse_args(PlanConfig, rest, "benchmarks/campaign.py plan", __doc__.splitlines()[0]))
+        return action(config)
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2

@@ -6,7 +6,8 @@
 #   speed     the speed table: each campaign run's own parts (campaign.py measure: Hopper and
 #             Walker2d with all 15 pairs, Ant with 10), our env step against the bare Warp
 #             physics (125, 1,250 and 10,000 worlds; graph modes), scoring rounds (untrained and
-#             full-length), training (1 and 15 runs), Brax SAC
+#             full-length), training (1 and 15 runs), Brax SAC; last, steps 2-4 projected for a
+#             whole lease (campaign.py projections)
 #   hopper    experiment env=hopper seeds=5 modes=adversarial,uniform,none total_steps=1000000
 #             (the 10 adversarial/uniform pairs if the 15 cannot finish in the time left)
 #   walker2d  the same on Walker2d
@@ -90,7 +91,7 @@ if [ "$smoke" = 1 ]; then
          buffer_size=1000 score_episodes=2 score_envs=8 episode_length=10 checkpoint_every=1)
   min_steps=40; worlds=4,8; graph_modes=default; physics_steps=5; scoring=(n_episodes=1 max_steps=10)
   train_bench=(num_envs=4 iterations=4 batch_size=32 buffer_size=1000); brax=(num_envs=4 steps_per_epoch=4 batch_size=32 num_eval_envs=2 episode_length=10)
-  deadline=${CAMPAIGN_DEADLINE:-3600}
+  deadline=${CAMPAIGN_DEADLINE:-3600}; lease=3600
 else
   export JAX_COMPILATION_CACHE_DIR=$repo/runs/jax_cache JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS=1
   full_steps=1000000
@@ -99,7 +100,7 @@ else
   sizes=(physics=warp seeds=5 score_every=5000 checkpoint_every=20)
   min_steps=200000; worlds=125,1250,10000; graph_modes=default,WARP,WARP_STAGED; physics_steps=100
   scoring=(n_episodes=10); train_bench=(num_envs=125 iterations=40); brax=(num_envs=125 steps_per_epoch=40)
-  deadline=${CAMPAIGN_DEADLINE:-}
+  deadline=${CAMPAIGN_DEADLINE:-}; lease=1500
 fi
 ALL=adversarial,uniform,none
 PAIRED=adversarial,uniform
@@ -166,6 +167,9 @@ worker() {
       stage train-hopper-1 200 $py benchmarks/train_throughput.py env=hopper physics=warp "${train_bench[@]}"
       stage train-hopper-15 240 $py benchmarks/train_throughput.py env=hopper physics=warp seeds=15 "${train_bench[@]}"
       stage brax-hopper 300 $py benchmarks/brax_sac.py env=hopper physics=warp "${brax[@]}"
+      # Steps 2-4 projected for one whole lease (30 minutes less the start, staging and return).
+      stage projections 120 $py benchmarks/campaign.py projections "${sizes[@]}" total_steps=$full_steps \
+          deadline=$lease min_steps=$min_steps max_steps=$full_steps
       ;;
     hopper|walker2d)
       chosen=$state/$step.modes

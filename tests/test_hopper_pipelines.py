@@ -118,8 +118,13 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     run paused and resumed by the next worker from the checkpoint holding Warp data,
     repeating the uninterrupted experiment exactly; what each call packs for the trip back."""
     directory = str(tmp_path / "campaign")
-    speed = _campaign("speed", directory, CAMPAIGN_ONLY="^measure-hopper$")
+    speed = _campaign("speed", directory, CAMPAIGN_ONLY="^(measure-hopper|projections)$")
     assert speed.returncode == 0, speed.stdout + speed.stderr
+    # The speed step ends with steps 2-4 projected from what it measured (here Hopper only).
+    assert "projected wall time for Hopper-v5, 3 pairs x 4 envs (warp" in speed.stdout
+    assert "projected wall time for Hopper-v5, 2 pairs x 4 envs, timed with 3 (an upper bound)" in speed.stdout
+    assert "walker2d (adversarial,uniform,none): not projected: no speed record" in speed.stdout
+    assert "ant (adversarial,uniform): not projected: no speed record" in speed.stdout
     records_path = os.path.join(directory, "results", "campaign_speed.jsonl")
     with open(records_path) as file:
         (record,) = [json.loads(line) for line in file]
@@ -134,7 +139,6 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     refused = _campaign("hopper", directory, CAMPAIGN_DEADLINE="1")
     assert refused.returncode == REFUSED, refused.stdout + refused.stderr
     assert refused.stdout.count("does not fit, refused") == 2
-    assert "2 pairs x 4 envs, timed with 3 (an upper bound)" in refused.stdout
     assert "refused: hopper at 80 env steps cannot finish in 1 s" in refused.stdout
     assert not os.path.exists(os.path.join(directory, "hopper"))
 
