@@ -151,8 +151,8 @@ worker() {
   fi
   case "$step" in
     speed)
-      stage "measure-hopper" 300 $py benchmarks/campaign.py measure env=hopper modes=$ALL "${sizes[@]}"
-      stage "measure-walker2d" 300 $py benchmarks/campaign.py measure env=walker2d modes=$ALL "${sizes[@]}"
+      stage measure-hopper 300 $py benchmarks/campaign.py measure env=hopper modes=$ALL "${sizes[@]}"
+      stage measure-walker2d 300 $py benchmarks/campaign.py measure env=walker2d modes=$ALL "${sizes[@]}"
       stage measure-ant 300 $py benchmarks/campaign.py measure env=ant modes=$PAIRED "${sizes[@]}"
       for env in hopper ant walker2d; do
         modes=$graph_modes; [ "$env" = walker2d ] && modes=default
