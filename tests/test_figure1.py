@@ -1,6 +1,7 @@
 """benchmarks/figure1.py: the campaign's FIGURE1.md, computed from run directories
 (synthetic histories; no training)."""
 
+import importlib.util
 import os
 import subprocess
 import sys
@@ -8,14 +9,20 @@ import sys
 from test_plots import _run_with_minimums
 
 FIGURE1 = os.path.join(os.path.dirname(__file__), "..", "benchmarks", "figure1.py")
+_spec = importlib.util.spec_from_file_location("figure1", FIGURE1)
+figure1 = sys.modules["figure1"] = importlib.util.module_from_spec(_spec)  # its dataclasses look it up there
+_spec.loader.exec_module(figure1)
 
 
-def _figure1(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, FIGURE1, *args], capture_output=True, text=True,
-                          env={**os.environ, "JAX_PLATFORMS": "cpu"})
+def _figure1(*args: str) -> int:
+    """figure1.py's exit status, run in this process (its imports cost seconds per process)."""
+    try:
+        return figure1.main(list(args))
+    except SystemExit as exit:
+        return exit.code
 
 
-def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path):
+def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys):
     """Hand-computed: adversarial finals 40, 60 against uniform 8, 10 (Welch: +41.0
     [-80.9, 162.9], p = 0.149). Mode none's final clean returns at 1M env steps against SB3's
     Hopper 2,326 ± 1,130 (mean − 1 sd = 1196), two seeds so ± t(0.975, 1) · 70.7 / √2 = 635.3:
@@ -29,8 +36,7 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path):
     _run_with_minimums(str(root), "none", 0, [1, 2, 3, 4], 500, score_every=250_000)
     _run_with_minimums(str(root), "none", 1, [1, 2, 3, 4], 600, score_every=250_000)
     out = tmp_path / "FIGURE1.md"
-    result = _figure1(f"hopper={root}", "window=2", f"out={out}")
-    assert result.returncode == 0, result.stdout + result.stderr
+    assert _figure1(f"hopper={root}", "window=2", f"out={out}") == 0
     text = out.read_text()
     assert "| hopper | 20,000 | final min_u a_u | +41.0 | not distinguishable (95% interval holds 0) |" in text
     assert ("- final min_u a_u: adversarial − uniform = +41.0 [-80.9, 162.9], p = 0.149: the seeds cannot tell "
@@ -45,14 +51,18 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path):
     for seed, clean in enumerate((1000, 1100)):
         _run_with_minimums(str(within), "none", seed, [1, 2, 3, 4], clean, score_every=250_000)
         _run_with_minimums(str(young), "none", seed, [1, 2, 3, 4], clean)
-    assert _figure1(f"hopper={within}", f"out={out}").returncode == 0
+    assert _figure1(f"hopper={within}", f"out={out}") == 0
     assert ("final clean return 1050.0 [414.7, 1685.3] against the SB3 RL-Zoo SAC at 1M, 2,326 ± 1,130 (v3 envs): "
             "within SB3's spread (our 95% interval reaches its mean ± 1 sd).") in out.read_text()
-    assert _figure1(f"hopper={young}", f"out={out}").returncode == 0
+    assert _figure1(f"hopper={young}", f"out={out}") == 0
     assert "(v3 envs): not comparable yet (at 20,000 env steps, not the reference's 1M)." in out.read_text()
 
-    # A folder given for the wrong env, or none at all: one line, exit 2, nothing written.
-    wrong = _figure1(f"walker2d={root}", f"out={tmp_path / 'wrong.md'}")
+    # A folder given for the wrong env (the command itself, as a user runs it), or none at
+    # all: one line, exit 2, nothing written.
+    wrong = subprocess.run([sys.executable, FIGURE1, f"walker2d={root}", f"out={tmp_path / 'wrong.md'}"],
+                           capture_output=True, text=True, env={**os.environ, "JAX_PLATFORMS": "cpu"})
     assert wrong.returncode == 2 and wrong.stderr.strip() == f"error: walker2d={root} holds runs of hopper"
     assert not (tmp_path / "wrong.md").exists()
-    assert _figure1().stderr.strip() == "error: give at least one of hopper=DIR, walker2d=DIR, ant=DIR"
+    capsys.readouterr()
+    assert _figure1() == 2
+    assert capsys.readouterr().err.strip() == "error: give at least one of hopper=DIR, walker2d=DIR, ant=DIR"
