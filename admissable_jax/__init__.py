@@ -6,15 +6,26 @@ its own module twice.
 """
 
 import importlib
+import importlib.metadata
 import os
 
 # XLA:CPU compiles our MJX and SAC programs about a third faster with its older elemental
 # emitters than with its fusion emitters, and runs them as fast (benchmarks/xla_cpu_compile.py,
 # record xla_cpu_compile.jsonl); on a CPU, compiling is most of a short run. XLA reads the flag
 # when JAX first starts a backend, so it is set here, before anything of ours touches JAX; a
-# setting of the same flag in XLA_FLAGS wins. GPU backends ignore it.
+# setting of the same flag in XLA_FLAGS wins. GPU backends ignore it, but jaxlib 0.11 no
+# longer knows it and aborts on it, so it is set only for the jaxlib 0.10 we pin.
 CPU_COMPILE_FLAG = "--xla_cpu_use_fusion_emitters=false"
-if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
+
+
+def _jaxlib_knows_compile_flag() -> bool:
+    try:
+        return importlib.metadata.version("jaxlib").startswith("0.10.")
+    except importlib.metadata.PackageNotFoundError:
+        return False
+
+
+if _jaxlib_knows_compile_flag() and "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {CPU_COMPILE_FLAG}".strip()
 
 _PUBLIC = {
