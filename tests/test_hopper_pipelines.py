@@ -28,6 +28,7 @@ from admissable_jax import TrainConfig, make_env
 from admissable_jax.experiment import ExperimentConfig, run_experiment
 from admissable_jax.host_loop import PhysicsCapacityExceeded
 from admissable_jax.train import train_fn
+from test_figure1 import _figure1
 
 # 80 env steps in 2 scorings of 40 (10 iterations of 4 envs each); learning from step 48.
 HOPPER = dict(
@@ -179,11 +180,7 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     # Step 5 on what came back: FIGURE1.md from the unpacked runs, computed, never typed in.
     with tarfile.open(os.path.join(directory, "out", "campaign-hopper.tar.gz")) as tar:
         tar.extractall(tmp_path / "back", filter="data")
-    figure1 = subprocess.run(
-        [sys.executable, os.path.join(os.path.dirname(__file__), "..", "benchmarks", "figure1.py"),
-         f"hopper={tmp_path / 'back' / 'hopper'}", "window=2", f"out={tmp_path / 'FIGURE1.md'}"],
-        capture_output=True, text=True, env={**os.environ, "JAX_PLATFORMS": "cpu"})
-    assert figure1.returncode == 0, figure1.stdout + figure1.stderr
+    assert _figure1(f"hopper={tmp_path / 'back' / 'hopper'}", "window=2", f"out={tmp_path / 'FIGURE1.md'}") == 0
     text = (tmp_path / "FIGURE1.md").read_text()
     assert "(3 runs, 80 env steps each, not the paper's 1M)" in text
     assert "AUC min_u a_u: adversarial − uniform = " in text and "(one seed in a mode: no test)" in text
