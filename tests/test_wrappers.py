@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
@@ -105,3 +106,13 @@ def test_adversary_draws_from_the_papers_p_miss_and_updates_in_vector_envs():
 def test_wrappers_import_no_jax():
     code = "import sys, admissable_jax.wrappers; assert 'jax' not in sys.modules, 'jax imported'"
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+@pytest.mark.parametrize("jaxlib, flag_set", [("0.10.2", True), ("0.11.2", False)])
+def test_cpu_compile_flag_only_for_the_jaxlib_that_knows_it(jaxlib, flag_set):
+    # jaxlib 0.11 aborts at backend start on the XLA:CPU flag that 0.10 compiles faster with.
+    code = ("import importlib.metadata as metadata, os; metadata.version = lambda name: " + repr(jaxlib) + "; "
+            "import admissable_jax; print('xla_cpu_use_fusion_emitters' in os.environ.get('XLA_FLAGS', ''))")
+    env = {key: value for key, value in os.environ.items() if key != "XLA_FLAGS"}
+    shown = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True, env=env)
+    assert shown.stdout.strip() == str(flag_set)
