@@ -9,7 +9,8 @@
 #             full-length), training (1 and 15 runs), Brax SAC; last, steps 2-4 projected for a
 #             whole lease (campaign.py projections)
 #   hopper    experiment env=hopper seeds=5 modes=adversarial,uniform,none total_steps=1000000
-#             (the 10 adversarial/uniform pairs if the 15 cannot finish in the time left)
+#             (the 10 adversarial/uniform pairs if the 15 cannot finish in the time left; if
+#             neither can, the 15 pairs for the longest run that fits, at least 200k env steps)
 #   walker2d  the same on Walker2d
 #   ant       the paper's protocol on Ant for as many env steps as the time left allows (>= 200k)
 #
@@ -144,6 +145,14 @@ admitted() {  # admitted ENV MODES [plan keys]: is a fresh run of this shape pro
 
 refused() { echo "refused: $1"; exit 3; }
 
+longest_run() {  # longest_run ENV MODES: choose the longest run that fits (at least min_steps), or refuse
+  local env=$1 modes=$2 status
+  admitted "$env" "$modes" total_steps=0 min_steps=$min_steps max_steps=$full_steps; status=$?
+  [ $status -eq 3 ] && refused "$env: fewer than $min_steps env steps fit in $deadline s"
+  [ $status -eq 0 ] || exit $status
+  echo "$modes $(tail -n 1 "$dir/plan.out")" > "$chosen"
+}
+
 worker() {
   if [ "$smoke" != 1 ]; then  # the versions and the device, for the log that comes back
     $py -c "import jax, mujoco, warp; print('campaign step $step: jax', jax.__version__, jax.devices(), 'mujoco', mujoco.__version__, 'warp', warp.__version__)" \
@@ -172,29 +181,30 @@ worker() {
           deadline=$lease min_steps=$min_steps max_steps=$full_steps
       ;;
     hopper|walker2d)
-      chosen=$state/$step.modes
+      # The paper's 1M env steps: the 15 pairs if they fit, else the 10 (adversarial, uniform);
+      # if neither fits (a Hopper run needs more than one lease on an H100: speed step), the 15
+      # pairs for the longest run the time allows, as the ant step does.
+      chosen=$state/$step.run
       if [ ! -e "$chosen" ]; then
         admitted "$step" $ALL total_steps=$full_steps; status=$?
-        if [ $status -eq 0 ]; then echo $ALL > "$chosen"
+        if [ $status -eq 0 ]; then echo "$ALL total_steps=$full_steps" > "$chosen"
         elif [ $status -eq 3 ]; then
           admitted "$step" $PAIRED total_steps=$full_steps; status=$?
-          [ $status -eq 3 ] && refused "$step at $full_steps env steps cannot finish in $deadline s; give the time to the ant step"
-          [ $status -eq 0 ] || exit $status
-          echo $PAIRED > "$chosen"
-          echo "all modes' pairs cannot finish in the time left; running the adversarial/uniform pairs"
+          if [ $status -eq 0 ]; then
+            echo "all modes' pairs cannot finish in the time left; running the adversarial/uniform pairs"
+            echo "$PAIRED total_steps=$full_steps" > "$chosen"
+          elif [ $status -eq 3 ]; then
+            echo "$step cannot reach $full_steps env steps in $deadline s: the longest run that fits instead"
+            longest_run "$step" $ALL
+          else exit $status; fi
         else exit $status; fi
       fi
-      train "$step" "$(cat "$chosen")" total_steps=$full_steps
+      train "$step" $(cat "$chosen")
       ;;
     ant)
-      chosen=$state/ant.total_steps
-      if [ ! -e "$chosen" ]; then
-        admitted ant $PAIRED total_steps=0 min_steps=$min_steps max_steps=$full_steps; status=$?
-        [ $status -eq 3 ] && refused "ant: fewer than $min_steps env steps fit in $deadline s"
-        [ $status -eq 0 ] || exit $status
-        tail -n 1 "$dir/plan.out" > "$chosen"
-      fi
-      train ant $PAIRED "$(cat "$chosen")"
+      chosen=$state/ant.run
+      [ -e "$chosen" ] || longest_run ant $PAIRED
+      train ant $(cat "$chosen")
       ;;
   esac
   echo "step $step complete"

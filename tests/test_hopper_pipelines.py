@@ -136,11 +136,13 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     assert "./state/measure-hopper.done" in _packed(directory, "speed")
 
     # Too little device time: the 3 pairs are refused, then the 2 (planned from the 3 pairs'
-    # record, an upper bound), and nothing starts.
+    # record, an upper bound), then the longest run that fits is below min_steps; nothing starts.
     refused = _campaign("hopper", directory, CAMPAIGN_DEADLINE="1")
     assert refused.returncode == REFUSED, refused.stdout + refused.stderr
     assert refused.stdout.count("does not fit, refused") == 2
-    assert "refused: hopper at 80 env steps cannot finish in 1 s" in refused.stdout
+    assert "hopper cannot reach 80 env steps in 1 s: the longest run that fits instead" in refused.stdout
+    assert "below min_steps=40: refused" in refused.stdout
+    assert "refused: hopper: fewer than 40 env steps fit in 1 s" in refused.stdout
     assert not os.path.exists(os.path.join(directory, "hopper"))
 
     # The ant step's plan: the longest run that fits, between min_steps and max_steps.
