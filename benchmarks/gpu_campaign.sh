@@ -6,7 +6,8 @@
 #   speed     the speed table: each campaign run's own parts (campaign.py measure: Hopper and
 #             Walker2d with all 15 pairs, Ant with 10), our env step against the bare Warp
 #             physics (125, 1,250 and 10,000 worlds; graph modes), scoring rounds (untrained and
-#             full-length), training (1 and 15 runs), Brax SAC; last, steps 2-4 projected for a
+#             full-length), training (1 and 15 runs), Brax SAC (and its update alone against
+#             ours: CAMPAIGN_ONLY=brax-update runs just that); last, steps 2-4 projected for a
 #             whole lease (campaign.py projections)
 #   hopper    experiment env=hopper seeds=5 modes=adversarial,uniform,none total_steps=1000000
 #             (the 10 adversarial/uniform pairs if the 15 cannot finish in the time left; if
@@ -176,6 +177,8 @@ worker() {
       stage train-hopper-1 200 $py benchmarks/train_throughput.py env=hopper physics=warp "${train_bench[@]}"
       stage train-hopper-15 240 $py benchmarks/train_throughput.py env=hopper physics=warp seeds=15 "${train_bench[@]}"
       stage brax-hopper 300 $py benchmarks/brax_sac.py env=hopper physics=warp "${brax[@]}"
+      # Brax's SAC update against ours alone (no env): where the training gap to Brax lies.
+      stage brax-update-hopper 200 $py benchmarks/brax_sac.py env=hopper update_only=true
       # Steps 2-4 projected for one whole lease (30 minutes less the start, staging and return).
       stage projections 120 $py benchmarks/campaign.py projections "${sizes[@]}" total_steps=$full_steps \
           deadline=$lease min_steps=$min_steps max_steps=$full_steps
