@@ -10,7 +10,9 @@ draws the figures (``plot_runs``, into a new ``DIR/figures``), and writes: the s
 runs used; final and AUC min_u a_u and the final clean return per mode, mean ± 95%
 t-interval over seeds (``summary_table``); adversarial − uniform with Welch's 95% interval
 and p-value (``comparison_table``); the verdict those numbers give, in words; and mode
-``none``'s clean return against the SB3 RL-Zoo SAC at 1M env steps. Everything in the
+``none``'s clean return against the SB3 RL-Zoo SAC at 1M env steps; and what the runs cost,
+from their ``metrics.jsonl`` (seconds per training chunk and per scoring round), with a
+1M-step run projected from it where they stopped short. Everything in the
 file is computed from the runs; what you suspect or noticed goes under it by hand.
 """
 
@@ -18,6 +20,8 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
+import json
+import math
 import os
 import subprocess
 import sys
@@ -95,6 +99,33 @@ def _clean_sac_line(env: str, all_runs: list[Run]) -> str:
             f"{interval} against the SB3 RL-Zoo SAC at 1M, {reference:,.0f} ± {spread:,.0f} (v3 envs): {words}.")
 
 
+def _cost_line(run_dirs: list[str]) -> str:
+    """What the runs cost, measured: their program's seconds per training chunk and per
+    scoring round (``metrics.jsonl``; the runs of one experiment share one program, so one
+    run's rows hold its times), and a 1M-step run projected from them: the remaining
+    scorings at the median chunk and the last ten rounds' mean (late rounds run longest)."""
+    measured = [path for path in run_dirs if os.path.exists(os.path.join(path, "metrics.jsonl"))]
+    if not measured:
+        return "Cost: not measured (no `metrics.jsonl`)."
+    with open(os.path.join(measured[0], "metrics.jsonl")) as file:
+        rows = [json.loads(line) for line in file if line.strip()]
+    score_every = int(load_config_yaml(os.path.join(measured[0], "config.yaml"))["score_every"])
+    chunks = [score_every / row["env_steps_per_s"] for row in rows]
+    rounds = [row["score_seconds"] for row in rows]
+    late = rounds[-10:]
+    total, chunk = sum(chunks) + sum(rounds), float(np.median(chunks))
+    line = (f"Cost (measured, the program of {rows[-1].get('runs_in_program', 1)} runs, compiling not counted): "
+            f"{len(rows)} scorings in {total:,.0f} s; a training chunk of {score_every:,} env steps per run "
+            f"{chunk:.2f} s (median), a scoring round {np.mean(rounds):.2f} s on average, {np.mean(late):.2f} s over "
+            f"the last {len(late)}.")
+    remaining = math.ceil(max(0, PAPER_STEPS - rows[-1]["env_steps"]) / score_every)
+    if remaining:
+        projected = total + remaining * (chunk + float(np.mean(late)))
+        line += (f" 1M env steps projected at {projected:,.0f} s ({projected / 60:.1f} min): the remaining "
+                 f"{remaining} scorings at the median chunk and the last {len(late)} rounds' mean.")
+    return line
+
+
 def env_section(env: str, folder: str, window: int, out_file: str) -> tuple[str, list[str]]:
     """(the env's Markdown section, one summary row per Difference for the top table)."""
     run_dirs = find_runs([folder])
@@ -118,6 +149,7 @@ def env_section(env: str, folder: str, window: int, out_file: str) -> tuple[str,
         "**Verdict (computed):**", "",
         *(f"- {_verdict(difference)}" for difference in differences),
         f"- {_clean_sac_line(env, runs)}", "",
+        _cost_line(run_dirs), "",
         f"![min_u a_u and clean return]({figure})", "",
     ]
     rows = [f"| {env} | {steps:,} | {d.metric} | {d.mean:+.1f} | {d.reading()} |" for d in differences[:2]]

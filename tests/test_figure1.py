@@ -2,6 +2,7 @@
 (synthetic histories; no training)."""
 
 import importlib.util
+import json
 import os
 import subprocess
 import sys
@@ -35,9 +36,18 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys):
     _run_with_minimums(str(root), "uniform", 1, [5, 6, 9, 10], 94)
     _run_with_minimums(str(root), "none", 0, [1, 2, 3, 4], 500, score_every=250_000)
     _run_with_minimums(str(root), "none", 1, [1, 2, 3, 4], 600, score_every=250_000)
+    # The program's times, in one run's metrics: chunks of 5,000 env steps at 2,500 env steps/s
+    # (2 s each), scoring rounds of 1-4 s: 18 s in all; 196 scorings left to 1M at 2 + 2.5 s.
+    with open(root / "adversarial-s1" / "metrics.jsonl", "w") as file:
+        for t, seconds in enumerate((1.0, 2.0, 3.0, 4.0)):
+            file.write(json.dumps({"env_steps": 5000 * (t + 1), "env_steps_per_s": 2500.0, "score_seconds": seconds,
+                                   "runs_in_program": 6}) + "\n")
     out = tmp_path / "FIGURE1.md"
     assert _figure1(f"hopper={root}", "window=2", f"out={out}") == 0
     text = out.read_text()
+    assert ("Cost (measured, the program of 6 runs, compiling not counted): 4 scorings in 18 s; a training chunk of "
+            "5,000 env steps per run 2.00 s (median), a scoring round 2.50 s on average, 2.50 s over the last 4. "
+            "1M env steps projected at 900 s (15.0 min): the remaining 196 scorings") in text
     assert "| hopper | 20,000 | final min_u a_u | +41.0 | not distinguishable (95% interval holds 0) |" in text
     assert ("- final min_u a_u: adversarial − uniform = +41.0 [-80.9, 162.9], p = 0.149: the seeds cannot tell "
             "the modes apart (the 95% interval holds 0).") in text
