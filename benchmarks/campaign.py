@@ -18,7 +18,8 @@ It appends one record to ``campaign_speed.jsonl`` in the results folder.
 ``plan`` reads the newest matching record (same env, envs per pair, physics and device;
 the same number of pairs, else the fewest pairs above it: a program of fewer pairs does no
 more work, so its time bounds the run's) and projects a run's wall time conservatively:
-one compile, every scoring round at full length, and a checkpoint save every
+one compile, the first run's extra time (Warp's kernels built and loaded), every scoring
+round at full length, and a checkpoint save every
 ``checkpoint_every`` scorings and at the end. (The campaign runs each experiment in one
 process that outlives the device calls following it, so nothing is restored or compiled
 again per call.) It prints the projection and exits 0 if the run fits in ``deadline``
@@ -60,6 +61,7 @@ class PlanConfig(ExperimentConfig):
     deadline: float = dataclasses.field(default=1800.0, metadata={"help": "device seconds left for this run"})
     min_steps: int = dataclasses.field(default=200_000, metadata={"help": "with total_steps=0: refuse a run shorter than this"})
     max_steps: int = dataclasses.field(default=1_000_000, metadata={"help": "with total_steps=0: never plan more than this"})
+    speed_device: str = dataclasses.field(default="", metadata={"help": "plan from this device's speed records ('' = this device's), e.g. an H100's on an H200 that has none"})
 
 
 def _experiment_trainer(config: ExperimentConfig) -> tuple[Trainer, list, Trainer]:
@@ -126,7 +128,7 @@ def speed_record(config: ExperimentConfig) -> tuple[dict, int]:
     want = {"env": trainer.env.gymnasium_id, "physics": trainer.env.physics_name,
             "num_envs": pairs[0].num_envs, "score_episodes": pairs[0].score_episodes,
             "episode_length": pairs[0].episode_length, "score_every": pairs[0].score_every,
-            "device": environment_record()["device"]}
+            "device": getattr(config, "speed_device", "") or environment_record()["device"]}
     paths = [os.path.join(folder, "campaign_speed.jsonl") for folder in dict.fromkeys([COMMITTED_RESULTS_DIR, RESULTS_DIR])]
     records = []
     for path in filter(os.path.exists, paths):
@@ -147,16 +149,24 @@ class Projection:
     total_s: float
 
     def describe(self, record: dict) -> str:
-        return (f"compile {record['compile_s']:.0f} s + {self.scorings} scorings x (chunk {record['chunk_s']:.1f} s + "
+        return (f"compile {record['compile_s']:.0f} s + first run {first_run_s(record):.0f} s + {self.scorings} "
+                f"scorings x (chunk {record['chunk_s']:.1f} s + "
                 f"full-length scoring {record['score_full_s']:.1f} s) + {self.saves} checkpoint save(s) x "
                 f"{record['checkpoint_save_s']:.1f} s = {self.total_s:,.0f} s ({self.total_s / 60:.1f} min)")
+
+
+def first_run_s(record: dict) -> float:
+    """What a program's first run costs beyond a later one: on a fresh machine, MuJoCo Warp
+    builds and loads its kernels then (the H100's first Hopper chunk: 60.1 s against 2.2)."""
+    return max(0.0, record["first_chunk_s"] - record["chunk_s"])
 
 
 def project(record: dict, scorings: int, checkpoint_every: int) -> Projection:
     """Conservative wall time of a run of ``scorings`` scoring intervals in one process."""
     saves = math.ceil(scorings / checkpoint_every)  # every checkpoint_every scorings, and at the end
     interval = record["chunk_s"] + record["score_full_s"]
-    return Projection(scorings, saves, record["compile_s"] + scorings * interval + saves * record["checkpoint_save_s"])
+    once = record["compile_s"] + first_run_s(record)
+    return Projection(scorings, saves, once + scorings * interval + saves * record["checkpoint_save_s"])
 
 
 def plan(config: PlanConfig) -> int:

@@ -48,6 +48,9 @@
 #                           steps, 2-3 pairs), records kept apart; tests run this
 #   CAMPAIGN_DIR            where runs, records and the step's state go (default runs/campaign,
 #                           runs/campaign-smoke in smoke mode)
+#   CAMPAIGN_SPEED_DEVICE   plan runs from this device's speed records (campaign.py plan's
+#                           speed_device), e.g. 'gpu:NVIDIA H100 80GB HBM3' on an H200 that has
+#                           none of its own (the same chip with faster memory: an upper bound)
 #   CAMPAIGN_ONLY           a regular expression: the speed step runs only the stages it matches
 #                           (e.g. 'measure-hopper' or 'brax'), to redo one or to test a few
 #   CAMPAIGN_RUN_SECONDS    the worker's run pauses (checkpoints and stops, as experiment's time_limit)
@@ -139,7 +142,8 @@ train() {  # train ENV MODES [total_steps=N]: one experiment to its end (resumed
 admitted() {  # admitted ENV MODES [plan keys]: is a fresh run of this shape projected to finish in time?
   local env=$1 modes=$2; shift 2
   [ -n "$deadline" ] || { echo "set CAMPAIGN_DEADLINE to the device seconds left (the device tool's status)"; exit 2; }
-  $py benchmarks/campaign.py plan env="$env" modes="$modes" "${sizes[@]}" deadline="$deadline" "$@" 2>&1 \
+  $py benchmarks/campaign.py plan env="$env" modes="$modes" "${sizes[@]}" deadline="$deadline" \
+      ${CAMPAIGN_SPEED_DEVICE:+"speed_device=$CAMPAIGN_SPEED_DEVICE"} "$@" 2>&1 \
       | grep -v '^Warp' | tee "$dir/plan.out"
   return "${PIPESTATUS[0]}"
 }
