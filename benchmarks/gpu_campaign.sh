@@ -6,7 +6,8 @@
 #   speed     the speed table: each campaign run's own parts (campaign.py measure: Hopper and
 #             Walker2d with all 15 pairs, Ant with 10), our env step against the bare Warp
 #             physics (125, 1,250 and 10,000 worlds; graph modes), scoring rounds (untrained and
-#             full-length), training (1 and 15 runs), Brax SAC (and its update alone against
+#             full-length; and full-length checking for running episodes every 10 steps only),
+#             training (1 and 15 runs), Brax SAC (and its update alone against
 #             ours: CAMPAIGN_ONLY=brax-update runs just that); last, steps 2-4 projected for a
 #             whole lease (campaign.py projections)
 #   hopper    experiment env=hopper seeds=5 modes=adversarial,uniform,none total_steps=1000000
@@ -177,6 +178,10 @@ worker() {
       for env in hopper ant; do
         stage "scoring-$env" 200 $py benchmarks/scoring_round.py env=$env physics=warp slots=0 ceiling=false "${scoring[@]}"
         stage "scoring-$env-full" 200 $py benchmarks/scoring_round.py env=$env physics=warp slots=0 ceiling=false terminate=false "${scoring[@]}"
+        # The same round checking for running episodes every 10 steps only (score_missingness's
+        # steps_per_check): each check of a data-dependent loop makes the host wait for the GPU.
+        stage "scoring-$env-full-check10" 200 $py benchmarks/scoring_round.py env=$env physics=warp slots=0 ceiling=false \
+            terminate=false steps_per_check=10 "${scoring[@]}"
       done
       stage train-hopper-1 200 $py benchmarks/train_throughput.py env=hopper physics=warp "${train_bench[@]}"
       stage train-hopper-15 240 $py benchmarks/train_throughput.py env=hopper physics=warp seeds=15 "${train_bench[@]}"

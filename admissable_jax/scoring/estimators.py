@@ -30,6 +30,7 @@ def score_missingness(
     max_steps: int | None = None,
     num_slots: int | None = None,
     *,
+    steps_per_check: int = 1,
     score_estimator: str = "rollout",
     critic_fn: CriticFn | None = None,
     critic_params: Any = None,
@@ -37,12 +38,13 @@ def score_missingness(
     gamma: float = 0.99,
 ) -> MissingnessScores:
     """Score every u in ``hidden_sets`` ((|U|, d) 0/1 rows) and the clean case, N =
-    ``n_episodes`` from the same N start states, by ``score_estimator``. ``max_steps`` and
-    ``num_slots`` concern ``rollout`` (see ``score_by_rollout``); ``critic_fn(critic_params,
+    ``n_episodes`` from the same N start states, by ``score_estimator``. ``max_steps``,
+    ``num_slots`` and ``steps_per_check`` concern ``rollout`` (see ``score_by_rollout``); ``critic_fn(critic_params,
     masked_obs, action) -> (2,)`` twin Q, ``score_horizon`` (H) and ``gamma`` the other two.
     Jit-able with ``env``, the functions, the sizes and the estimator's settings static."""
     if score_estimator == "rollout":
-        return score_by_rollout(env, policy_fn, params, rng, hidden_sets, n_episodes, max_steps, num_slots)
+        return score_by_rollout(env, policy_fn, params, rng, hidden_sets, n_episodes, max_steps, num_slots,
+                                steps_per_check)
     if score_estimator not in SCORE_ESTIMATORS:
         raise ValueError(f"score_estimator must be one of {', '.join(SCORE_ESTIMATORS)}, got {score_estimator!r}")
     if critic_fn is None:

@@ -11,6 +11,13 @@ stays full of live episodes instead of stepping finished ones until the longest 
 Episode i starts from the same initial state for every u (common random numbers), so
 differences between sets are not reset noise; which slot runs an episode does not change
 its return.
+
+On a GPU, XLA runs a ``while_loop`` whose condition depends on data by copying the
+condition to the host at every iteration and waiting for it, so the host cannot queue the
+next steps' kernels ahead of the device. ``steps_per_check`` > 1 runs that many steps per
+check (a ``scan`` inside the loop): steps taken after every episode has ended change no
+result (``loop_steps`` counts only steps with an episode running), at most
+``steps_per_check`` − 1 extra steps per round.
 """
 
 from __future__ import annotations
@@ -56,6 +63,7 @@ def score_by_rollout(
     n_episodes: int = 10,
     max_steps: int | None = None,
     num_slots: int | None = None,
+    steps_per_check: int = 1,
 ) -> MissingnessScores:
     """Score every u in ``hidden_sets`` ((|U|, d) 0/1 rows) and the clean case.
 
@@ -64,9 +72,12 @@ def score_by_rollout(
     defaults to the env's limit (1000). ``num_slots`` is how many envs are stepped at once
     (default: all (|U| + 1) · N episodes, or the env's ``max_batch`` if that is smaller;
     fewer trades loop steps for a smaller batch, which pays where a step's cost grows with
-    the batch, as on a CPU). Jit-able with ``env``, ``policy_fn``, ``n_episodes``,
-    ``max_steps`` and ``num_slots`` static.
+    the batch, as on a CPU). ``steps_per_check``: steps between checks whether any episode
+    still runs (module docstring). Jit-able with ``env``, ``policy_fn``, ``n_episodes``,
+    ``max_steps``, ``num_slots`` and ``steps_per_check`` static.
     """
+    if steps_per_check < 1:
+        raise ValueError(f"steps_per_check must be >= 1, got {steps_per_check}")
     hidden_sets = jnp.asarray(hidden_sets, jnp.float32)
     num_sets, num_features = hidden_sets.shape
     chex.assert_equal(num_features, env.observation_size)
@@ -91,7 +102,7 @@ def score_by_rollout(
     def cond(carry):
         return jnp.any(carry["alive"])
 
-    def body(carry):
+    def step(carry, _=None):
         states, episode, alive = carry["states"], carry["episode"], carry["alive"]
         actions = policy(params, mask_observation(states.obs, episode_hidden[episode]))
         states = jax.vmap(env.step)(states, actions)
@@ -108,9 +119,14 @@ def score_by_rollout(
         return {
             "states": states, "episode": episode, "alive": jnp.where(finished, refill, alive),
             "next_episode": carry["next_episode"] + finished.sum(), "returns": returns,
-            "lengths": lengths, "loop_steps": carry["loop_steps"] + 1,
-            "capacity_exceeded": carry["capacity_exceeded"] | env.capacity_exceeded(states),
-        }
+            "lengths": lengths, "loop_steps": carry["loop_steps"] + jnp.any(alive),
+            "capacity_exceeded": carry["capacity_exceeded"] | (jnp.any(alive) & env.capacity_exceeded(states)),
+        }, None
+
+    def body(carry):
+        if steps_per_check == 1:
+            return step(carry)[0]
+        return jax.lax.scan(step, carry, None, length=steps_per_check)[0]
 
     slots = jnp.arange(num_slots)
     carry = {
