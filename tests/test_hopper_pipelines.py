@@ -192,21 +192,6 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     assert (tmp_path / "back" / "hopper" / "figures" / "min_score.png").exists()
 
 
-def test_campaign_plans_the_next_lease_from_the_committed_h100_record():
-    """The hopper step's fallback as the next lease will plan it, from the H100 speed record
-    on main (read through speed_device here, as on an H200 that has none): 1,650 s hold 156
-    scorings once the first run's 58 s (Warp's kernels built and loaded) are counted."""
-    plan = subprocess.run(
-        [sys.executable, os.path.join(os.path.dirname(__file__), "..", "benchmarks", "campaign.py"), "plan",
-         "env=hopper", "modes=adversarial,uniform,none", "physics=warp", "seeds=5", "num_envs=125", "score_every=5000",
-         "checkpoint_every=20", "total_steps=0", "min_steps=200000", "max_steps=1000000", "deadline=1650",
-         "speed_device=gpu:NVIDIA H100 80GB HBM3"],
-        capture_output=True, text=True, env={**os.environ, "JAX_PLATFORMS": "cpu"})
-    assert plan.returncode == 0, plan.stdout + plan.stderr
-    assert "compile 50 s + first run 58 s + 156 scorings x (chunk 2.2 s + full-length scoring 7.5 s)" in plan.stdout
-    assert plan.stdout.strip().splitlines()[-1] == "total_steps=780000"
-
-
 def test_capacity_overflow_is_detected_and_stops_the_run_in_one_line(tmp_path, monkeypatch):
     """A batch larger than the env's max_batch overflows Warp's shared contact buffer and the
     env says so; a run whose env says so stops with an error naming the setting."""
