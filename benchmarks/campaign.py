@@ -3,6 +3,8 @@
     python benchmarks/campaign.py measure env=hopper modes=adversarial,uniform,none seeds=5
     python benchmarks/campaign.py plan env=hopper modes=adversarial,uniform,none seeds=5 \\
         total_steps=1000000 deadline=1500
+    python benchmarks/campaign.py plan env=hopper modes=adversarial,uniform,none seeds=5 \\
+        total_steps=1000000 fallback_modes=adversarial,uniform or_longest=true deadline=1650
     python benchmarks/campaign.py plan env=ant seeds=5 total_steps=0 min_steps=200000 deadline=1500
     python benchmarks/campaign.py projections seeds=5 deadline=1500   # all of the above
 
@@ -24,7 +26,10 @@ round at full length, and a checkpoint save every
 process that outlives the device calls following it, so nothing is restored or compiled
 again per call.) It prints the projection and exits 0 if the run fits in ``deadline``
 seconds, 3 if not. With ``total_steps=0`` it finds the longest run that fits (at least
-``min_steps``, at most ``max_steps``) and prints ``total_steps=N`` last.
+``min_steps``, at most ``max_steps``). ``fallback_modes`` and ``or_longest`` say what to
+try when the run does not fit, all in one process (the hopper step: the 15 pairs at 1M,
+else the 10, else the longest run of the 15). The last line, ``modes=M total_steps=N``,
+names the run chosen.
 """
 
 from __future__ import annotations
@@ -61,6 +66,8 @@ class PlanConfig(ExperimentConfig):
     deadline: float = dataclasses.field(default=1800.0, metadata={"help": "device seconds left for this run"})
     min_steps: int = dataclasses.field(default=200_000, metadata={"help": "with total_steps=0: refuse a run shorter than this"})
     max_steps: int = dataclasses.field(default=1_000_000, metadata={"help": "with total_steps=0: never plan more than this"})
+    fallback_modes: str = dataclasses.field(default="", metadata={"help": "modes to run instead if modes do not fit at total_steps ('' = none)"})
+    or_longest: bool = dataclasses.field(default=False, metadata={"help": "if nothing fits at total_steps, the longest run of modes (>= min_steps)"})
     speed_device: str = dataclasses.field(default="", metadata={"help": "plan from this device's speed records ('' = this device's), e.g. an H100's on an H200 that has none"})
 
 
@@ -169,19 +176,29 @@ def project(record: dict, scorings: int, checkpoint_every: int) -> Projection:
     return Projection(scorings, saves, once + scorings * interval + saves * record["checkpoint_save_s"])
 
 
-def plan(config: PlanConfig) -> int:
+def _shape(config: ExperimentConfig) -> tuple[str, dict]:
+    """(the run's shape in words, its speed record)."""
     record, pairs = speed_record(config)
     timed_with = "" if record["pairs"] == pairs else f", timed with {record['pairs']} (an upper bound)"
-    shape = (f"{record['env']}, {pairs} pairs x {record['num_envs']} envs{timed_with} "
-             f"({record['physics']} on {record['device']})")
-    if config.total_steps > 0:
-        scorings = math.ceil(config.total_steps / config.score_every)
-        projection = project(record, scorings, config.checkpoint_every)
-        fits = projection.total_s <= config.deadline
-        print(f"projected wall time for {shape}, {scorings * config.score_every:,} env steps: "
-              f"{projection.describe(record)}; device time left {config.deadline:,.0f} s: "
-              f"{'fits' if fits else 'does not fit, refused'}")
-        return 0 if fits else REFUSED
+    return (f"{record['env']}, {pairs} pairs x {record['num_envs']} envs{timed_with} "
+            f"({record['physics']} on {record['device']})"), record
+
+
+def _fits(config: PlanConfig) -> bool:
+    """Whether a run of ``total_steps`` fits in ``deadline``; its projection printed."""
+    shape, record = _shape(config)
+    scorings = math.ceil(config.total_steps / config.score_every)
+    projection = project(record, scorings, config.checkpoint_every)
+    fits = projection.total_s <= config.deadline
+    print(f"projected wall time for {shape}, {scorings * config.score_every:,} env steps: "
+          f"{projection.describe(record)}; device time left {config.deadline:,.0f} s: "
+          f"{'fits' if fits else 'does not fit, refused'}")
+    return fits
+
+
+def _longest(config: PlanConfig) -> int | None:
+    """The most env steps (min_steps to max_steps) a run fits in ``deadline``, or None."""
+    shape, record = _shape(config)
     scorings, most = 1, max(1, config.max_steps // config.score_every)
     while scorings < most and project(record, scorings + 1, config.checkpoint_every).total_s <= config.deadline:
         scorings += 1
@@ -190,9 +207,31 @@ def plan(config: PlanConfig) -> int:
     if steps < config.min_steps or projection.total_s > config.deadline:
         print(f"the longest run of {shape} that fits in {config.deadline:,.0f} s is {steps:,} env steps "
               f"({projection.describe(record)}), below min_steps={config.min_steps:,}: refused")
-        return REFUSED
+        return None
     print(f"longest run of {shape} in {config.deadline:,.0f} s: {steps:,} env steps: {projection.describe(record)}")
-    print(f"total_steps={steps}")
+    return steps
+
+
+def plan(config: PlanConfig) -> int:
+    """The run to start: ``modes`` at ``total_steps`` if it fits, else ``fallback_modes`` at
+    ``total_steps``, else (``or_longest``) the longest run of ``modes``; with
+    ``total_steps=0``, the longest run. Its last line ``modes=M total_steps=N`` names the run
+    (exit 0); exit 3 if none fits."""
+    if config.total_steps > 0:
+        for modes in filter(None, dict.fromkeys([config.modes, config.fallback_modes])):
+            if _fits(dataclasses.replace(config, modes=modes)):
+                if modes != config.modes:
+                    print(f"the {config.modes} pairs cannot finish in the time left; running the {modes} pairs")
+                print(f"modes={modes} total_steps={config.total_steps}")
+                return 0
+        if not config.or_longest:
+            return REFUSED
+        print(f"{config.env} cannot reach {config.total_steps} env steps in {config.deadline:g} s: "
+              f"the longest run that fits instead")
+    steps = _longest(config)
+    if steps is None:
+        return REFUSED
+    print(f"modes={config.modes} total_steps={steps}")
     return 0
 
 

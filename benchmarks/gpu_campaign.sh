@@ -127,12 +127,12 @@ stage() {  # stage NAME LIMIT COMMAND...: run once per campaign, for at most LIM
   fi
 }
 
-train() {  # train ENV MODES [total_steps=N]: one experiment to its end (resumed if a worker left checkpoints)
-  local env=$1 modes=$2; shift 2
+train() {  # train ENV modes=M total_steps=N: one experiment to its end (resumed if a worker left checkpoints)
+  local env=$1; shift
   local rundir=$dir/$env resume=false limit=${CAMPAIGN_RUN_SECONDS:-0}
   [ -n "$(ls -A "$rundir/checkpoints" 2>/dev/null)" ] && resume=true
-  echo "+ experiment env=$env modes=$modes ${sizes[*]} $* resume=$resume time_limit=$limit"
-  $py -m admissable_jax.experiment env="$env" modes="$modes" "${sizes[@]}" "$@" out="$rundir" resume=$resume \
+  echo "+ experiment env=$env $* ${sizes[*]} resume=$resume time_limit=$limit"
+  $py -m admissable_jax.experiment env="$env" "$@" "${sizes[@]}" out="$rundir" resume=$resume \
       time_limit="$limit" progress=false 2>&1 | tee "$dir/last-run.log"
   local status=${PIPESTATUS[0]}
   [ "$status" -eq 0 ] || { echo "experiment exited $status"; exit "$status"; }
@@ -140,23 +140,18 @@ train() {  # train ENV MODES [total_steps=N]: one experiment to its end (resumed
   echo "$env finished"
 }
 
-admitted() {  # admitted ENV MODES [plan keys]: is a fresh run of this shape projected to finish in time?
-  local env=$1 modes=$2; shift 2
-  [ -n "$deadline" ] || { echo "set CAMPAIGN_DEADLINE to the device seconds left (the device tool's status)"; exit 2; }
-  $py benchmarks/campaign.py plan env="$env" modes="$modes" "${sizes[@]}" deadline="$deadline" \
-      ${CAMPAIGN_SPEED_DEVICE:+"speed_device=$CAMPAIGN_SPEED_DEVICE"} "$@" 2>&1 \
-      | grep -v '^Warp' | tee "$dir/plan.out"
-  return "${PIPESTATUS[0]}"
-}
-
 refused() { echo "refused: $1"; exit 3; }
 
-longest_run() {  # longest_run ENV MODES: choose the longest run that fits (at least min_steps), or refuse
-  local env=$1 modes=$2 status
-  admitted "$env" "$modes" total_steps=0 min_steps=$min_steps max_steps=$full_steps; status=$?
+choose() {  # choose ENV MODES [plan keys]: campaign.py plan picks the run (its last line, kept in $chosen), or refuse
+  local env=$1 modes=$2 status; shift 2
+  [ -n "$deadline" ] || { echo "set CAMPAIGN_DEADLINE to the device seconds left (the device tool's status)"; exit 2; }
+  $py benchmarks/campaign.py plan env="$env" modes="$modes" "${sizes[@]}" deadline="$deadline" \
+      min_steps=$min_steps max_steps=$full_steps ${CAMPAIGN_SPEED_DEVICE:+"speed_device=$CAMPAIGN_SPEED_DEVICE"} \
+      "$@" 2>&1 | grep -v '^Warp' | tee "$dir/plan.out"
+  status=${PIPESTATUS[0]}
   [ $status -eq 3 ] && refused "$env: fewer than $min_steps env steps fit in $deadline s"
   [ $status -eq 0 ] || exit $status
-  echo "$modes $(tail -n 1 "$dir/plan.out")" > "$chosen"
+  tail -n 1 "$dir/plan.out" > "$chosen"
 }
 
 worker() {
@@ -195,27 +190,14 @@ worker() {
     hopper|walker2d)
       # The paper's 1M env steps: the 15 pairs if they fit, else the 10 (adversarial, uniform);
       # if neither fits (a Hopper run needs more than one lease on an H100: speed step), the 15
-      # pairs for the longest run the time allows, as the ant step does.
+      # pairs for the longest run the time allows, as the ant step does. One plan decides.
       chosen=$state/$step.run
-      if [ ! -e "$chosen" ]; then
-        admitted "$step" $ALL total_steps=$full_steps; status=$?
-        if [ $status -eq 0 ]; then echo "$ALL total_steps=$full_steps" > "$chosen"
-        elif [ $status -eq 3 ]; then
-          admitted "$step" $PAIRED total_steps=$full_steps; status=$?
-          if [ $status -eq 0 ]; then
-            echo "all modes' pairs cannot finish in the time left; running the adversarial/uniform pairs"
-            echo "$PAIRED total_steps=$full_steps" > "$chosen"
-          elif [ $status -eq 3 ]; then
-            echo "$step cannot reach $full_steps env steps in $deadline s: the longest run that fits instead"
-            longest_run "$step" $ALL
-          else exit $status; fi
-        else exit $status; fi
-      fi
+      [ -e "$chosen" ] || choose "$step" $ALL total_steps=$full_steps fallback_modes=$PAIRED or_longest=true
       train "$step" $(cat "$chosen")
       ;;
     ant)
       chosen=$state/ant.run
-      [ -e "$chosen" ] || longest_run ant $PAIRED
+      [ -e "$chosen" ] || choose ant $PAIRED total_steps=0
       train ant $(cat "$chosen")
       ;;
   esac

@@ -11,15 +11,26 @@ campaign = sys.modules["campaign"] = importlib.util.module_from_spec(_spec)  # i
 _spec.loader.exec_module(campaign)
 
 
+H100 = "speed_device=gpu:NVIDIA H100 80GB HBM3"
+HOPPER_ON_THE_GPU = ["env=hopper", "modes=adversarial,uniform,none", "physics=warp", "seeds=5", "num_envs=125",
+                     "score_every=5000", "checkpoint_every=20", "min_steps=200000", "max_steps=1000000"]
+
+
 def test_the_next_lease_is_planned_from_the_committed_h100_record(capsys):
-    """The hopper step's fallback as the next lease will plan it, from the H100 speed record
-    on main (read through speed_device here, as on an H200 that has none): 1,650 s hold 156
-    scorings once the first run's 58 s (Warp's kernels built and loaded) are counted."""
-    status = campaign.main(["plan", "env=hopper", "modes=adversarial,uniform,none", "physics=warp", "seeds=5",
-                            "num_envs=125", "score_every=5000", "checkpoint_every=20", "total_steps=0",
-                            "min_steps=200000", "max_steps=1000000", "deadline=1650",
-                            "speed_device=gpu:NVIDIA H100 80GB HBM3"])
+    """The hopper step's plan as the next lease will make it, in one process, from the H100
+    speed record on main (read through speed_device here, as on an H200 that has none): 1M
+    env steps fit neither with the 15 pairs nor with the 10, so the longest run of the 15:
+    1,650 s hold 156 scorings once the first run's 58 s (Warp's kernels built and loaded)
+    are counted."""
+    status = campaign.main(["plan", *HOPPER_ON_THE_GPU, "total_steps=1000000", "fallback_modes=adversarial,uniform",
+                            "or_longest=true", "deadline=1650", H100])
     shown = capsys.readouterr().out
     assert status == 0, shown
+    assert shown.count("does not fit, refused") == 2
+    assert "hopper cannot reach 1000000 env steps in 1650 s: the longest run that fits instead" in shown
     assert "compile 50 s + first run 58 s + 156 scorings x (chunk 2.2 s + full-length scoring 7.5 s)" in shown
-    assert shown.strip().splitlines()[-1] == "total_steps=780000"
+    assert shown.strip().splitlines()[-1] == "modes=adversarial,uniform,none total_steps=780000"
+
+    # An hour holds more than max_steps: the longest run stops there.
+    status = campaign.main(["plan", *HOPPER_ON_THE_GPU, "total_steps=0", "max_steps=200000", "deadline=3600", H100])
+    assert status == 0 and capsys.readouterr().out.strip().splitlines()[-1] == "modes=adversarial,uniform,none total_steps=200000"

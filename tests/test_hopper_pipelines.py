@@ -145,17 +145,6 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     assert "refused: hopper: fewer than 40 env steps fit in 1 s" in refused.stdout
     assert not os.path.exists(os.path.join(directory, "hopper"))
 
-    # The ant step's plan: the longest run that fits, between min_steps and max_steps.
-    sizes = [f"{key}={value}" for key, value in HOPPER.items() if key not in ("checkpoint_every", "progress")]
-    fill = subprocess.run(
-        [sys.executable, os.path.join(os.path.dirname(__file__), "..", "benchmarks", "campaign.py"), "plan",
-         "modes=adversarial,uniform,none", "physics=warp", "seeds=1", *sizes, "total_steps=0", "min_steps=40",
-         "max_steps=400", "deadline=3600"],
-        capture_output=True, text=True, env={**os.environ, "JAX_PLATFORMS": "cpu",
-                                             "BENCHMARK_RESULTS_DIR": os.path.join(directory, "results")})
-    assert fill.returncode == 0, fill.stdout + fill.stderr
-    assert fill.stdout.strip().splitlines()[-1] == "total_steps=400"  # an hour holds far more than 400 steps
-
     # A worker paused by CAMPAIGN_RUN_SECONDS after its first scoring (as a failed one would
     # leave it), then a worker that resumes it, started by a call that returns at once and
     # followed by the next.
