@@ -20,7 +20,7 @@ It appends one record to ``campaign_speed.jsonl`` in the results folder.
 ``plan`` reads the newest matching record (same env, envs per pair, physics and device;
 the same number of pairs, else the fewest pairs above it: a program of fewer pairs does no
 more work, so its time bounds the run's) and projects a run's wall time conservatively:
-one compile, the first run's extra time (Warp's kernels built and loaded), every scoring
+one compile, the first run's extra time (most likely Warp building its kernels), every scoring
 round at full length, and a checkpoint save every
 ``checkpoint_every`` scorings and at the end. (The campaign runs each experiment in one
 process that outlives the device calls following it, so nothing is restored or compiled
@@ -163,8 +163,8 @@ class Projection:
 
 
 def first_run_s(record: dict) -> float:
-    """What a program's first run costs beyond a later one: on a fresh machine, MuJoCo Warp
-    builds and loads its kernels then (the H100's first Hopper chunk: 60.1 s against 2.2)."""
+    """What a program's first run costs beyond a later one (the H100's first Hopper chunk:
+    60.1 s against 2.2; most likely MuJoCo Warp building its kernels on a fresh machine)."""
     return max(0.0, record["first_chunk_s"] - record["chunk_s"])
 
 

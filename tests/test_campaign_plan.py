@@ -20,7 +20,7 @@ def test_the_next_lease_is_planned_from_the_committed_h100_record(capsys):
     """The hopper step's plan as the next lease will make it, in one process, from the H100
     speed record on main (read through speed_device here, as on an H200 that has none): 1M
     env steps fit neither with the 15 pairs nor with the 10, so the longest run of the 15:
-    1,650 s hold 156 scorings once the first run's 58 s (Warp's kernels built and loaded)
+    1,650 s hold 156 scorings once the first run's extra 58 s
     are counted."""
     status = campaign.main(["plan", *HOPPER_ON_THE_GPU, "total_steps=1000000", "fallback_modes=adversarial,uniform",
                             "or_longest=true", "deadline=1650", H100])
