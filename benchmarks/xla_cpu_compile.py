@@ -1,9 +1,13 @@
-"""XLA:CPU's two code generators on our programs: compile time, run time, same results.
+"""XLA:CPU settings on our programs: compile time, run time, same results.
 
     JAX_PLATFORMS=cpu python benchmarks/xla_cpu_compile.py programs=hopper,ant,point_mass repeats=2
+    JAX_PLATFORMS=cpu python benchmarks/xla_cpu_compile.py programs=hopper,point_mass \
+        'flag_sets=--xla_cpu_use_fusion_emitters=false|--xla_cpu_use_fusion_emitters=false --xla_backend_optimization_level=0'
 
 ``admissable_jax`` sets ``--xla_cpu_use_fusion_emitters=false`` (its ``__init__``) unless
-XLA_FLAGS says otherwise. For each program and each setting of that flag (``true`` is XLA's
+XLA_FLAGS says otherwise; tests/conftest.py also lowers LLVM's optimisation level, since tests
+compile far more than they run. For each program and each XLA_FLAGS setting of ``flag_sets``
+(``|``-separated; the default compares the fusion emitters off and on, ``true`` being XLA's
 default), a fresh process (XLA reads its flags once per process; no compilation cache)
 compiles and runs it:
 
@@ -14,7 +18,7 @@ compiles and runs it:
 
 It appends one record per (program, setting, repeat) to ``results/xla_cpu_compile.jsonl``
 with the compile and run seconds and a checksum of the outputs (equal checksums: the same
-numbers, to float32 round-off).
+numbers; close ones: float32 round-off).
 """
 
 from __future__ import annotations
@@ -38,12 +42,16 @@ FLAG = "--xla_cpu_use_fusion_emitters"
 class XlaCpuCompileConfig:
     programs: str = dataclasses.field(default="hopper,ant,point_mass", metadata={"help": f"comma list of {', '.join(PROGRAMS)}"})
     repeats: int = dataclasses.field(default=2, metadata={"help": "fresh processes per program and setting"})
+    flag_sets: str = dataclasses.field(default=f"{FLAG}=false|{FLAG}=true",
+                                       metadata={"help": "XLA_FLAGS settings to compare, separated by |"})
 
 
 def _validate(bench: XlaCpuCompileConfig) -> None:
     unknown = set(bench.programs.split(",")) - set(PROGRAMS)
     if unknown or bench.repeats < 1:
         raise ValueError(f"programs must be a comma list of {', '.join(PROGRAMS)} and repeats >= 1")
+    if not all(flags.strip() for flags in bench.flag_sets.split("|")):
+        raise ValueError("flag_sets must be XLA_FLAGS settings separated by |, none empty")
 
 
 def _measure_in_this_process(program: str) -> dict:
@@ -97,8 +105,7 @@ def main(argv: list[str]) -> None:
     bench = parse_args(XlaCpuCompileConfig, argv, "benchmarks/xla_cpu_compile.py", __doc__.strip().splitlines()[0], _validate)
     for program in bench.programs.split(","):
         for repeat in range(bench.repeats):
-            for fusion_emitters in ("false", "true"):
-                flags = f"{FLAG}={fusion_emitters}"
+            for flags in (flags.strip() for flags in bench.flag_sets.split("|")):
                 env = {**os.environ, "XLA_FLAGS": flags, "JAX_PLATFORMS": "cpu"}
                 env.pop("JAX_COMPILATION_CACHE_DIR", None)
                 child = subprocess.run([sys.executable, __file__, "--child", program], env=env, capture_output=True,
