@@ -105,7 +105,7 @@ def main(argv: list[str]) -> None:
     bench = parse_args(XlaCpuCompileConfig, argv, "benchmarks/xla_cpu_compile.py", __doc__.strip().splitlines()[0], _validate)
     for program in bench.programs.split(","):
         for repeat in range(bench.repeats):
-            for flags in (flags.strip() for flags in bench.flag_sets.split("|")):
+            for flags in [setting.strip() for setting in bench.flag_sets.split("|")]:
                 env = {**os.environ, "XLA_FLAGS": flags, "JAX_PLATFORMS": "cpu"}
                 env.pop("JAX_COMPILATION_CACHE_DIR", None)
                 child = subprocess.run([sys.executable, __file__, "--child", program], env=env, capture_output=True,

@@ -15,8 +15,9 @@ os.environ.setdefault(
 )
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "1")
 # Tests compile far more than they run: LLVM at -O0 compiles our MJX programs in about half
-# the time and runs them up to 2x slower, to the same outputs (benchmarks/xla_cpu_compile.py,
-# record xla_cpu_compile.jsonl). Subprocesses of the tests inherit it.
+# the time and runs them up to 2x slower; the physics gives the same outputs, SAC runs differ
+# by round-off (benchmarks/xla_cpu_compile.py, record xla_cpu_compile.jsonl). Subprocesses of
+# the tests inherit it.
 if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_backend_optimization_level=0".strip()
 os.environ.setdefault("MUJOCO_GL", "egl")  # the video test renders headless (Mesa's EGL on a CPU)
