@@ -25,8 +25,16 @@ def _jaxlib_knows_compile_flag() -> bool:
         return False
 
 
-if _jaxlib_knows_compile_flag() and "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {CPU_COMPILE_FLAG}".strip()
+def default_xla_flag(flag: str) -> None:
+    """Add ``flag`` (``--name=value``) to XLA_FLAGS unless XLA_FLAGS already sets that name:
+    a setting given there wins. XLA reads XLA_FLAGS once, when JAX starts a backend."""
+    name = flag.split("=")[0]
+    if name not in os.environ.get("XLA_FLAGS", ""):
+        os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {flag}".strip()
+
+
+if _jaxlib_knows_compile_flag():
+    default_xla_flag(CPU_COMPILE_FLAG)
 
 _PUBLIC = {
     "TrainConfig": "admissable_jax.config",

@@ -8,6 +8,8 @@ files go first, so that the workers finish together.
 
 import os
 
+from admissable_jax import default_xla_flag  # the package's __init__ imports no JAX
+
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 os.environ.setdefault(
     "JAX_COMPILATION_CACHE_DIR",
@@ -18,8 +20,7 @@ os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "1")
 # the time and runs them up to 2x slower; the physics gives the same outputs, SAC runs differ
 # by round-off (benchmarks/xla_cpu_compile.py, record xla_cpu_compile.jsonl). Subprocesses of
 # the tests inherit it.
-if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_backend_optimization_level=0".strip()
+default_xla_flag("--xla_backend_optimization_level=0")
 os.environ.setdefault("MUJOCO_GL", "egl")  # the video test renders headless (Mesa's EGL on a CPU)
 
 
