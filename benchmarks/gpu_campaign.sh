@@ -30,8 +30,10 @@
 # failure the next call starts a new worker: finished benchmark stages are skipped and a run
 # resumes from its last checkpoint.
 #
-# On a lent GPU (device tool), from the repository root, after `bash ../shared/device/pack.sh`:
-#   run(command="bash .dev/a/stage.sh", carry=[".dev/a"])
+# On a lent GPU (device tool), from the repository root, after `bash ../shared/device/pack.sh`
+# and `python benchmarks/warp_kernels.py` (MuJoCo Warp's CUDA modules, built on the CPU: Warp
+# loads them instead of compiling them in a run's first chunk; the packs report how many):
+#   run(command="bash .dev/a/stage.sh", carry=[".dev/a", ".dev/kernels"])
 #   run(command="bash .dev/b/finish.sh && CAMPAIGN_DEADLINE=<device s left> bash benchmarks/gpu_campaign.sh speed", carry=[".dev/b"])
 #   run(command="bash benchmarks/gpu_campaign.sh speed")  # while it exits 75
 # Run directories live in runs/campaign/ (ignored; kept while the machine stays warm).
@@ -78,8 +80,17 @@ state=$dir/state
 log=$dir/$step.log
 export BENCHMARK_RESULTS_DIR=$dir/results PYTHONUNBUFFERED=1 PYTHONPATH=$repo:$repo/benchmarks${PYTHONPATH:+:$PYTHONPATH}
 
+kernels=$dir/warp_cache  # a Warp kernel cache: MuJoCo Warp's CUDA modules, prebuilt on the CPU
+
 install() {  # the packages ../shared/device/pack.sh packs, into /tmp/site (device machines only)
   export PYTHONPATH=/tmp/site:$PYTHONPATH
+  # The CUDA modules benchmarks/warp_kernels.py built on the CPU, if the first call carried
+  # them: Warp loads them instead of compiling them in the run's first chunk.
+  local archive=.dev/kernels/warp-kernels.tar.xz
+  if [ ! -e "$kernels/.unpacked" ] && [ -f "$archive" ]; then
+    tar -xJf "$archive" -C "$dir" && touch "$kernels/.unpacked"
+  fi
+  [ -e "$kernels/.unpacked" ] && export WARP_CACHE_PATH=$kernels
   local check="import mujoco, warp, brax, omegaconf, gymnasium"
   $py -c "$check" 2>/dev/null && return 0
   [ -f .dev/a/stage.sh ] && bash .dev/a/stage.sh
@@ -156,7 +167,7 @@ choose() {  # choose ENV MODES [plan keys]: campaign.py plan picks the run (its 
 
 worker() {
   if [ "$smoke" != 1 ]; then  # the versions and the device, for the log that comes back
-    $py -c "import jax, mujoco, warp; print('campaign step $step: jax', jax.__version__, jax.devices(), 'mujoco', mujoco.__version__, 'warp', warp.__version__)" \
+    $py -c "import jax, mujoco, os, warp; print('campaign step $step: jax', jax.__version__, jax.devices(), 'mujoco', mujoco.__version__, 'warp', warp.__version__, 'WARP_CACHE_PATH', os.environ.get('WARP_CACHE_PATH'))" \
       2>&1 | grep -v '^Warp'
   fi
   case "$step" in
@@ -216,11 +227,18 @@ pidfile=$state/$step.pid statusfile=$state/$step.status shownfile=$state/$step.s
 
 pack() {  # what exists so far, for the trip back: jsonl, yaml, logs, records
   local tarball=$out/campaign-$step.tar.gz
+  kernel_report > "$dir/warp-kernels.log"
   (cd "$dir" && find . \( -name '*.jsonl' -o -name '*.yaml' -o -name '*.log' -o -path './state/*' \) \
       -not -path './out/*' -print0 | tar --null -czf "$tarball" -T -)
   local bytes; bytes=$(stat -c %s "$tarball")
-  echo "packed $(tar -tzf "$tarball" | wc -l) files, $bytes bytes, into $tarball"
+  echo "packed $(tar -tzf "$tarball" | wc -l) files, $bytes bytes, into $tarball; $(cat "$dir/warp-kernels.log")"
   [ "$bytes" -le 16777216 ] || echo "warning: $tarball is over 16 MiB and will not come back" >&2
+}
+
+kernel_report() {  # how many Warp modules came prebuilt and how many this machine compiled
+  [ -e "$kernels/.unpacked" ] || { echo "Warp kernel cache: none prebuilt (no .dev/kernels carried)"; return 0; }
+  echo "Warp kernel cache: $(find "$kernels" -name '*.cubin' ! -newer "$kernels/.unpacked" | wc -l) modules prebuilt," \
+       "$(find "$kernels" \( -name '*.cubin' -o -name '*.ptx' \) -newer "$kernels/.unpacked" | wc -l) compiled on this machine"
 }
 
 alive() {  # alive PIDFILE: does the worker it names run?

@@ -1,0 +1,154 @@
+"""MuJoCo Warp's CUDA kernels for a GPU lease, built here on the CPU.
+
+    python benchmarks/warp_kernels.py [envs=hopper,walker2d,ant] [arch=90] [out=.dev/kernels/warp-kernels.tar.xz]
+
+A fresh device machine compiles every Warp module an env uses the first time a program steps
+it: on the H100 (2026-11-24) a campaign run's first chunk took 36-58 s more than the next
+ones. Warp compiles for a CUDA architecture without a GPU (its NVRTC), and the name a module
+is cached under depends on its source, its options and its block size, never on the device.
+So for each env this steps a small batch on the CPU with MuJoCo Warp, notes every module a
+launch loads and the block size a CUDA launch would give it (the CPU runs a block with one
+thread, a CUDA launch with the size it asks for, else 256), compiles each for ``sm_ARCH``
+(CUBIN: the device's driver, CUDA 13.0, is older than Warp's NVRTC, so Warp loads CUBIN
+there) and packs the binaries and their metadata as ``warp_cache/<warp version>/...``, a
+Warp kernel cache, into ``out``. H100 and H200 are both sm_90.
+
+On the device, the first call unpacks it into ``runs/`` and ``gpu_campaign.sh`` points Warp
+at it (``WARP_CACHE_PATH``); a module missing from it is compiled there as before, and each
+call's pack says how many modules came prebuilt and how many were compiled on the machine.
+
+This reads Warp's module loading from inside (``warp._src.context``, Warp 1.19); another Warp
+version stops it with a one-line error rather than building a cache the device would miss.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import sys
+import tarfile
+import tempfile
+import threading
+import time
+
+import jax
+import jax.numpy as jnp
+
+from admissable_jax.cli import parse_args
+from admissable_jax.envs import canonical_env_name, make_env
+
+CUDA_DEFAULT_BLOCK_DIM = 256  # what a CUDA launch that names no block size gets (Warp's default)
+KNOWN_WARP = "1.19."
+
+
+@dataclasses.dataclass
+class WarpKernelsConfig:
+    envs: str = dataclasses.field(default="hopper,walker2d,ant", metadata={"help": "comma-separated envs"})
+    arch: int = dataclasses.field(default=90, metadata={"help": "CUDA architecture (sm_ARCH): 90 for H100/H200"})
+    out: str = dataclasses.field(default=".dev/kernels/warp-kernels.tar.xz",
+                                 metadata={"help": "the archive to write (carry its folder to the device)"})
+    batch: int = dataclasses.field(default=4, metadata={"help": "worlds stepped on the CPU (modules do not depend on it)"})
+
+
+def _validate(config: WarpKernelsConfig) -> None:
+    for name in config.envs.split(","):
+        canonical_env_name(name.strip())
+    if config.arch < 75:
+        raise ValueError(f"arch must be a CUDA architecture Warp supports (>= 75), got {config.arch}")
+    if config.batch < 1:
+        raise ValueError("batch must be >= 1")
+    if not config.out.endswith(".tar.xz"):
+        raise ValueError(f"out must name a .tar.xz archive, got {config.out!r}")
+
+
+class ModuleLoads:
+    """Records (module, CUDA block size) for every Warp module loaded while it is active.
+
+    Warp resolves a launch's block size (``_resolve_launch_block_dim``) before loading the
+    kernel's module for it, and on the CPU resolves it to 1; a tiled launch resolves it twice.
+    The first size a launch asks for is kept until the module load it leads to, which
+    records the size a CUDA device would have loaded the module with.
+    """
+
+    def __init__(self):
+        from warp._src import context
+
+        self._context = context
+        self._requested = threading.local()
+        self.loads: dict[tuple[int, int], tuple[object, int]] = {}
+
+    def __enter__(self) -> ModuleLoads:
+        context, requested, loads = self._context, self._requested, self.loads
+        resolve, load = context._resolve_launch_block_dim, context.Module.load  # pylint: disable=protected-access
+        self._originals = resolve, load
+
+        def resolve_noting_request(device, block_dim):
+            if getattr(requested, "block_dim", None) is None:
+                requested.block_dim = block_dim
+            return resolve(device, block_dim)
+
+        def load_noting_module(module, device, block_dim=None, *args, **kwargs):
+            asked, requested.block_dim = getattr(requested, "block_dim", None), None
+            cuda_block_dim = int(asked) if asked is not None and int(asked) > 0 else CUDA_DEFAULT_BLOCK_DIM
+            loads[(id(module), cuda_block_dim)] = (module, cuda_block_dim)
+            return load(module, device, block_dim, *args, **kwargs)
+
+        context._resolve_launch_block_dim = resolve_noting_request  # pylint: disable=protected-access
+        context.Module.load = load_noting_module
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._context._resolve_launch_block_dim, self._context.Module.load = self._originals  # pylint: disable=protected-access
+
+
+def step_env_on_cpu(name: str, batch: int) -> None:
+    """Reset ``batch`` worlds of env ``name`` on MuJoCo Warp and step them twice: every module
+    the campaign's programs launch (reset, step, contact forces) loads."""
+    env = make_env(name, physics="warp", max_batch=batch)
+    states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), batch))
+    step = jax.jit(jax.vmap(env.step))
+    actions = jnp.zeros((batch, env.action_size))
+    for _ in range(2):
+        states = step(states, actions)
+    jax.block_until_ready(states)
+
+
+def compile_for_cuda(loads: ModuleLoads, arch: int, cache_dir: str) -> list[str]:
+    """Each recorded (module, block size) compiled to ``sm_arch`` CUBIN in Warp's cache layout
+    under ``cache_dir``; returns the paths of the binaries and metadata files."""
+    files = []
+    for module, block_dim in loads.loads.values():
+        module.get_module_hash(block_dim)  # resolves this block size's options
+        module_dir = os.path.join(cache_dir, module.get_module_identifier(block_dim))
+        output_name = module._get_compile_output_name(None, arch, "", use_ptx=False, block_dim=block_dim)  # pylint: disable=protected-access
+        module._compile(None, module_dir, output_name, arch, use_ptx=False,  # pylint: disable=protected-access
+                        options=module.resolved_options[block_dim])
+        files += [os.path.join(module_dir, output_name), os.path.join(module_dir, module._get_meta_name(block_dim))]  # pylint: disable=protected-access
+    return files
+
+
+def main(argv: list[str]) -> None:
+    config = parse_args(WarpKernelsConfig, argv, "benchmarks/warp_kernels.py", __doc__.strip().splitlines()[0], _validate)
+    import warp
+
+    if not warp.__version__.startswith(KNOWN_WARP):
+        sys.exit(f"warp_kernels.py reads Warp {KNOWN_WARP}x's module loading; this is Warp {warp.__version__}")
+    with tempfile.TemporaryDirectory() as scratch:
+        cache_dir = os.path.join(scratch, "warp_cache", warp.__version__)
+        files, start = set(), time.perf_counter()
+        for name in config.envs.split(","):
+            with ModuleLoads() as loads:
+                step_env_on_cpu(name.strip(), config.batch)
+            files.update(compile_for_cuda(loads, config.arch, cache_dir))
+            print(f"{name.strip()}: {len(loads.loads)} modules, {len(files) // 2} in all "
+                  f"({time.perf_counter() - start:.0f} s)", flush=True)
+        os.makedirs(os.path.dirname(os.path.abspath(config.out)), exist_ok=True)
+        with tarfile.open(config.out, "w:xz") as archive:
+            for path in sorted(files):
+                archive.add(path, arcname=os.path.relpath(path, scratch))
+    print(f"{len(files) // 2} Warp modules for sm_{config.arch} ({config.envs}) in {config.out}, "
+          f"{os.path.getsize(config.out):,} bytes")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
