@@ -178,7 +178,7 @@ def _sequential_round(env, trainer, actor_params, bench) -> dict:
     act(actor_params, jnp.zeros(env.observation_size), jnp.asarray(rows[0]))  # compile outside the timing
     steps, returns = 0, []
     start = time.perf_counter()
-    for row_index, hidden in enumerate(rows):
+    for hidden in rows:
         hidden = jnp.asarray(hidden)
         for episode in range(bench.n_episodes):
             obs, _ = gym_env.reset(seed=bench.seed * 100_000 + episode)

@@ -97,7 +97,7 @@ class ModuleLoads:
         context.Module.load = load_noting_module
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *_exception) -> None:
         self._context._resolve_launch_block_dim, self._context.Module.load = self._originals  # pylint: disable=protected-access
 
 
