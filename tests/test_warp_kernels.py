@@ -3,9 +3,11 @@
 import importlib.util
 import os
 import sys
+import types
 
 import numpy as np
 import warp as wp
+from warp._src import context as warp_context
 
 BENCHMARKS = os.path.join(os.path.dirname(__file__), "..", "benchmarks")
 sys.path.insert(0, BENCHMARKS)  # warp_kernels.py imports as the benchmarks do
@@ -27,12 +29,26 @@ def _double(values: wp.array(dtype=float)):
     values[i] = values[i] * 2.0
 
 
+class _H200:
+    """What Warp's CUDA load reads of a device to name the binary it looks up: an sm_90 GPU
+    whose driver is CUDA 13.0, as on the lent H200s (the device library's KINDS.md)."""
+    is_cpu, is_cuda, arch, alias, is_cubin_supported = False, True, 90, "cuda:0", True
+    get_cuda_output_format = warp_context.Device.get_cuda_output_format
+    get_cuda_compile_arch = warp_context.Device.get_cuda_compile_arch
+    _get_cuda_arch_suffix = warp_context.Device._get_cuda_arch_suffix  # pylint: disable=protected-access
+
+    def __init__(self):
+        wp.init()
+        self.runtime = types.SimpleNamespace(driver_version=(13, 0), toolkit_version=warp_context.runtime.toolkit_version)
+
+
 def test_modules_are_built_for_the_block_size_a_cuda_launch_uses(tmp_path):
     """The CPU runs every block with one thread, but a CUDA load looks a module up under the
     block size its launch asks for: a tiled launch's 64 (which Warp resolves twice), a plain
     launch's default 256. Each module is recorded with that size, still runs on the CPU, and
-    is compiled to sm_90 CUBIN at the path a CUDA load reads: <cache>/<id>/<id>.sm90.cubin
-    and its metadata, <id> naming that block size."""
+    is compiled to sm_90 CUBIN at the path a CUDA load on the H200 reads (Warp's own naming
+    for that device): <cache>/<id>/<id>.sm90.cubin and its metadata, <id> naming that block
+    size."""
     values = wp.zeros(4, dtype=float, device="cpu")
     with warp_kernels.ModuleLoads() as loads:
         wp.launch_tiled(_add_one_tiled, dim=[4], inputs=[values], block_dim=64, device="cpu")
@@ -47,6 +63,8 @@ def test_modules_are_built_for_the_block_size_a_cuda_launch_uses(tmp_path):
     expected = []
     for module, block_dim in [(_add_one_tiled.module, 64), (_double.module, 256)]:
         identifier = module.get_module_identifier(block_dim)
-        expected += [str(tmp_path / identifier / f"{identifier}.sm90.cubin"), str(tmp_path / identifier / f"{identifier}.meta")]
+        on_the_device = module._get_compile_output_name(_H200(), block_dim=block_dim)  # pylint: disable=protected-access
+        assert on_the_device == f"{identifier}.sm90.cubin"
+        expected += [str(tmp_path / identifier / on_the_device), str(tmp_path / identifier / f"{identifier}.meta")]
     assert sorted(files) == sorted(expected)
     assert all(os.path.getsize(path) > 0 for path in files)
