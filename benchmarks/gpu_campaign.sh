@@ -88,7 +88,7 @@ install() {  # the packages ../shared/device/pack.sh packs, into /tmp/site (devi
   # them: Warp loads them instead of compiling them in the run's first chunk.
   local archive=.dev/kernels/warp-kernels.tar.xz
   if [ ! -e "$kernels/.unpacked" ] && [ -f "$archive" ]; then
-    tar -xJf "$archive" -C "$dir" && touch "$kernels/.unpacked"
+    tar -xmJf "$archive" -C "$dir" && touch "$kernels/.unpacked"  # -m: their times, this clock's
   fi
   [ -e "$kernels/.unpacked" ] && export WARP_CACHE_PATH=$kernels
   local check="import mujoco, warp, brax, omegaconf, gymnasium"
