@@ -2,16 +2,20 @@
 
     python benchmarks/warp_kernels.py [envs=hopper,walker2d,ant] [arch=90] [out=.dev/kernels/warp-kernels.tar.xz]
 
-A fresh device machine compiles every Warp module an env uses the first time a program steps
-it: on the H100 (2026-11-24) a campaign run's first chunk took 36-58 s more than the next
-ones. Warp compiles for a CUDA architecture without a GPU (its NVRTC), and the name a module
-is cached under depends on its source, its options and its block size, never on the device.
-So for each env this steps a small batch on the CPU with MuJoCo Warp, notes every module a
-launch loads and the block size a CUDA launch would give it (the CPU runs a block with one
-thread, a CUDA launch with the size it asks for, else 256), compiles each for ``sm_ARCH``
-(CUBIN: the device's driver, CUDA 13.0, is older than Warp's NVRTC, so Warp loads CUBIN
-there) and packs the binaries and their metadata as ``warp_cache/<warp version>/...``, a
-Warp kernel cache, into ``out``. H100 and H200 are both sm_90.
+A fresh device machine compiles Warp's modules the first time a program steps an env: on the
+H100 (2026-11-24) a campaign run's first chunk took 36-58 s more than the next ones. Two kinds
+are compiled there: each module a launch uses, at the block size the launch asks for (256
+where it names none), and, before MJX's first CUDA graph capture (its default graph mode
+captures each call), every module Python has registered, at its default block size: Warp's
+``capture_begin`` preloads them all (``force_load``; ``config.enable_graph_capture_module_load_by_default``).
+Warp compiles for a CUDA architecture without a GPU (its NVRTC), and the name a module is
+cached under depends on its source, options and block size, never on the device. So this
+steps each env on the CPU with MuJoCo Warp, notes each module a launch loads with the block
+size a CUDA launch would give it (the CPU runs a block with one thread), adds every
+registered module at its default block size, compiles each for ``sm_ARCH`` (CUBIN: the
+device's driver, CUDA 13.0, is older than Warp's NVRTC, so Warp loads CUBIN there) and packs
+the binaries and their metadata as ``warp_cache/<warp version>/...``, a Warp kernel cache,
+into ``out``. H100 and H200 are both sm_90.
 
 On the device, the first call unpacks it into ``runs/`` and ``gpu_campaign.sh`` points Warp
 at it (``WARP_CACHE_PATH``); a module missing from it is compiled there as before, and each
@@ -113,11 +117,22 @@ def step_env_on_cpu(name: str, batch: int) -> None:
     jax.block_until_ready(states)
 
 
-def compile_for_cuda(loads: ModuleLoads, arch: int, cache_dir: str) -> list[str]:
-    """Each recorded (module, block size) compiled to ``sm_arch`` CUBIN in Warp's cache layout
-    under ``cache_dir``; returns the paths of the binaries and metadata files."""
+def cuda_variants(loads: ModuleLoads, registered) -> list[tuple[object, int]]:
+    """Every (module, block size) a CUDA device loads: the recorded launches', and each of the
+    ``registered`` modules at its default block size, as a graph capture's preload loads the
+    modules it finds unloaded."""
+    variants = dict(loads.loads)
+    for module in registered:
+        default = int(module.options["block_dim"])
+        variants.setdefault((id(module), default), (module, default))
+    return list(variants.values())
+
+
+def compile_for_cuda(variants: list[tuple[object, int]], arch: int, cache_dir: str) -> list[str]:
+    """Each (module, block size) compiled to ``sm_arch`` CUBIN in Warp's cache layout under
+    ``cache_dir``; returns the paths of the binaries and metadata files."""
     files = []
-    for module, block_dim in loads.loads.values():
+    for module, block_dim in variants:
         module.get_module_hash(block_dim)  # resolves this block size's options
         module_dir = os.path.join(cache_dir, module.get_module_identifier(block_dim))
         output_name = module._get_compile_output_name(None, arch, "", use_ptx=False, block_dim=block_dim)  # pylint: disable=protected-access
@@ -133,21 +148,23 @@ def main(argv: list[str]) -> None:
 
     if not warp.__version__.startswith(KNOWN_WARP):
         sys.exit(f"warp_kernels.py reads Warp {KNOWN_WARP}x's module loading; this is Warp {warp.__version__}")
-    with tempfile.TemporaryDirectory() as scratch:
-        cache_dir = os.path.join(scratch, "warp_cache", warp.__version__)
-        files, start = set(), time.perf_counter()
+    from warp._src.context import user_modules
+
+    start = time.perf_counter()
+    with ModuleLoads() as loads:
         for name in config.envs.split(","):
-            with ModuleLoads() as loads:
-                step_env_on_cpu(name.strip(), config.batch)
-            files.update(compile_for_cuda(loads, config.arch, cache_dir))
-            print(f"{name.strip()}: {len(loads.loads)} modules, {len(files) // 2} in all "
-                  f"({time.perf_counter() - start:.0f} s)", flush=True)
+            step_env_on_cpu(name.strip(), config.batch)
+    variants = cuda_variants(loads, list(user_modules.values()))
+    print(f"{config.envs}: {len(loads.loads)} module variants launched, {len(variants)} with every registered "
+          f"module's default ({time.perf_counter() - start:.0f} s); compiling for sm_{config.arch}", flush=True)
+    with tempfile.TemporaryDirectory() as scratch:
+        files = compile_for_cuda(variants, config.arch, os.path.join(scratch, "warp_cache", warp.__version__))
         os.makedirs(os.path.dirname(os.path.abspath(config.out)), exist_ok=True)
         with tarfile.open(config.out, "w:xz") as archive:
-            for path in sorted(files):
+            for path in sorted(set(files)):
                 archive.add(path, arcname=os.path.relpath(path, scratch))
-    print(f"{len(files) // 2} Warp modules for sm_{config.arch} ({config.envs}) in {config.out}, "
-          f"{os.path.getsize(config.out):,} bytes")
+    print(f"{len(variants)} Warp module variants for sm_{config.arch} in {config.out}, "
+          f"{os.path.getsize(config.out):,} bytes ({time.perf_counter() - start:.0f} s in all)")
 
 
 if __name__ == "__main__":

@@ -29,6 +29,11 @@ def _double(values: wp.array(dtype=float)):
     values[i] = values[i] * 2.0
 
 
+@wp.kernel(module="unique")
+def _never_launched(values: wp.array(dtype=float)):
+    values[wp.tid()] = 0.0
+
+
 class _H200:
     """What Warp's CUDA load reads of a device to name the binary it looks up: an sm_90 GPU
     whose driver is CUDA 13.0, as on the lent H200s (the device library's KINDS.md)."""
@@ -42,26 +47,35 @@ class _H200:
         self.runtime = types.SimpleNamespace(driver_version=(13, 0), toolkit_version=warp_context.runtime.toolkit_version)
 
 
-def test_modules_are_built_for_the_block_size_a_cuda_launch_uses(tmp_path):
+def test_modules_are_built_for_the_block_sizes_a_cuda_device_loads(tmp_path):
     """The CPU runs every block with one thread, but a CUDA load looks a module up under the
     block size its launch asks for: a tiled launch's 64 (which Warp resolves twice), a plain
-    launch's default 256. Each module is recorded with that size, still runs on the CPU, and
-    is compiled to sm_90 CUBIN at the path a CUDA load on the H200 reads (Warp's own naming
-    for that device): <cache>/<id>/<id>.sm90.cubin and its metadata, <id> naming that block
-    size."""
+    launch's default 256. Before a graph capture Warp also loads every registered module it
+    finds unloaded, at its default (256): the never-launched kernel, and the tiled one again.
+    Each launch still runs on the CPU, and each variant is compiled to sm_90 CUBIN at the path
+    a CUDA load on the H200 reads (Warp's own naming for that device):
+    <cache>/<id>/<id>.sm90.cubin and its metadata, <id> naming the block size."""
     values = wp.zeros(4, dtype=float, device="cpu")
     with warp_kernels.ModuleLoads() as loads:
         wp.launch_tiled(_add_one_tiled, dim=[4], inputs=[values], block_dim=64, device="cpu")
         wp.launch(_double, dim=4, inputs=[values], device="cpu")
     np.testing.assert_array_equal(values.numpy(), np.full(4, 2.0))  # (0 + 1) * 2
+    default = warp_kernels.CUDA_DEFAULT_BLOCK_DIM
     assert sorted((module.name, block_dim) for module, block_dim in loads.loads.values()) == sorted(
-        [(_add_one_tiled.module.name, 64), (_double.module.name, warp_kernels.CUDA_DEFAULT_BLOCK_DIM)])
+        [(_add_one_tiled.module.name, 64), (_double.module.name, default)])
     # The block size is part of the name: the CPU's own (1) would be another module.
     assert _add_one_tiled.module.get_module_identifier(64) != _add_one_tiled.module.get_module_identifier(1)
 
-    files = warp_kernels.compile_for_cuda(loads, 90, str(tmp_path))
+    registered = [_add_one_tiled.module, _double.module, _never_launched.module]
+    variants = warp_kernels.cuda_variants(loads, registered)
+    expected_variants = [(_add_one_tiled.module, 64), (_add_one_tiled.module, default), (_double.module, default),
+                         (_never_launched.module, default)]
+    assert sorted((module.name, block_dim) for module, block_dim in variants) == sorted(
+        (module.name, block_dim) for module, block_dim in expected_variants)
+
+    files = warp_kernels.compile_for_cuda(variants, 90, str(tmp_path))
     expected = []
-    for module, block_dim in [(_add_one_tiled.module, 64), (_double.module, 256)]:
+    for module, block_dim in expected_variants:
         identifier = module.get_module_identifier(block_dim)
         on_the_device = module._get_compile_output_name(_H200(), block_dim=block_dim)  # pylint: disable=protected-access
         assert on_the_device == f"{identifier}.sm90.cubin"
