@@ -17,9 +17,10 @@ device's driver, CUDA 13.0, is older than Warp's NVRTC, so Warp loads CUBIN ther
 the binaries and their metadata as ``warp_cache/<warp version>/...``, a Warp kernel cache,
 into ``out``. H100 and H200 are both sm_90.
 
-On the device, the first call unpacks it into ``runs/`` and ``gpu_campaign.sh`` points Warp
-at it (``WARP_CACHE_PATH``); a module missing from it is compiled there as before, and each
-call's pack says how many modules came prebuilt and how many were compiled on the machine.
+The first device call carries it (``carry=[".dev/a", ".dev/kernels"]``); ``gpu_campaign.sh``
+unpacks it into ``runs/campaign/warp_cache`` and points Warp there (``WARP_CACHE_PATH``). A
+module missing from it is compiled on the device as before, and each call's pack says how
+many modules came prebuilt and how many were compiled on the machine.
 
 This reads Warp's module loading from inside (``warp._src.context``, Warp 1.19); another Warp
 version stops it with a one-line error rather than building a cache the device would miss.
@@ -34,6 +35,7 @@ import tarfile
 import tempfile
 import threading
 import time
+from typing import Iterable
 
 import jax
 import jax.numpy as jnp
@@ -117,7 +119,7 @@ def step_env_on_cpu(name: str, batch: int) -> None:
     jax.block_until_ready(states)
 
 
-def cuda_variants(loads: ModuleLoads, registered) -> list[tuple[object, int]]:
+def cuda_variants(loads: ModuleLoads, registered: Iterable[object]) -> list[tuple[object, int]]:
     """Every (module, block size) a CUDA device loads: the recorded launches', and each of the
     ``registered`` modules at its default block size, as a graph capture's preload loads the
     modules it finds unloaded."""
