@@ -7,8 +7,13 @@ files go first, so that the workers finish together.
 """
 
 import os
+import sys
 
 from admissable_jax import default_xla_flag  # the package's __init__ imports no JAX
+
+# Tests import benchmark scripts by name (campaign, figure1, warp_kernels), as the scripts
+# import their neighbour common.py.
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "benchmarks"))
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 os.environ.setdefault(

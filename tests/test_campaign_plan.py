@@ -1,14 +1,6 @@
 """benchmarks/campaign.py's plans from the speed records on main (no training, no GPU)."""
 
-import importlib.util
-import os
-import sys
-
-BENCHMARKS = os.path.join(os.path.dirname(__file__), "..", "benchmarks")
-sys.path.insert(0, BENCHMARKS)  # campaign.py imports its neighbour common.py
-_spec = importlib.util.spec_from_file_location("campaign", os.path.join(BENCHMARKS, "campaign.py"))
-campaign = sys.modules["campaign"] = importlib.util.module_from_spec(_spec)  # its dataclasses look it up there
-_spec.loader.exec_module(campaign)
+import campaign  # benchmarks/ is on the tests' path (conftest.py)
 
 
 H100 = "speed_device=gpu:NVIDIA H100 80GB HBM3"

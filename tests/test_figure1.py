@@ -1,18 +1,15 @@
 """benchmarks/figure1.py: the campaign's FIGURE1.md, computed from run directories
 (synthetic histories; no training)."""
 
-import importlib.util
 import json
 import os
 import subprocess
 import sys
 
+import figure1  # benchmarks/ is on the tests' path (conftest.py)
 from test_plots import _run_with_minimums
 
-FIGURE1 = os.path.join(os.path.dirname(__file__), "..", "benchmarks", "figure1.py")
-_spec = importlib.util.spec_from_file_location("figure1", FIGURE1)
-figure1 = sys.modules["figure1"] = importlib.util.module_from_spec(_spec)  # its dataclasses look it up there
-_spec.loader.exec_module(figure1)
+FIGURE1 = figure1.__file__
 
 
 def _figure1(*args: str) -> int:

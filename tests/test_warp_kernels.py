@@ -1,19 +1,12 @@
 """benchmarks/warp_kernels.py: the CUDA modules a GPU lease loads, built here on the CPU."""
 
-import importlib.util
 import os
-import sys
 import types
 
 import numpy as np
 import warp as wp
+import warp_kernels  # benchmarks/ is on the tests' path (conftest.py)
 from warp._src import context as warp_context
-
-BENCHMARKS = os.path.join(os.path.dirname(__file__), "..", "benchmarks")
-sys.path.insert(0, BENCHMARKS)  # warp_kernels.py imports as the benchmarks do
-_spec = importlib.util.spec_from_file_location("warp_kernels", os.path.join(BENCHMARKS, "warp_kernels.py"))
-warp_kernels = sys.modules["warp_kernels"] = importlib.util.module_from_spec(_spec)  # its dataclass looks it up there
-_spec.loader.exec_module(warp_kernels)
 
 
 @wp.kernel(module="unique")
