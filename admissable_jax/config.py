@@ -7,6 +7,7 @@ The paper trains all three envs with the same settings (SB3 SAC defaults; ζ = 5
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import jax
 
@@ -151,6 +152,8 @@ def validate(config: TrainConfig) -> None:
         expected = {"int": int, "float": (int, float), "bool": bool, "str": str}[field.type]
         if not isinstance(value, expected) or (field.type == "int" and isinstance(value, bool)):
             raise TypeError(f"{field.name} must be {field.type}, got {value!r}")
+        if field.type == "float" and not math.isfinite(value):
+            raise ValueError(f"{field.name} must be a finite number, got {value!r}")
     canonical_env_name(config.env)
     resolve_physics(config.physics)
     parse_logger_names(config.logger)
@@ -180,6 +183,8 @@ def validate(config: TrainConfig) -> None:
         raise ValueError(f"utd must be > 0, got {config.utd}")
     if config.epsilon <= 0:
         raise ValueError(f"epsilon must be > 0, got {config.epsilon}")
+    if config.learning_rate <= 0:
+        raise ValueError(f"learning_rate must be > 0, got {config.learning_rate}")
     if not 0 <= config.gamma <= 1 or not 0 < config.tau <= 1:
         raise ValueError("gamma must be in [0, 1] and tau in (0, 1]")
     if config.learning_starts < config.batch_size:

@@ -95,6 +95,25 @@ def test_cli_edge_cases_are_one_line(tmp_path):
     assert not missing.exists()  # a failed resume leaves nothing behind
 
 
+@pytest.mark.parametrize("setting, message", [
+    ("learning_rate=nan", "learning_rate must be a finite number, got nan"),
+    ("learning_rate=-1", "learning_rate must be > 0, got -1.0"),
+    ("lower_bound=nan", "lower_bound must be a finite number, got nan"),
+    ("epsilon=inf", "epsilon must be a finite number, got inf"),
+    ("utd=nan", "utd must be a finite number, got nan"),
+])
+def test_settings_that_would_train_nonsense_are_refused_before_anything_is_written(setting, message, tmp_path):
+    """A NaN l or ε would make every p_miss NaN, a NaN or negative learning rate would train
+    NaN or ascending networks: each is refused in one line, and no run directory is made."""
+    out = tmp_path / "never-started"
+    small = ("total_steps=500", "score_every=500", "num_envs=4", "learning_starts=500", "batch_size=32",
+             "episode_length=50", "score_episodes=2", "hidden_size=32")  # were it accepted: a short run
+    result = _cli("admissable_jax.train", "env=point_mass", *small, setting, f"out={out}", "progress=false")
+    assert result.returncode == 2, result.stderr
+    assert result.stderr.strip() == f"error: {message}"
+    assert not out.exists()
+
+
 def test_ctrl_c_says_where_to_resume_and_exits_130(tmp_path, monkeypatch):
     compile_loop = TrainingLoop.compile
 
