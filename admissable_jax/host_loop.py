@@ -166,9 +166,9 @@ class TrainingLoop:
         start_step = 0
         if resume_from is not None:
             start_step, state = self._restore(state, resume_from)
-            for run in self.runs:
-                for note in run.truncate_logs(start_step):
-                    report(note)
+        for run in self.runs:
+            for note in run.set_aside_rows_after(start_step):
+                report(note)
         num_scorings = config.planned_steps // config.score_every
         bar = tqdm(total=config.planned_steps, initial=start_step, unit="step", disable=not config.progress,
                    dynamic_ncols=True)

@@ -8,6 +8,7 @@ by whoever drives the run. One process owns the directory at a time (:mod:`.lock
 from __future__ import annotations
 
 import dataclasses
+import datetime
 import json
 import os
 from typing import Any
@@ -147,10 +148,6 @@ class RunDirectory:
             raise FileExistsError(
                 f"{self.path} already holds a run; pass resume=true to continue it or choose another out"
             )
-        else:
-            for name in ("scores.jsonl", "metrics.jsonl"):
-                if os.path.exists(os.path.join(self.path, name)):
-                    os.remove(os.path.join(self.path, name))
         OmegaConf.save(OmegaConf.structured(config), config_path)
 
     def close(self) -> None:
@@ -187,11 +184,16 @@ class RunDirectory:
         path = os.path.join(self.path, name)
         return read_jsonl(path) if os.path.exists(path) else []
 
-    def truncate_logs(self, step: int) -> list[str]:
-        """Drop rows written after checkpoint ``step`` (the resumed run writes them again),
-        and a torn last line (the checkpoint, not the log, is the truth). Returns a note
-        per file whose torn line was dropped."""
-        notes = []
+    def set_aside_rows_after(self, step: int) -> list[str]:
+        """Move the rows written after env step ``step``, where this run starts (0, or the
+        checkpoint it resumes from), from scores.jsonl and metrics.jsonl to
+        scores-superseded.jsonl and metrics-superseded.jsonl, each stamped ``set_aside_at``:
+        the run writes those steps again, and what an earlier run measured there (one that
+        stopped before its checkpoint, or a branch ``resume_step`` left) is kept, as its
+        checkpoints are in ``checkpoints-superseded/``. A torn last line is dropped (the
+        checkpoint, not the log, is the truth). Returns one note per thing done."""
+        notes, moved = [], {}
+        stamp = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
         for name in ("scores.jsonl", "metrics.jsonl"):
             path = os.path.join(self.path, name)
             if not os.path.exists(path):
@@ -200,9 +202,17 @@ class RunDirectory:
                 rows = read_jsonl(path)
             except TornLine:
                 rows = read_jsonl(path, torn="drop")
-                notes.append(f"dropped the cut-off last line of {path} (a crash mid-write); "
-                             f"the run continues from checkpoint {step}")
-            rows = [row for row in rows if row["env_steps"] <= step]
+                notes.append(f"dropped the cut-off last line of {path} (a crash mid-write)")
+            later = [row for row in rows if row["env_steps"] > step]
+            if later:
+                aside = os.path.join(self.path, name.replace(".jsonl", "-superseded.jsonl"))
+                with open(aside, "a") as file:
+                    file.writelines(json.dumps({**row, "set_aside_at": stamp}) + "\n" for row in later)
+                moved[name] = len(later)
             with open(path, "w") as file:
-                file.writelines(json.dumps(row) + "\n" for row in rows)
+                file.writelines(json.dumps(row) + "\n" for row in rows if row["env_steps"] <= step)
+        if moved:
+            counts = " and ".join(f"{count} row(s) of {name}" for name, count in moved.items())
+            notes.append(f"set aside {counts} from after env step {step} in {self.path} (*-superseded.jsonl): "
+                         f"this run writes those steps again")
         return notes

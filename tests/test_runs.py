@@ -172,6 +172,9 @@ def test_resume_rules_corrupt_checkpoints_and_moved_directories(tmp_path, capsys
     again = train_fn(dataclasses.replace(RUN, out=moved, resume=True, total_steps=2500, resume_step=2000))
     assert again.scores == grown.scores
     assert os.listdir(checkpoints + "-superseded") == ["2500"]  # set aside, not deleted
+    with open(os.path.join(moved, "scores-superseded.jsonl")) as file:  # and so is what it had scored
+        assert [{key: value for key, value in json.loads(line).items() if key != "set_aside_at"}
+                for line in file] == grown.scores[4:]
 
 
 def test_faults_of_long_runs_cost_nothing_finished(tmp_path, monkeypatch, capsys):
@@ -210,6 +213,20 @@ def test_faults_of_long_runs_cost_nothing_finished(tmp_path, monkeypatch, capsys
     assert "nothing left to train: the run reached 2000 of 2000 env steps" in said and "compiling" not in said
     for a, b in zip(jax.tree.leaves(again.state), jax.tree.leaves(straight.state)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+    # A run stopped before its first checkpoint leaves rows and no checkpoint: a new run in
+    # its directory starts afresh and sets the earlier rows aside, stamped, never deleted.
+    unsaved = tmp_path / "unsaved"
+    shutil.copytree(straight.run_dir, unsaved)
+    shutil.rmtree(unsaved / "checkpoints")
+    fresh = train_fn(dataclasses.replace(RUN, out=str(unsaved), total_steps=500))
+    assert _steps(str(unsaved)) == [500] and fresh.scores == straight.scores[:1]
+    for name, earlier in (("scores", straight.scores), ("metrics", straight.metrics)):
+        kept = [json.loads(line) for line in (unsaved / f"{name}-superseded.jsonl").read_text().splitlines()]
+        assert [{key: value for key, value in row.items() if key != "set_aside_at"} for row in kept] == earlier
+        assert all(row["set_aside_at"] for row in kept)
+    assert (f"set aside 4 row(s) of scores.jsonl and 4 row(s) of metrics.jsonl from after env step 0 in {unsaved} "
+            "(*-superseded.jsonl): this run writes those steps again") in capsys.readouterr().err
 
     # config.yaml that is not YAML: one line naming it, from train and from plot.
     broken = tmp_path / "broken"
