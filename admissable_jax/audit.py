@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from admissable_jax.cli import enable_compilation_cache, parse_args, run_from_cli, setting
+from admissable_jax.errors import make_directory
 from admissable_jax.method import candidate_sets, num_candidate_sets
 from admissable_jax.scoring import SCORE_ESTIMATORS
 
@@ -307,6 +308,8 @@ def audit_run(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     from admissable_jax.policies import load_policy
 
     policy = load_policy(config.run_dir, None if config.step < 0 else config.step)
+    out = config.out or os.path.join(config.run_dir, f"audit-step{policy.step}")
+    make_directory(out, "audit folder")  # before the rollout, not after it
     train = policy.config
     ks = _ks(config.k)
     episodes = (sum(num_candidate_sets(policy.observation_size, k) for k in ks) + 1) * config.episodes
@@ -316,7 +319,6 @@ def audit_run(config: AuditConfig) -> tuple[AuditResult, list[str]]:
                    observation_names(train.env), {"run": os.path.abspath(config.run_dir), "checkpoint (env step)": policy.step},
                    config.score_estimator, policy.trainer.critic_values, policy.critic_params, config.score_horizon,
                    train.gamma, config.search, config.beam_width, config.ranker)
-    out = config.out or os.path.join(config.run_dir, f"audit-step{policy.step}")
     return result, write_audit(result, out, config.top)
 
 

@@ -5,7 +5,9 @@ bad setting); :func:`admissable_jax.cli.run_from_cli` prints it as one line and 
 with its status, never with a traceback.
 """
 
-USAGE_ERROR = 2  # a bad setting or a run directory that cannot be used
+import os
+
+USAGE_ERROR = 2  # a bad setting or an output folder that cannot be used
 RUN_FAILED = 1  # the run itself failed (its finished work is kept)
 INTERRUPTED = 130  # the shell's status for a program ended by SIGINT (Ctrl-C)
 
@@ -17,10 +19,21 @@ class RunFailed(RuntimeError):
     label = "error"
 
 
-class UnusableRunDirectory(RunFailed):
-    """``out`` cannot be created or is owned by another process."""
+class UnusableDirectory(RunFailed):
+    """An output folder (``out``: a run's, an experiment's, figures', an audit's) cannot be
+    created, or a run directory is owned by another process."""
 
     exit_status = USAGE_ERROR
+
+
+def make_directory(path: str, what: str) -> None:
+    """Create the folder ``path`` (and its parents) if missing; :class:`UnusableDirectory`
+    in one line naming ``what`` it is for and why not (``/proc/x``, ``/dev/null/x``, no
+    permission), before any work goes into it."""
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError as error:
+        raise UnusableDirectory(f"cannot create the {what} {path}: {error.strerror}") from None
 
 
 class Interrupted(RunFailed):

@@ -13,12 +13,12 @@ import json
 import os
 import socket
 
-from admissable_jax.errors import UnusableRunDirectory
+from admissable_jax.errors import UnusableDirectory
 
 LOCK_NAME = ".lock"
 
 
-class RunDirectoryLocked(UnusableRunDirectory):
+class RunDirectoryLocked(UnusableDirectory):
     """Another live process owns the run directory."""
 
 

@@ -42,6 +42,7 @@ from scipy import stats  # noqa: E402
 
 from admissable_jax.cli import fail, parse_args  # noqa: E402
 from admissable_jax.envs import observation_names  # noqa: E402
+from admissable_jax.errors import UnusableDirectory, make_directory  # noqa: E402
 from admissable_jax.method import parse_set  # noqa: E402
 from admissable_jax.missingness import candidate_sets  # noqa: E402
 from admissable_jax.run_directory import TornLine, load_config_yaml, read_jsonl  # noqa: E402
@@ -219,7 +220,7 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 40) -> list[str]:
     by_mode: dict[str, list[Run]] = collections.defaultdict(list)
     for run in runs:
         by_mode[run.mode].append(run)
-    os.makedirs(out_dir, exist_ok=True)
+    make_directory(out_dir, "figures folder")
     written = []
 
     figure, (ax_min, ax_clean) = plt.subplots(1, 2, figsize=(11, 4))
@@ -396,7 +397,7 @@ def main(argv: list[str]) -> int:
         written = plot_runs(runs, out_dir, config.window)
         table = summary_table(runs)
         comparison = comparison_table(runs)
-    except (ValueError, FileNotFoundError, KeyError) as error:
+    except (ValueError, FileNotFoundError, KeyError, UnusableDirectory) as error:
         fail(str(error))
     table += (f"\nFigures: mean over seeds of the {_window_note(config.window, used)}. Table: the last "
               "record itself (final) and the mean over all records (AUC), unsmoothed.\n")

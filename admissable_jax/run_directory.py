@@ -20,7 +20,7 @@ from omegaconf import OmegaConf
 from admissable_jax.checkpointing import CheckpointError, Checkpoints
 from admissable_jax.config import TrainConfig
 from admissable_jax.envs import resolve_physics
-from admissable_jax.errors import UnusableRunDirectory
+from admissable_jax.errors import make_directory
 from admissable_jax.locks import RunLock
 from admissable_jax.loggers import Loggers
 from admissable_jax.missingness import describe_set
@@ -127,10 +127,7 @@ class RunDirectory:
         config_path = os.path.join(self.path, "config.yaml")
         if config.resume and not os.path.exists(config_path):  # checked before anything is created
             raise CheckpointError(f"nothing to resume: {config_path} does not exist")
-        try:
-            os.makedirs(self.path, exist_ok=True)
-        except OSError as error:
-            raise UnusableRunDirectory(f"cannot create the run directory {self.path}: {error.strerror}") from None
+        make_directory(self.path, "run directory")
         self.lock = RunLock(self.path)
         self.lock.acquire()
         try:

@@ -203,6 +203,8 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
         audit_main([short_run.run_dir, "k=0"])
     assert refused.value.code == 2
     assert audit_main([str(tmp_path / "nothing"), "k=1"]) == 2
+    assert audit_main([short_run.run_dir, "k=1", "out=/dev/null/x"]) == 2  # found before the rollout
     errors = capsys.readouterr().err.strip().splitlines()
     assert errors == ["error: k must be a comma list of set sizes >= 1, got '0'",
-                      f"error: {tmp_path / 'nothing'} is not a run directory (no config.yaml)"]
+                      f"error: {tmp_path / 'nothing'} is not a run directory (no config.yaml)",
+                      "error: cannot create the audit folder /dev/null/x: Not a directory"]

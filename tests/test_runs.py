@@ -202,7 +202,12 @@ def test_faults_of_long_runs_cost_nothing_finished(tmp_path, monkeypatch, capsys
         with open(os.path.join(paused_dir, name), "a") as file:
             file.write('{"env_steps": 1000, "min_score": 12.')
     assert plot_main([paused_dir, f"out={tmp_path / 'figs'}"]) == 0
-    assert f"warning: {os.path.join(paused_dir, 'scores.jsonl')}: the last line is cut off" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as refused:
+        plot_main([paused_dir, "out=/dev/null/x"])
+    assert refused.value.code == 2
+    said = capsys.readouterr().err
+    assert f"warning: {os.path.join(paused_dir, 'scores.jsonl')}: the last line is cut off" in said
+    assert said.strip().splitlines()[-1] == "error: cannot create the figures folder /dev/null/x: Not a directory"
     resumed = train_fn(dataclasses.replace(RUN, out=paused_dir, resume=True))
     assert resumed.finished and resumed.scores == straight.scores
     assert f"dropped the cut-off last line of {os.path.join(paused_dir, 'scores.jsonl')}" in capsys.readouterr().err
