@@ -20,12 +20,13 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # read by MuJoCo when it is first imp
 
 import dataclasses  # noqa: E402
 import sys  # noqa: E402
+import warnings  # noqa: E402
 
 import numpy as np  # noqa: E402
 
 from admissable_jax.cli import parse_args, run_from_cli, setting  # noqa: E402
 from admissable_jax.envs import observation_names  # noqa: E402
-from admissable_jax.errors import RunFailed  # noqa: E402
+from admissable_jax.errors import RunFailed, make_directory  # noqa: E402
 from admissable_jax.method import candidate_sets, describe_set  # noqa: E402
 from admissable_jax.run_directory import read_jsonl  # noqa: E402
 
@@ -121,7 +122,7 @@ def render_video(config: VideoConfig) -> Video:
                             policy.step, train.k, train.include_empty_set)
     names = tuple(observation_names(train.env)[i] for i in hidden)
     out = config.out or os.path.join(config.run_dir, "videos", f"step{policy.step}-hidden{'-'.join(map(str, hidden)) or 'none'}.mp4")
-    os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
+    make_directory(os.path.dirname(os.path.abspath(out)), "video folder")
 
     sides = [(), hidden]
     envs = [gymnasium.make(policy.trainer.env.gymnasium_id, render_mode="rgb_array", width=PANEL_WIDTH,
@@ -137,7 +138,9 @@ def render_video(config: VideoConfig) -> Video:
         returns, lengths, running, held = [0.0, 0.0], [0, 0], [True, True], 0
         fps = envs[0].metadata.get("render_fps", 30)
         titles = ["nothing hidden", f"hidden {describe_set(np.array(hidden))}: {', '.join(names) or 'nothing'}"]
-        with imageio.get_writer(out, fps=fps, codec="libx264", macro_block_size=16) as writer:
+        with warnings.catch_warnings(), imageio.get_writer(out, fps=fps, codec="libx264", macro_block_size=16) as writer:
+            # JAX warns of any fork; the writer's first frame forks only to exec ffmpeg, which runs no JAX thread
+            warnings.filterwarnings("ignore", r"os\.fork\(\) was called", RuntimeWarning)
             for frame in range(config.frames):
                 panels = []
                 for side, env in enumerate(envs):

@@ -18,6 +18,7 @@ import signal
 import subprocess
 import sys
 import tarfile
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -218,7 +219,10 @@ def test_video_of_the_trained_hopper_beside_its_worst_set(jax_run, tmp_path, cap
     from admissable_jax import video
     from admissable_jax.missingness import candidate_sets
 
-    made = video.render_video(video.VideoConfig(run_dir=jax_run.run_dir, frames=20, out=str(tmp_path / "hopper.mp4")))
+    with warnings.catch_warnings(record=True) as warned:  # not JAX's fork warning: ffmpeg's start only execs
+        warnings.simplefilter("always")
+        made = video.render_video(video.VideoConfig(run_dir=jax_run.run_dir, frames=20, out=str(tmp_path / "hopper.mp4")))
+    assert not [warning for warning in warned if "os.fork()" in str(warning.message)]
     worst = np.flatnonzero(candidate_sets(11)[jax_run.scores[-1]["argmin"]])
     assert made.hidden == tuple(worst) and made.step == 80
     # 20 frames: the start, one per step until this barely trained Hopper falls (both sides
@@ -235,6 +239,8 @@ def test_video_of_the_trained_hopper_beside_its_worst_set(jax_run, tmp_path, cap
 
     assert video.main([jax_run.run_dir, "hidden=elbow", f"out={tmp_path}/elbow.mp4"]) == 2
     assert "'elbow' is neither a feature index below 11 nor a feature name of hopper" in capsys.readouterr().err
+    assert video.main([jax_run.run_dir, "out=/dev/null/x.mp4"]) == 2
+    assert capsys.readouterr().err.strip() == "error: cannot create the video folder /dev/null: File exists"
 
 
 def test_warp_experiment_pairs_keep_their_modes(warp_experiment):
