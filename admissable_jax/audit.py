@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from admissable_jax.cli import enable_compilation_cache, parse_args, run_from_cli, setting
+from admissable_jax.cli import enable_compilation_cache, parse_args, reporting, run_from_cli, setting
 from admissable_jax.errors import make_directory
 from admissable_jax.method import candidate_sets, num_candidate_sets
 from admissable_jax.scoring import SCORE_ESTIMATORS
@@ -304,6 +304,8 @@ def _pair_heatmap(result: AuditResult, path: str) -> str:
 def audit_run(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     """Audit the run in ``config.run_dir`` at ``config.step``; write the report."""
     check_audit_config(config)
+    import jax
+
     from admissable_jax.envs import make_env, observation_names
     from admissable_jax.policies import load_policy
 
@@ -315,10 +317,14 @@ def audit_run(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     episodes = (sum(num_candidate_sets(policy.observation_size, k) for k in ks) + 1) * config.episodes
     slots = min(episodes, config.slots or 4096)  # a bound on every batch the audit steps
     env = make_env(train.env, physics=train.physics, episode_length=train.episode_length, max_batch=slots)
-    result = audit(env, policy.trainer.policy, policy.actor_params, ks, config.episodes, config.seed, slots,
-                   observation_names(train.env), {"run": os.path.abspath(config.run_dir), "checkpoint (env step)": policy.step},
-                   config.score_estimator, policy.trainer.critic_values, policy.critic_params, config.score_horizon,
-                   train.gamma, config.search, config.beam_width, config.ranker)
+    with reporting(f"auditing checkpoint {policy.step} of {train.env} for k={config.k} ({config.search} search, "
+                   f"{config.episodes} episodes per set, {env.physics_name} physics on {jax.default_backend()}; "
+                   f"compiling included)"):
+        result = audit(env, policy.trainer.policy, policy.actor_params, ks, config.episodes, config.seed, slots,
+                       observation_names(train.env), {"run": os.path.abspath(config.run_dir),
+                                                      "checkpoint (env step)": policy.step},
+                       config.score_estimator, policy.trainer.critic_values, policy.critic_params,
+                       config.score_horizon, train.gamma, config.search, config.beam_width, config.ranker)
     return result, write_audit(result, out, config.top)
 
 

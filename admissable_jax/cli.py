@@ -7,13 +7,16 @@ key or a badly typed value ends the program with a one-line message and exit sta
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import sys
+import time
 from typing import Any, Callable, TypeVar
 
 from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
+from tqdm.auto import tqdm
 
 from admissable_jax.errors import INTERRUPTED, USAGE_ERROR, RunFailed
 
@@ -123,3 +126,17 @@ def fail(message: str) -> None:
     """Print ``error: message`` on one line to stderr and exit with status 2."""
     print(f"error: {message}", file=sys.stderr)
     raise SystemExit(USAGE_ERROR)
+
+
+def report(message: str) -> None:
+    """A status line on stderr, with or without a progress bar."""
+    tqdm.write(message, file=sys.stderr)
+
+
+@contextlib.contextmanager
+def reporting(what: str):
+    """Say what is about to happen (long work: a compile, a rollout), then how long it took."""
+    report(f"{what}...")
+    started = time.perf_counter()
+    yield
+    report(f"{what}: done in {time.perf_counter() - started:.1f} s")

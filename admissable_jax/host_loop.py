@@ -14,8 +14,6 @@ A batch of pairs runs where its :class:`~admissable_jax.placement.PairPlacement`
 from __future__ import annotations
 
 import concurrent.futures
-import contextlib
-import sys
 import time
 from typing import Any, Callable
 
@@ -24,6 +22,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from admissable_jax.checkpointing import Checkpoints
+from admissable_jax.cli import report, reporting
 from admissable_jax.config import TrainConfig
 from admissable_jax.envs import make_env
 from admissable_jax.errors import Interrupted, RunFailed
@@ -52,20 +51,6 @@ def make_trainer(config: TrainConfig, num_runs: int = 1) -> Trainer:
     on one device."""
     spec = RunSpec.of(config, num_runs)
     return Trainer(make_env(spec.env, spec.env_options), spec)
-
-
-def report(message: str) -> None:
-    """A status line on stderr, with or without the progress bar."""
-    tqdm.write(message, file=sys.stderr)
-
-
-@contextlib.contextmanager
-def _reporting(what: str):
-    """Say what is about to happen, then how long it took."""
-    report(f"{what}...")
-    started = time.perf_counter()
-    yield
-    report(f"{what}: done in {time.perf_counter() - started:.1f} s")
 
 
 def take_pair(tree: Any, index: int) -> Any:
@@ -132,7 +117,7 @@ class TrainingLoop:
         # outside Python's lock, so on two or more cores the compiles overlap.
         lowered = [jax.jit(function, donate_argnums=0, **shardings).lower(abstract_state)
                    for function in (self._run_chunk, self._score_and_update)]
-        with _reporting(f"compiling the training step and the scoring round for {where}"):
+        with reporting(f"compiling the training step and the scoring round for {where}"):
             with concurrent.futures.ThreadPoolExecutor(max_workers=2) as pool:
                 self.run_chunk, self.score_and_update = pool.map(lambda program: program.compile(), lowered)
         budget = memory_budget(abstract_state, self.run_chunk, self.score_and_update,

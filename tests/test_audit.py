@@ -135,7 +135,11 @@ def test_training_scores_with_the_chosen_estimator(short_run):
 def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path, capsys):
     out = str(tmp_path / "audit")
     assert audit_main([short_run.run_dir, "k=1,2", "episodes=6", f"out={out}", "seed=4"]) == 0
-    printed = capsys.readouterr().out
+    captured = capsys.readouterr()
+    printed = captured.out
+    # The long part (compile and rollouts) is announced, then timed, as training's compile is.
+    assert re.fullmatch(r"(auditing checkpoint \d+ of point_mass for k=1,2 \(exact search, 6 episodes per set, jax "
+                        r"physics on cpu; compiling included\)(\.\.\.|: done in \d+\.\d s)\n){2}", captured.err), captured.err
     assert sorted(os.listdir(out)) == ["audit.json", "pairs_k2.png", "report.md", "scores_k1.png"]
     with open(os.path.join(out, "audit.json")) as file:
         record = json.load(file)
@@ -199,6 +203,7 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
         assert "worst found by beam search" in file.read()
 
     # Bad input: one line, exit status 2.
+    capsys.readouterr()  # (what the audits above said)
     with pytest.raises(SystemExit) as refused:  # a bad key stops the parser itself
         audit_main([short_run.run_dir, "k=0"])
     assert refused.value.code == 2
