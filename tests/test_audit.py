@@ -73,6 +73,13 @@ def test_full_horizon_without_discount_is_the_papers_rollout():
     np.testing.assert_array_equal(full.lengths, rollout.lengths)
     with pytest.raises(ValueError, match="horizon must be >= 0"):
         estimate_scores(ENV, steer, gain, known_critic, None, rng, SETS, N, horizon=-1)
+    # score_missingness, the public entry, names what is wrong with its arguments in one line.
+    for sets, n_episodes, message in ((SETS[:, :2], N, r"hidden_sets must be \(\|U\|, d = 4\) 0/1 rows, one per set, "
+                                                       r"got shape \(4, 2\)"),
+                                      (2 * SETS, N, r"hidden_sets must hold only 0 \(seen\) and 1 \(hidden\)"),
+                                      (SETS, 0, "n_episodes must be an int >= 1, got 0")):
+        with pytest.raises(ValueError, match=message):
+            score_missingness(ENV, steer, gain, rng, sets, n_episodes)
 
 
 def test_beam_search_finds_the_known_worst_pair():

@@ -13,6 +13,7 @@ from __future__ import annotations
 from typing import Any
 
 import jax
+import numpy as np
 
 from admissable_jax.scoring.rollout_scores import MissingnessScores, PolicyFn, score_by_rollout
 from admissable_jax.scoring.value_estimates import CriticFn, estimate_scores
@@ -42,6 +43,7 @@ def score_missingness(
     ``num_slots`` and ``steps_per_check`` concern ``rollout`` (see ``score_by_rollout``); ``critic_fn(critic_params,
     masked_obs, action) -> (2,)`` twin Q, ``score_horizon`` (H) and ``gamma`` the other two.
     Jit-able with ``env``, the functions, the sizes and the estimator's settings static."""
+    _check_arguments(env, hidden_sets, n_episodes)
     if score_estimator == "rollout":
         return score_by_rollout(env, policy_fn, params, rng, hidden_sets, n_episodes, max_steps, num_slots,
                                 steps_per_check)
@@ -51,3 +53,21 @@ def score_missingness(
         raise ValueError(f"score_estimator={score_estimator} needs the critic (critic_fn and critic_params)")
     horizon = score_horizon if score_estimator == "horizon" else 0
     return estimate_scores(env, policy_fn, params, critic_fn, critic_params, rng, hidden_sets, n_episodes, horizon, gamma)
+
+
+def _check_arguments(env, hidden_sets, n_episodes: int) -> None:
+    """ValueError in one line for sets that are not (|U|, d) 0/1 rows (their values are
+    checked where they are concrete, not under jit) or for N < 1."""
+    if not isinstance(n_episodes, int) or isinstance(n_episodes, bool) or n_episodes < 1:
+        raise ValueError(f"n_episodes must be an int >= 1, got {n_episodes!r}")
+    d = env.observation_size
+    shape = np.shape(hidden_sets)
+    if len(shape) != 2 or shape[1] != d:
+        raise ValueError(f"hidden_sets must be (|U|, d = {d}) 0/1 rows, one per set, got shape {shape}")
+    try:
+        values = np.asarray(hidden_sets)
+    except jax.errors.TracerArrayConversionError:  # under jit: the values are not known here
+        return
+    if not np.isin(values, (0, 1)).all():
+        raise ValueError("hidden_sets must hold only 0 (seen) and 1 (hidden)")
+
