@@ -76,8 +76,10 @@ class AdversarialMissingness(MissingnessObservation):
                  epsilon: float = 1e-8, include_empty_set: bool = False, seed: int | None = None):
         if mode not in MODES[:2]:
             raise ValueError(f"mode must be 'adversarial' or 'uniform', got {mode!r}")
-        if epsilon <= 0:
-            raise ValueError(f"epsilon must be > 0, got {epsilon}")
+        if not np.isfinite(lower_bound):
+            raise ValueError(f"lower_bound must be a finite number, got {lower_bound}")
+        if not 0 < epsilon < np.inf:
+            raise ValueError(f"epsilon must be > 0 and finite, got {epsilon}")
         gymnasium.utils.RecordConstructorArgs.__init__(self, k=k, mode=mode, lower_bound=lower_bound, epsilon=epsilon,
                                                         include_empty_set=include_empty_set, seed=seed)
         super().__init__(env, hidden=self._draw)

@@ -93,6 +93,10 @@ def test_adversary_draws_from_the_papers_p_miss_and_updates_in_vector_envs():
     np.testing.assert_allclose(uniform.update([25.0, 20.0, 15.0]), 1 / 3)
     with pytest.raises(ValueError, match="one score per candidate set"):
         env.update([1.0, 2.0])
+    with pytest.raises(ValueError, match="lower_bound must be a finite number, got nan"):  # every p_miss NaN
+        AdversarialMissingness(ConstantFeatures(), lower_bound=float("nan"))
+    with pytest.raises(ValueError, match="epsilon must be > 0 and finite, got inf"):
+        AdversarialMissingness(ConstantFeatures(), epsilon=float("inf"))
 
     envs = gymnasium.vector.SyncVectorEnv(
         [lambda seed=seed: AdversarialMissingness(ConstantFeatures(), seed=seed) for seed in range(2)])
