@@ -95,6 +95,18 @@ def test_cli_edge_cases_are_one_line(tmp_path):
     assert not missing.exists()  # a failed resume leaves nothing behind
 
 
+def test_the_package_lists_its_commands(capsys):
+    from admissable_jax.__main__ import COMMANDS, main
+
+    assert main([]) == 0
+    listed = capsys.readouterr().out.splitlines()[1:]
+    assert [line.split()[2] for line in listed] == [f"admissable_jax.{command}" for command in COMMANDS]
+    assert listed[3].endswith("Which sensors break a policy? A robustness audit over every set of k hidden features.")
+    assert main(["env=ant"]) == 2
+    assert capsys.readouterr().err == ("error: run one of the package's commands, e.g. python -m admissable_jax.train "
+                                       "env=ant (python -m admissable_jax lists them)\n")
+
+
 @pytest.mark.parametrize("setting, message", [
     ("learning_rate=nan", "learning_rate must be a finite number, got nan"),
     ("learning_rate=-1", "learning_rate must be > 0, got -1.0"),

@@ -1,0 +1,36 @@
+"""``python -m admissable_jax``: which command lines the package has, one line each.
+
+Each line is the first line of the command's own module docstring, read from its source
+(nothing is imported, so this answers at once, without JAX).
+"""
+
+from __future__ import annotations
+
+import ast
+import os
+import sys
+
+from admissable_jax.errors import USAGE_ERROR
+
+COMMANDS = ("train", "experiment", "plot", "audit", "video", "rollout")
+
+
+def summary(command: str) -> str:
+    """The first line of ``admissable_jax.<command>``'s module docstring."""
+    with open(os.path.join(os.path.dirname(__file__), f"{command}.py")) as file:
+        return ast.get_docstring(ast.parse(file.read())).splitlines()[0].replace("``", "")
+
+
+def main(argv: list[str]) -> int:
+    if argv and argv not in (["--help"], ["-h"]):
+        print(f"error: run one of the package's commands, e.g. python -m admissable_jax.train {' '.join(argv)} "
+              f"(python -m admissable_jax lists them)", file=sys.stderr)
+        return USAGE_ERROR
+    print("commands (each takes key=value settings; --help lists them):")
+    for command in COMMANDS:
+        print(f"  python -m admissable_jax.{command:<11} {summary(command)}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))
