@@ -102,10 +102,15 @@ class WandbLogger:
             with open(id_path, "w") as file:
                 file.write(run_id + "\n")
         self._wandb = wandb
-        self._run = wandb.init(
-            project=os.environ.get("WANDB_PROJECT", WANDB_PROJECT), name=os.path.basename(os.path.abspath(run_dir)),
-            id=run_id, resume="allow", dir=run_dir, config=config,
-        )
+        try:
+            self._run = wandb.init(
+                project=os.environ.get("WANDB_PROJECT", WANDB_PROJECT), name=os.path.basename(os.path.abspath(run_dir)),
+                id=run_id, resume="allow", dir=run_dir, config=config,
+            )
+        except wandb.errors.Error as error:  # no account, no network: before any training, in one line
+            reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+            raise ValueError(f"logger=wandb could not start a W&B run ({reason}); log in (wandb login or "
+                             f"WANDB_API_KEY), or log offline with WANDB_MODE=offline") from None
         self._run.define_metric("env_steps")
         self._run.define_metric("*", step_metric="env_steps")
 

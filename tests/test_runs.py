@@ -95,6 +95,22 @@ def test_cli_edge_cases_are_one_line(tmp_path):
     assert not missing.exists()  # a failed resume leaves nothing behind
 
 
+def test_a_wandb_logger_that_cannot_start_is_one_line(tmp_path, monkeypatch):
+    """No W&B account (or no network) stops the run before it trains, in one line saying
+    what to do; wandb.init is replaced here, so nothing goes online."""
+    import wandb
+
+    def no_account(**_):
+        raise wandb.errors.UsageError("No API key configured. Use `wandb login` to log in.")
+
+    monkeypatch.setattr(wandb, "init", no_account)
+    result = _cli("admissable_jax.train", "env=point_mass", "logger=wandb", f"out={tmp_path / 'w'}", "progress=false")
+    assert result.returncode == 2
+    assert result.stderr == ("error: logger=wandb could not start a W&B run (No API key configured. Use `wandb login` "
+                             "to log in.); log in (wandb login or WANDB_API_KEY), or log offline with WANDB_MODE=offline\n")
+    assert LOCK_NAME not in os.listdir(tmp_path / "w")
+
+
 def test_the_package_lists_its_commands(capsys):
     from admissable_jax.__main__ import COMMANDS, main
 
