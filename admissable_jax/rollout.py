@@ -71,7 +71,7 @@ def main(argv: list[str]) -> None:
     run_s = time.perf_counter() - start
     env_steps = config.num_envs * config.steps
     print(
-        f"{env.gymnasium_id} on {jax.devices()[0].platform} ({env.physics_name} physics): {config.num_envs} envs x "
+        f"{env.gymnasium_id or env.name} on {jax.devices()[0].platform} ({env.physics_name} physics): {config.num_envs} envs x "
         f"{config.steps} steps, compile {compile_s:.1f} s, run {run_s:.2f} s, "
         f"{env_steps / run_s:,.0f} env steps/s, mean reward {float(total_reward) / env_steps:.3f}"
     )
