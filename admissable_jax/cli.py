@@ -10,7 +10,9 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import os
+import signal
 import sys
+import threading
 import time
 from typing import Any, Callable, TypeVar
 
@@ -98,18 +100,37 @@ def run_from_cli(function: Callable[[Any], Any], config: Any) -> tuple[Any, int]
     a run that fails (:class:`~admissable_jax.errors.RunFailed`: a corrupt checkpoint, a
     diverged run, one too large for memory or for the physics buffers, an unusable run
     directory, Ctrl-C) exits with its own status; each prints one line on stderr, and
-    finished work stays in the run directory."""
+    finished work stays in the run directory. SIGTERM (a job scheduler's stop, ``kill``)
+    is taken as Ctrl-C, so the run ends the same way: its lock released, its loggers closed."""
+    with _sigterm_as_ctrl_c():
+        try:
+            return function(config), 0
+        except (ValueError, TypeError, FileExistsError, FileNotFoundError) as error:
+            print(f"error: {error}", file=sys.stderr)
+            return None, USAGE_ERROR
+        except RunFailed as error:
+            print(f"{error.label}: {error}", file=sys.stderr)
+            return None, error.exit_status
+        except KeyboardInterrupt:
+            print("interrupted before training started; nothing to resume from", file=sys.stderr)
+            return None, INTERRUPTED
+
+
+@contextlib.contextmanager
+def _sigterm_as_ctrl_c():
+    """While inside, SIGTERM raises KeyboardInterrupt in the main thread (signals reach no other)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
     try:
-        return function(config), 0
-    except (ValueError, TypeError, FileExistsError, FileNotFoundError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return None, USAGE_ERROR
-    except RunFailed as error:
-        print(f"{error.label}: {error}", file=sys.stderr)
-        return None, error.exit_status
-    except KeyboardInterrupt:
-        print("interrupted before training started; nothing to resume from", file=sys.stderr)
-        return None, INTERRUPTED
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def enable_compilation_cache() -> None:

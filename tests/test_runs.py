@@ -11,6 +11,7 @@ import json
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 
@@ -142,7 +143,10 @@ def test_settings_that_would_train_nonsense_are_refused_before_anything_is_writt
     assert not out.exists()
 
 
-def test_ctrl_c_says_where_to_resume_and_exits_130(tmp_path, monkeypatch):
+@pytest.mark.parametrize("stop", ["ctrl-c", "sigterm"])
+def test_ctrl_c_says_where_to_resume_and_exits_130(stop, tmp_path, monkeypatch, capsys):
+    """Ctrl-C, or SIGTERM (a job scheduler's stop), during the second chunk: the run ends
+    with one line naming its last checkpoint, its lock given back."""
     compile_loop = TrainingLoop.compile
 
     def compile_then_interrupt_second_chunk(self):
@@ -151,8 +155,10 @@ def test_ctrl_c_says_where_to_resume_and_exits_130(tmp_path, monkeypatch):
 
         def interrupted_on_second_call(state):
             calls.append(1)
-            if len(calls) == 2:
+            if len(calls) == 2 and stop == "ctrl-c":
                 raise KeyboardInterrupt
+            if len(calls) == 2:
+                signal.raise_signal(signal.SIGTERM)  # the handler's KeyboardInterrupt, or the default: death
             return chunk(state)
 
         self.run_chunk = interrupted_on_second_call
@@ -164,6 +170,9 @@ def test_ctrl_c_says_where_to_resume_and_exits_130(tmp_path, monkeypatch):
     assert status == INTERRUPTED and result is None
     assert _steps(out) == [500]
     assert LOCK_NAME not in os.listdir(out)
+    said = capsys.readouterr().err.strip().splitlines()[-1]
+    assert said == f"interrupted: last checkpoint (step 500) kept in {out}/checkpoints; continue with resume=true"
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # given back after the run
 
 
 def test_resume_rules_corrupt_checkpoints_and_moved_directories(tmp_path, capsys):
