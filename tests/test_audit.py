@@ -80,6 +80,7 @@ def test_full_horizon_without_discount_is_the_papers_rollout():
                                       (SETS, 0, "n_episodes must be an int >= 1, got 0")):
         with pytest.raises(ValueError, match=message):
             score_missingness(ENV, steer, gain, rng, sets, n_episodes)
+    np.testing.assert_array_equal(score_missingness(ENV, steer, gain, rng, SETS, np.int64(N)).scores, rollout.scores)
 
 
 def test_beam_search_finds_the_known_worst_pair():

@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import numbers
 from typing import Any
 
 import jax
@@ -58,7 +59,7 @@ def score_missingness(
 def _check_arguments(env, hidden_sets, n_episodes: int) -> None:
     """ValueError in one line for sets that are not (|U|, d) 0/1 rows (their values are
     checked where they are concrete, not under jit) or for N < 1."""
-    if not isinstance(n_episodes, int) or isinstance(n_episodes, bool) or n_episodes < 1:
+    if not isinstance(n_episodes, numbers.Integral) or isinstance(n_episodes, bool) or n_episodes < 1:
         raise ValueError(f"n_episodes must be an int >= 1, got {n_episodes!r}")
     d = env.observation_size
     shape = np.shape(hidden_sets)
