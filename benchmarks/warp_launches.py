@@ -1,0 +1,106 @@
+"""How many MuJoCo Warp kernels one env step launches, and how many solver iterations it uses.
+
+    python benchmarks/warp_launches.py env=hopper solver_iterations=0,10,4
+
+On a latency-bound GPU an env step costs about its kernel launches (benchmarks/README: the
+campaign's scoring round is 1,000 sequential steps). This counts them on the CPU, where
+MuJoCo Warp runs the same Python launch sequence a CUDA graph captures (``wp.launch`` and
+``wp.launch_tiled`` wrapped), for each ``solver_iterations`` setting (0 = the XML's, 100):
+whether a lower iteration cap would cut launches, i.e. whether the Newton loop launches
+every iteration or stops when all worlds converge (MuJoCo Warp's ``capture_while`` when
+``opt.graph_conditional``). It also steps a random-action rollout and histograms
+``solver_niter``, the iterations the last forward of each step used. Appends a record per
+setting to benchmarks/results/warp_launches.jsonl.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from admissable_jax.cli import parse_args
+from admissable_jax.envs import make_env, reset_where_done
+from common import append_record
+
+
+@dataclasses.dataclass
+class LaunchConfig:
+    env: str = dataclasses.field(default="hopper", metadata={"help": "hopper, walker2d or ant"})
+    solver_iterations: str = dataclasses.field(default="0,10,4", metadata={"help": "comma list; 0 = the XML's (100)"})
+    num_envs: int = dataclasses.field(default=8, metadata={"help": "worlds stepped at once"})
+    steps: int = dataclasses.field(default=200, metadata={"help": "steps of the random rollout for solver_niter"})
+
+
+def count_launches(warp, step: callable, *args) -> collections.Counter:
+    """Kernel launches (by kernel) of one call of the compiled ``step``."""
+    counts: collections.Counter = collections.Counter()
+    originals = {name: getattr(warp, name) for name in ("launch", "launch_tiled")}
+
+    def counted(original):
+        def launch(kernel, *launch_args, **kwargs):
+            counts[getattr(kernel, "key", str(kernel))] += 1
+            return original(kernel, *launch_args, **kwargs)
+        return launch
+
+    for name, original in originals.items():
+        setattr(warp, name, counted(original))
+    try:
+        jax.block_until_ready(step(*args))
+    finally:
+        for name, original in originals.items():
+            setattr(warp, name, original)
+    return counts
+
+
+def solver_niter_histogram(env, num_envs: int, steps: int) -> dict[int, int]:
+    """{iterations: count} of ``solver_niter`` after each step of a random-action rollout."""
+    def step(states, rng):
+        action_rng, reset_rng = jax.random.split(rng)
+        actions = jax.random.uniform(action_rng, (num_envs, env.action_size), minval=env.action_low,
+                                     maxval=env.action_high)
+        states = jax.vmap(env.step)(states, actions)
+        niter = states.data._impl.solver_niter.reshape(-1)  # pylint: disable=protected-access
+        states = jax.vmap(reset_where_done, (None, 0, 0))(env, states, jax.random.split(reset_rng, num_envs))
+        return states, niter
+
+    def rollout(rng):
+        start_rng, scan_rng = jax.random.split(rng)
+        states = jax.vmap(env.reset)(jax.random.split(start_rng, num_envs))
+        return jax.lax.scan(step, states, jax.random.split(scan_rng, steps))[1]
+
+    values, counts = np.unique(np.asarray(jax.jit(rollout)(jax.random.key(0))), return_counts=True)
+    return {int(value): int(count) for value, count in zip(values, counts)}
+
+
+def main(argv: list[str]) -> None:
+    import warp
+
+    bench = parse_args(LaunchConfig, argv, "benchmarks/warp_launches.py", __doc__.splitlines()[0])
+    caps = [int(cap) for cap in bench.solver_iterations.split(",")]
+    for cap in caps:
+        env = make_env(bench.env, physics="warp", solver_iterations=cap or None, max_batch=bench.num_envs)
+        states = jax.vmap(env.reset)(jax.random.split(jax.random.key(0), bench.num_envs))
+        step = jax.jit(jax.vmap(env.step))
+        actions = jnp.zeros((bench.num_envs, env.action_size))
+        states = jax.block_until_ready(step(states, actions))  # compiled and run once, uncounted
+        counts = count_launches(warp, step, states, actions)
+        record = {
+            "env": env.gymnasium_id, "solver_iterations": int(env.mj_model.opt.iterations),
+            "graph_conditional": bool(env.physics.model.opt._impl.graph_conditional),  # pylint: disable=protected-access
+            "num_envs": bench.num_envs, "launches_per_env_step": sum(counts.values()),
+            "most_launched": dict(counts.most_common(8)),
+            "solver_niter_histogram": solver_niter_histogram(env, bench.num_envs, bench.steps),
+        }
+        append_record("warp_launches", record)
+        print(f"{env.gymnasium_id} solver_iterations={record['solver_iterations']}: {record['launches_per_env_step']} "
+              f"launches per env step; solver iterations used (last forward of each step): "
+              f"{record['solver_niter_histogram']}", flush=True)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
