@@ -81,6 +81,8 @@ def main(argv: list[str]) -> None:
     import warp
 
     bench = parse_args(LaunchConfig, argv, "benchmarks/warp_launches.py", __doc__.splitlines()[0])
+    if jax.default_backend() != "cpu":  # a GPU replays captured graphs: Python sees no launch after the first
+        raise SystemExit("error: warp_launches.py counts launches on the CPU; run it with JAX_PLATFORMS=cpu")
     caps = [int(cap) for cap in bench.solver_iterations.split(",")]
     for cap in caps:
         env = make_env(bench.env, physics="warp", solver_iterations=cap or None, max_batch=bench.num_envs)
