@@ -23,8 +23,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from admissable_jax.cli import parse_args
-from admissable_jax.envs import make_env, reset_where_done
+from admissable_jax.cli import fail, parse_args
+from admissable_jax.envs import canonical_env_name, make_env, reset_where_done
 from common import append_record
 
 
@@ -82,8 +82,17 @@ def main(argv: list[str]) -> None:
 
     bench = parse_args(LaunchConfig, argv, "benchmarks/warp_launches.py", __doc__.splitlines()[0])
     if jax.default_backend() != "cpu":  # a GPU replays captured graphs: Python sees no launch after the first
-        raise SystemExit("error: warp_launches.py counts launches on the CPU; run it with JAX_PLATFORMS=cpu")
-    caps = [int(cap) for cap in bench.solver_iterations.split(",")]
+        fail("warp_launches.py counts launches on the CPU; run it with JAX_PLATFORMS=cpu")
+    try:
+        canonical_env_name(bench.env)
+    except ValueError as error:
+        fail(str(error))
+    try:
+        caps = [int(cap) for cap in bench.solver_iterations.split(",")]
+    except ValueError:
+        caps = [-1]
+    if min(caps) < 0 or bench.num_envs < 1 or bench.steps < 1:
+        fail(f"solver_iterations must be ints >= 0 (got {bench.solver_iterations!r}), num_envs and steps >= 1")
     for cap in caps:
         env = make_env(bench.env, physics="warp", solver_iterations=cap or None, max_batch=bench.num_envs)
         states = jax.vmap(env.reset)(jax.random.split(jax.random.key(0), bench.num_envs))
