@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from admissable_jax.cli import fail, parse_args
+from admissable_jax.cli import parse_args
 from admissable_jax.envs import canonical_env_name, make_env, reset_where_done
 from common import append_record
 
@@ -34,6 +34,20 @@ class LaunchConfig:
     solver_iterations: str = dataclasses.field(default="0,10,4", metadata={"help": "comma list; 0 = the XML's (100)"})
     num_envs: int = dataclasses.field(default=8, metadata={"help": "worlds stepped at once"})
     steps: int = dataclasses.field(default=200, metadata={"help": "steps of the random rollout for solver_niter"})
+
+
+def solver_caps(config: LaunchConfig) -> list[int]:
+    """The ``solver_iterations`` settings; ValueError (parse_args makes it one line, exit 2)
+    for bad settings or a GPU backend, where captured graphs are replayed and Python would
+    see no launch after the first."""
+    if jax.default_backend() != "cpu":
+        raise ValueError("warp_launches.py counts launches on the CPU; run it with JAX_PLATFORMS=cpu")
+    canonical_env_name(config.env)
+    caps = [int(cap) for cap in config.solver_iterations.split(",") if cap.strip().isdigit()]
+    if len(caps) != len(config.solver_iterations.split(",")) or config.num_envs < 1 or config.steps < 1:
+        raise ValueError(f"solver_iterations must be ints >= 0 (got {config.solver_iterations!r}), "
+                         "num_envs and steps >= 1")
+    return caps
 
 
 def count_launches(warp, step: callable, *args) -> collections.Counter:
@@ -80,20 +94,8 @@ def solver_niter_histogram(env, num_envs: int, steps: int) -> dict[int, int]:
 def main(argv: list[str]) -> None:
     import warp
 
-    bench = parse_args(LaunchConfig, argv, "benchmarks/warp_launches.py", __doc__.splitlines()[0])
-    if jax.default_backend() != "cpu":  # a GPU replays captured graphs: Python sees no launch after the first
-        fail("warp_launches.py counts launches on the CPU; run it with JAX_PLATFORMS=cpu")
-    try:
-        canonical_env_name(bench.env)
-    except ValueError as error:
-        fail(str(error))
-    try:
-        caps = [int(cap) for cap in bench.solver_iterations.split(",")]
-    except ValueError:
-        caps = [-1]
-    if min(caps) < 0 or bench.num_envs < 1 or bench.steps < 1:
-        fail(f"solver_iterations must be ints >= 0 (got {bench.solver_iterations!r}), num_envs and steps >= 1")
-    for cap in caps:
+    bench = parse_args(LaunchConfig, argv, "benchmarks/warp_launches.py", __doc__.splitlines()[0], solver_caps)
+    for cap in solver_caps(bench):
         env = make_env(bench.env, physics="warp", solver_iterations=cap or None, max_batch=bench.num_envs)
         states = jax.vmap(env.reset)(jax.random.split(jax.random.key(0), bench.num_envs))
         step = jax.jit(jax.vmap(env.step))
