@@ -36,6 +36,23 @@ def make_directory(path: str, what: str) -> None:
         raise UnusableDirectory(f"cannot create the {what} {path}: {error.strerror}") from None
 
 
+def remove_if_unused(path: str, own_files: tuple[str, ...]) -> None:
+    """Remove the folder ``path`` that this command made, if it holds nothing but
+    ``own_files`` (what the command itself wrote there, its settings) and empty folders: a
+    command that stopped before any work (refused, a dry run, interrupted while compiling)
+    leaves nothing behind. Anything else in it keeps it, as it is."""
+    try:
+        entries = [os.path.join(path, name) for name in os.listdir(path)]
+        if not all((os.path.isfile(entry) and os.path.basename(entry) in own_files)
+                   or (os.path.isdir(entry) and not os.listdir(entry)) for entry in entries):
+            return
+        for entry in entries:
+            (os.remove if os.path.isfile(entry) else os.rmdir)(entry)
+        os.rmdir(path)
+    except OSError:  # gone already, or filled by another process meanwhile: leave it
+        return
+
+
 class Interrupted(RunFailed):
     """Ctrl-C during training; says where the last checkpoint is."""
 

@@ -33,7 +33,7 @@ from admissable_jax.checkpointing import CheckpointError, Checkpoints
 from admissable_jax.cli import enable_compilation_cache, parse_args, run_from_cli
 from admissable_jax.config import RunSettings, TrainConfig
 from admissable_jax.envs import canonical_env_name
-from admissable_jax.errors import make_directory
+from admissable_jax.errors import make_directory, remove_if_unused
 from admissable_jax.host_loop import TrainingLoop, make_trainer, mode_flags
 from admissable_jax.placement import PairPlacement, initialize_distributed
 from admissable_jax.run_directory import RunDirectory, load_config
@@ -90,10 +90,13 @@ def run_experiment(config) -> list[TrainResult]:
         if not os.path.isdir(root):
             raise CheckpointError(f"nothing to resume: {root} does not exist")
         check_same_pairs(config, pairs, experiment_yaml)
+    root_made_here = not os.path.exists(root)
     make_directory(root, "experiment directory")
     checkpoint_dir = os.path.join(root, "checkpoints")
     local_pairs = placement.local_pairs
     with contextlib.ExitStack() as held:
+        if root_made_here:  # after the pairs' folders (last in, first out): gone if they are
+            held.callback(remove_if_unused, root, ("experiment.yaml",))
         runs = []
         for index in local_pairs:  # each pair's directory stays locked until the experiment ends
             runs.append(RunDirectory(pairs[index], checkpoint_dir))

@@ -151,9 +151,9 @@ class TrainingLoop:
         start_step = 0
         if resume_from is not None:
             start_step, state = self._restore(state, resume_from)
-        for run in self.runs:
-            for note in run.set_aside_rows_after(start_step):
-                report(note)
+            for run in self.runs:
+                for note in run.set_aside_rows_after(start_step):
+                    report(note)
         num_scorings = config.planned_steps // config.score_every
         bar = tqdm(total=config.planned_steps, initial=start_step, unit="step", disable=not config.progress,
                    dynamic_ncols=True)
@@ -202,7 +202,7 @@ class TrainingLoop:
                            f"continue with resume=true")
                     break
         except KeyboardInterrupt:
-            raise Interrupted(f"{self._kept_checkpoint()}; continue with resume=true") from None
+            raise Interrupted(f"{self._kept_checkpoint()}; {self._how_to_continue()}") from None
         finally:
             bar.close()
             self.checkpoints.close()
@@ -227,6 +227,11 @@ class TrainingLoop:
         kept = self.checkpoints.latest_step()
         where = f"last checkpoint (step {kept}) kept" if kept is not None else "no checkpoint yet"
         return f"{where} in {self.checkpoints.directory}"
+
+    def _how_to_continue(self) -> str:
+        if self.checkpoints.latest_step() is None:
+            return "nothing to resume from: run the same command again to start over"
+        return "continue with resume=true"
 
     def _check_physics(self, exceeded: bool, env_steps: int) -> None:
         if self.any_process(exceeded):

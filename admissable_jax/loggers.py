@@ -99,8 +99,6 @@ class WandbLogger:
                 run_id = file.read().strip()
         else:
             run_id = uuid.uuid4().hex[:12]  # W&B ids: letters and digits, unique in the project
-            with open(id_path, "w") as file:
-                file.write(run_id + "\n")
         self._wandb = wandb
         try:
             self._run = wandb.init(
@@ -111,6 +109,8 @@ class WandbLogger:
             reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
             raise ValueError(f"logger=wandb could not start a W&B run ({reason}); log in (wandb login or "
                              f"WANDB_API_KEY), or log offline with WANDB_MODE=offline") from None
+        with open(id_path, "w") as file:  # kept once the W&B run exists
+            file.write(run_id + "\n")
         self._run.define_metric("env_steps")
         self._run.define_metric("*", step_metric="env_steps")
 

@@ -18,9 +18,10 @@ import yaml
 from omegaconf import OmegaConf
 
 from admissable_jax.checkpointing import CheckpointError, Checkpoints
+from admissable_jax.cli import report
 from admissable_jax.config import TrainConfig
 from admissable_jax.envs import resolve_physics
-from admissable_jax.errors import make_directory
+from admissable_jax.errors import make_directory, remove_if_unused
 from admissable_jax.locks import RunLock
 from admissable_jax.loggers import Loggers
 from admissable_jax.missingness import describe_set
@@ -127,6 +128,7 @@ class RunDirectory:
         config_path = os.path.join(self.path, "config.yaml")
         if config.resume and not os.path.exists(config_path):  # checked before anything is created
             raise CheckpointError(f"nothing to resume: {config_path} does not exist")
+        self.made_here = not os.path.exists(self.path)
         make_directory(self.path, "run directory")
         self.lock = RunLock(self.path)
         self.lock.acquire()
@@ -135,6 +137,7 @@ class RunDirectory:
             self.loggers = Loggers(config.logger, self.path, dataclasses.asdict(config))
         except BaseException:
             self.lock.release()
+            self._remove_if_unused()
             raise
 
     def _prepare(self, config: TrainConfig, config_path: str, checkpoint_dir: str) -> None:
@@ -145,12 +148,22 @@ class RunDirectory:
             raise FileExistsError(
                 f"{self.path} already holds a run; pass resume=true to continue it or choose another out"
             )
+        else:  # rows of an earlier run that stopped before its first checkpoint: not beside this config
+            for note in self.set_aside_rows_after(0):
+                report(note)
         OmegaConf.save(OmegaConf.structured(config), config_path)
 
     def close(self) -> None:
-        """Give the directory back (close the logger, remove the lock)."""
+        """Give the directory back (close the logger, remove the lock). A folder this run
+        made and wrote nothing into but its config.yaml (it stopped before its first scoring:
+        refused for memory, ``budget_only``, interrupted while compiling) is removed again."""
         self.loggers.close()
         self.lock.release()
+        self._remove_if_unused()
+
+    def _remove_if_unused(self) -> None:
+        if self.made_here:
+            remove_if_unused(self.path, ("config.yaml",))
 
     @staticmethod
     def _check_same_run(config: TrainConfig, config_path: str, checkpoint_dir: str) -> None:
@@ -182,8 +195,8 @@ class RunDirectory:
         return read_jsonl(path) if os.path.exists(path) else []
 
     def set_aside_rows_after(self, step: int) -> list[str]:
-        """Move the rows written after env step ``step``, where this run starts (0, or the
-        checkpoint it resumes from), from scores.jsonl and metrics.jsonl to
+        """Move the rows written after env step ``step``, where this run starts (0, when the
+        directory is prepared, or the checkpoint it resumes from), from scores.jsonl and metrics.jsonl to
         scores-superseded.jsonl and metrics-superseded.jsonl, each stamped ``set_aside_at``:
         the run writes those steps again, and what an earlier run measured there (one that
         stopped before its checkpoint, or a branch ``resume_step`` left) is kept, as its

@@ -75,7 +75,16 @@ def test_experiment_refuses_what_does_not_fit_before_allocating(tmp_path, monkey
     config = ExperimentConfig(**EXPERIMENT, total_steps=1000, out=str(tmp_path / "big"))
     with pytest.raises(MemoryBudgetExceeded, match="does not fit: memory on cpu\\S*: training state .* GiB available"):
         run_experiment(config)
-    assert not os.listdir(tmp_path / "big" / "checkpoints")  # nothing was trained or saved
+    assert not (tmp_path / "big").exists()  # nothing was trained, and the folders it made are gone
+
+    monkeypatch.undo()  # the memory there is again
+    # A dry run in a folder that was there before: the pairs' folders it made go, what was there stays.
+    (tmp_path / "kept" / "adversarial-s0").mkdir(parents=True)
+    (tmp_path / "kept" / "adversarial-s0" / "notes.txt").write_text("mine")
+    assert run_experiment(ExperimentConfig(**EXPERIMENT, total_steps=1000, out=str(tmp_path / "kept"),
+                                           budget_only=True)) == []
+    assert sorted(os.listdir(tmp_path / "kept")) == ["adversarial-s0", "checkpoints", "experiment.yaml"]
+    assert (tmp_path / "kept" / "adversarial-s0" / "notes.txt").read_text() == "mine"
 
 
 @pytest.mark.parametrize(

@@ -25,6 +25,7 @@ from admissable_jax.cli import run_from_cli
 from admissable_jax.errors import INTERRUPTED
 from admissable_jax.host_loop import TrainingLoop
 from admissable_jax.locks import LOCK_NAME, RunDirectoryLocked
+from admissable_jax.memory import MemoryBudgetExceeded
 
 RUN = TrainConfig(
     env="point_mass", total_steps=2000, score_every=500, num_envs=4, learning_starts=500, episode_length=50,
@@ -109,7 +110,7 @@ def test_a_wandb_logger_that_cannot_start_is_one_line(tmp_path, monkeypatch):
     assert result.returncode == 2
     assert result.stderr == ("error: logger=wandb could not start a W&B run (No API key configured. Use `wandb login` "
                              "to log in.); log in (wandb login or WANDB_API_KEY), or log offline with WANDB_MODE=offline\n")
-    assert LOCK_NAME not in os.listdir(tmp_path / "w")
+    assert not (tmp_path / "w").exists()  # the folder it made is gone again, lock and all
 
 
 def test_the_package_lists_its_commands(capsys):
@@ -143,10 +144,11 @@ def test_settings_that_would_train_nonsense_are_refused_before_anything_is_writt
     assert not out.exists()
 
 
-@pytest.mark.parametrize("stop", ["ctrl-c", "sigterm"])
-def test_ctrl_c_says_where_to_resume_and_exits_130(stop, tmp_path, monkeypatch, capsys):
+@pytest.mark.parametrize("stop, on_chunk", [("ctrl-c", 2), ("sigterm", 2), ("ctrl-c", 1)])
+def test_ctrl_c_says_where_to_resume_and_exits_130(stop, on_chunk, tmp_path, monkeypatch, capsys):
     """Ctrl-C, or SIGTERM (a job scheduler's stop), during the second chunk: the run ends
-    with one line naming its last checkpoint, its lock given back."""
+    with one line naming its last checkpoint, its lock given back. During the first, before
+    any checkpoint, it says there is nothing to resume, and the folder it made is gone."""
     compile_loop = TrainingLoop.compile
 
     def compile_then_interrupt_second_chunk(self):
@@ -155,9 +157,9 @@ def test_ctrl_c_says_where_to_resume_and_exits_130(stop, tmp_path, monkeypatch, 
 
         def interrupted_on_second_call(state):
             calls.append(1)
-            if len(calls) == 2 and stop == "ctrl-c":
+            if len(calls) == on_chunk and stop == "ctrl-c":
                 raise KeyboardInterrupt
-            if len(calls) == 2:
+            if len(calls) == on_chunk:
                 signal.raise_signal(signal.SIGTERM)  # the handler's KeyboardInterrupt, or the default: death
             return chunk(state)
 
@@ -168,9 +170,14 @@ def test_ctrl_c_says_where_to_resume_and_exits_130(stop, tmp_path, monkeypatch, 
     out = str(tmp_path / "interrupted")
     result, status = run_from_cli(train_fn, dataclasses.replace(RUN, out=out))
     assert status == INTERRUPTED and result is None
+    said = capsys.readouterr().err.strip().splitlines()[-1]
+    if on_chunk == 1:
+        assert said == (f"interrupted: no checkpoint yet in {out}/checkpoints; nothing to resume from: "
+                        f"run the same command again to start over")
+        assert not os.path.exists(out)
+        return
     assert _steps(out) == [500]
     assert LOCK_NAME not in os.listdir(out)
-    said = capsys.readouterr().err.strip().splitlines()[-1]
     assert said == f"interrupted: last checkpoint (step 500) kept in {out}/checkpoints; continue with resume=true"
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # given back after the run
 
@@ -257,10 +264,21 @@ def test_faults_of_long_runs_cost_nothing_finished(tmp_path, monkeypatch, capsys
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
     # A run stopped before its first checkpoint leaves rows and no checkpoint: a new run in
-    # its directory starts afresh and sets the earlier rows aside, stamped, never deleted.
+    # its directory starts afresh and sets the earlier rows aside, stamped, never deleted,
+    # before it writes its config.yaml: even if it then stops (here: refused for memory),
+    # no earlier row stands beside the new settings.
     unsaved = tmp_path / "unsaved"
     shutil.copytree(straight.run_dir, unsaved)
     shutil.rmtree(unsaved / "checkpoints")
+
+    def refused(loop):
+        raise MemoryBudgetExceeded("does not fit: (the test's)")
+
+    with monkeypatch.context() as patched:
+        patched.setattr(TrainingLoop, "compile", refused)
+        with pytest.raises(MemoryBudgetExceeded):
+            train_fn(dataclasses.replace(RUN, out=str(unsaved), total_steps=500))
+    assert (unsaved / "scores.jsonl").read_text() == "" and (unsaved / "metrics.jsonl").read_text() == ""
     fresh = train_fn(dataclasses.replace(RUN, out=str(unsaved), total_steps=500))
     assert _steps(str(unsaved)) == [500] and fresh.scores == straight.scores[:1]
     for name, earlier in (("scores", straight.scores), ("metrics", straight.metrics)):
