@@ -46,11 +46,16 @@ class XlaCpuCompileConfig:
                                        metadata={"help": "XLA_FLAGS settings to compare, separated by |"})
 
 
+def _settings(bench: XlaCpuCompileConfig) -> list[str]:
+    """The XLA_FLAGS settings ``flag_sets`` lists."""
+    return [setting.strip() for setting in bench.flag_sets.split("|")]
+
+
 def _validate(bench: XlaCpuCompileConfig) -> None:
     unknown = set(bench.programs.split(",")) - set(PROGRAMS)
     if unknown or bench.repeats < 1:
         raise ValueError(f"programs must be a comma list of {', '.join(PROGRAMS)} and repeats >= 1")
-    if not all(flags.strip() for flags in bench.flag_sets.split("|")):
+    if not all(_settings(bench)):
         raise ValueError("flag_sets must be XLA_FLAGS settings separated by |, none empty")
 
 
@@ -105,7 +110,7 @@ def main(argv: list[str]) -> None:
     bench = parse_args(XlaCpuCompileConfig, argv, "benchmarks/xla_cpu_compile.py", __doc__.strip().splitlines()[0], _validate)
     for program in bench.programs.split(","):
         for repeat in range(bench.repeats):
-            for flags in [setting.strip() for setting in bench.flag_sets.split("|")]:
+            for flags in _settings(bench):
                 env = {**os.environ, "XLA_FLAGS": flags, "JAX_PLATFORMS": "cpu"}
                 env.pop("JAX_COMPILATION_CACHE_DIR", None)
                 child = subprocess.run([sys.executable, __file__, "--child", program], env=env, capture_output=True,
