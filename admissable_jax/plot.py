@@ -173,7 +173,7 @@ def _figure_caption(runs: list[Run], window: int, used: int) -> str:
     episodes = sorted({run.score_episodes for run in runs})
     shaded = "; shaded: 95% t-interval over seeds" if max(collections.Counter(run.mode for run in runs).values()) > 1 else ""
     return (f"$a_u$: mean undiscounted return of N = {'/'.join(map(str, episodes))} deterministic episodes with the "
-            f"features u hidden; $\\min_u a_u$: the worst u at each scoring.\n"
+            f"features u hidden; $\\mathrm{{min}}_u\\, a_u$: the worst u at each scoring.\n"
             f"Lines: mean over seeds of the trailing {_window_note(window, used)}{shaded}; dots: each record "
             f"unsmoothed (the summary's 'final' is the last dot).")
 
@@ -232,7 +232,7 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 40) -> list[str]:
             ax.plot(steps, mean, color=color, label=f"{mode} ({_seeds(len(mode_runs))})")
             ax.fill_between(steps, low, high, color=color, alpha=0.2, linewidth=0)
             ax.plot(steps, values.mean(axis=0), ".", color=color, alpha=0.35, markersize=3)
-    ax_min.set_title(f"{envs[0]}: adversarial performance $\\min_u a_u$")
+    ax_min.set_title(f"{envs[0]}: adversarial performance $\\mathrm{{min}}_u\\, a_u$")
     ax_clean.set_title(f"{envs[0]}: clean return (nothing hidden)")
     for ax in (ax_min, ax_clean):
         ax.set_xlabel("env steps")
