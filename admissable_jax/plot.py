@@ -1,6 +1,6 @@
 """Figures from run directories: the paper's Figure 1 and what explains it.
 
-``python -m admissable_jax.plot RUN_DIR ... [window=40] [out=DIR]`` from a shell,
+``python -m admissable_jax.plot RUN_DIR ... [window=0] [out=DIR]`` from a shell,
 ``plot_runs`` and ``summary_table`` from Python.
 
 ``plot_runs(run_dirs, out_dir)`` groups runs by (env, missingness mode) and draws, as PNG
@@ -20,8 +20,10 @@ and PDF:
 * ``summary.md`` (CLI) — :func:`summary_table`: final and AUC min_u a_u per mode, and
   :func:`comparison_table`: adversarial − uniform with Welch's 95% interval and p-value.
 
-A window longer than the runs' records is shortened to their length, and the figures and
-the summary say so. ``python -m admissable_jax.plot runs/fig1-hopper [window=40] [out=DIR]``
+The default ``window=0`` smooths as the paper's Figure 1 does (40 of its 200 records), and
+a shorter run over the same fifth of its records; a window longer than the runs' records is
+shortened to their length; the figures and the summary say which. ``python -m
+admissable_jax.plot runs/fig1-hopper [window=0] [out=DIR]``
 finds every run directory (one holding ``scores.jsonl``) under the given paths and writes
 into a new folder (``<first path>/figures``, or ``figures-2``, ... if that exists).
 """
@@ -48,6 +50,8 @@ from admissable_jax.missingness import candidate_sets  # noqa: E402
 from admissable_jax.run_directory import TornLine, load_config_yaml, read_jsonl  # noqa: E402
 
 MODE_COLORS = {"adversarial": "tab:blue", "uniform": "tab:red", "none": "tab:gray"}
+# Figure 1's smoothing: "a moving average over 40 records" of a 1M-step run scored every ζ = 5000.
+PAPER_WINDOW, PAPER_RECORDS = 40, 200
 
 
 @dataclasses.dataclass
@@ -154,27 +158,46 @@ def _aligned(runs: list[Run], attribute: str) -> tuple[np.ndarray, np.ndarray]:
     return runs[0].env_steps[:length], np.stack([getattr(run, attribute)[:length] for run in runs])
 
 
+def _records(runs: list[Run]) -> int:
+    """How many records (scorings) the runs share."""
+    return min(len(run.env_steps) for run in runs)
+
+
 def effective_window(runs: list[Run], window: int) -> int:
-    """The moving-average window the figures use: ``window``, shortened to the records the
-    runs share (a longer one would silently be a running mean)."""
-    if not isinstance(window, int) or isinstance(window, bool) or window < 1:
-        raise ValueError(f"window must be an int >= 1, got {window!r}")
-    return min(window, min(len(run.env_steps) for run in runs))
+    """The moving-average window the figures use. ``window=0``: the paper's, 40 records of
+    the 200 a 1M-step run scores at ζ = 5000 (Figure 1's caption), and for runs with fewer
+    records the same fifth of theirs (at least 1), so a partial run is smoothed as the
+    paper's whole one is, not flattened into a running mean. ``window`` >= 1: that many
+    records, shortened to the records the runs share (a longer one would silently be a
+    running mean)."""
+    if not isinstance(window, int) or isinstance(window, bool) or window < 0:
+        raise ValueError(f"window must be an int >= 0 (0: the paper's 40 of 200 records, scaled to the runs), "
+                         f"got {window!r}")
+    records = _records(runs)
+    if window == 0:
+        return max(1, min(PAPER_WINDOW, records * PAPER_WINDOW // PAPER_RECORDS))
+    return min(window, records)
 
 
-def _window_note(window: int, used: int) -> str:
+def _window_note(runs: list[Run], window: int) -> str:
+    used, records = effective_window(runs, window), _records(runs)
+    average = f"moving average over {used} record{'s' if used > 1 else ''}"
+    if window == 0 and records < PAPER_RECORDS:
+        return f"{average} (the paper's 40 of 200, scaled to the runs' {records})"
+    if window == 0:
+        return f"{average} (the paper's)"
     if used == window:
-        return f"moving average over {used} records"
-    return f"moving average over {used} records (window={window} shortened: the runs have {used})"
+        return average
+    return f"{average} (window={window} shortened: the runs have {used})"
 
 
-def _figure_caption(runs: list[Run], window: int, used: int) -> str:
+def _figure_caption(runs: list[Run], window: int) -> str:
     """What Figure 1 shows, in words under it: a_u, the smoothing, the dots, the band."""
     episodes = sorted({run.score_episodes for run in runs})
     shaded = "; shaded: 95% t-interval over seeds" if max(collections.Counter(run.mode for run in runs).values()) > 1 else ""
     return (f"$a_u$: mean undiscounted return of N = {'/'.join(map(str, episodes))} deterministic episodes with the "
             f"features u hidden; $\\mathrm{{min}}_u\\, a_u$: the worst u at each scoring.\n"
-            f"Lines: mean over seeds of the trailing {_window_note(window, used)}{shaded}; dots: each record "
+            f"Lines: mean over seeds of the trailing {_window_note(runs, window)}{shaded}; dots: each record "
             f"unsmoothed (the summary's 'final' is the last dot).")
 
 
@@ -194,9 +217,12 @@ def _heatmap(ax, figure, steps: np.ndarray, values: np.ndarray, names: list[str]
     """Sets (rows, named) × scoring steps (columns, centred on their steps)."""
     image = ax.pcolormesh(_cell_edges(steps), np.arange(len(names) + 1) - 0.5, values.T, cmap="viridis", shading="flat")
     figure.colorbar(image, ax=ax, label=label)
-    every = max(1, int(np.ceil(len(names) / 40)))  # at most 40 row labels
-    ax.set_yticks(np.arange(0, len(names), every), [names[i] for i in range(0, len(names), every)],
-                  fontsize=8 if len(names) <= 40 else 6)
+    # At most 40 row labels: every row's, else the rows with any value if they are few (a
+    # pool's heatmap, blank where no set of the pool hides the feature), else every n-th row.
+    drawn = np.flatnonzero(np.isfinite(values).any(axis=0))
+    labelled = (np.arange(len(names)) if len(names) <= 40 else drawn if len(drawn) <= 40
+                else np.arange(0, len(names), int(np.ceil(len(names) / 40))))
+    ax.set_yticks(labelled, [names[i] for i in labelled], fontsize=8 if len(names) <= 40 else 6)
     ax.set_ylim(-0.5, len(names) - 0.5)
 
 
@@ -208,8 +234,9 @@ def _save(figure, out_dir: str, name: str) -> list[str]:
     return paths
 
 
-def plot_runs(run_dirs: list[str], out_dir: str, window: int = 40) -> list[str]:
-    """Draw the figures for these runs into ``out_dir``; returns the files written."""
+def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0) -> list[str]:
+    """Draw the figures for these runs into ``out_dir``; returns the files written.
+    ``window``: records in the moving average (0: the paper's, :func:`effective_window`)."""
     runs = [load_run(path) for path in run_dirs]
     if not runs:
         raise ValueError("no runs to plot")
@@ -239,7 +266,7 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 40) -> list[str]:
         ax.set_ylabel("return")
         ax.grid(alpha=0.3)
         ax.legend()
-    figure.suptitle(_figure_caption(runs, window, used), fontsize=9, y=-0.02, va="top")
+    figure.suptitle(_figure_caption(runs, window), fontsize=9, y=-0.02, va="top")
     written += _save(figure, out_dir, "min_score")
 
     for mode, mode_runs in sorted(by_mode.items()):
@@ -369,7 +396,8 @@ def comparison_table(run_dirs: list[str]) -> str:
 
 @dataclasses.dataclass
 class PlotConfig:
-    window: int = dataclasses.field(default=40, metadata={"help": "moving-average window (records)"})
+    window: int = dataclasses.field(default=0, metadata={
+        "help": "moving-average window (records); 0: the paper's 40 of 200 records, a fifth of a shorter run's"})
     out: str = dataclasses.field(default="", metadata={"help": "output folder ('' = a new <first path>/figures, figures-2, ...)"})
 
 
@@ -392,14 +420,14 @@ def main(argv: list[str]) -> int:
         runs = find_runs(paths)
         if not runs:
             raise ValueError(f"no run directories (config.yaml + scores.jsonl) under {', '.join(paths)}")
-        used = effective_window([load_run(path) for path in runs], config.window)
+        smoothing = _window_note([load_run(path) for path in runs], config.window)
         out_dir = config.out or new_folder(os.path.join(paths[0], "figures"))
         written = plot_runs(runs, out_dir, config.window)
         table = summary_table(runs)
         comparison = comparison_table(runs)
     except (ValueError, FileNotFoundError, KeyError, UnusableDirectory) as error:
         fail(str(error))
-    table += (f"\nFigures: mean over seeds of the {_window_note(config.window, used)}. Table: the last "
+    table += (f"\nFigures: mean over seeds of the {smoothing}. Table: the last "
               "record itself (final) and the mean over all records (AUC), unsmoothed.\n")
     if comparison:
         table += ("\nAdversarial − uniform, per env (over the records both modes share; seeds independent, "

@@ -1,7 +1,7 @@
 """FIGURE1.md: the paper's Figure 1 question answered from the campaign's runs.
 
     python benchmarks/figure1.py hopper=benchmarks/results/fig1-hopper-1m \\
-        walker2d=benchmarks/results/fig1-walker2d-1m ant=benchmarks/results/fig1-ant [window=40] \\
+        walker2d=benchmarks/results/fig1-walker2d-1m ant=benchmarks/results/fig1-ant [window=0] \\
         [out=benchmarks/results/FIGURE1.md]
 
 Each ``ENV=DIR`` is an experiment's folder (its ``<mode>-s<seed>/`` run directories with
@@ -48,7 +48,8 @@ class Figure1Config:
     hopper: str = dataclasses.field(default="", metadata={"help": "Hopper-v5 experiment folder ('' = none)"})
     walker2d: str = dataclasses.field(default="", metadata={"help": "Walker2d-v5 experiment folder ('' = none)"})
     ant: str = dataclasses.field(default="", metadata={"help": "Ant-v5 experiment folder ('' = none)"})
-    window: int = dataclasses.field(default=40, metadata={"help": "the figures' moving-average window (records)"})
+    window: int = dataclasses.field(default=0, metadata={
+        "help": "the figures' moving-average window (records); 0: the paper's 40 of 200, scaled to the runs"})
     out: str = dataclasses.field(default="benchmarks/results/FIGURE1.md", metadata={"help": "the file to write"})
 
 

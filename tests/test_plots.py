@@ -10,7 +10,7 @@ from omegaconf import OmegaConf
 
 from admissable_jax.config import TrainConfig
 from admissable_jax.plot import (
-    Difference, _cell_edges, _seeds, comparison_table, effective_window, find_runs, load_run, main, mean_and_interval,
+    Difference, _cell_edges, _heatmap, _seeds, comparison_table, effective_window, find_runs, load_run, main, mean_and_interval,
     moving_average, plot_runs, set_names, summary_table,
 )
 
@@ -131,13 +131,28 @@ def test_plots_say_what_they_show(tmp_path, capsys):
     """Window, cell positions, feature names, seed counts and the output folder."""
     paths = [_fake_run(str(tmp_path / "runs"), "adversarial", seed, records=7) for seed in range(2)]
     runs = [load_run(path) for path in paths]
-    # A window longer than the records is shortened visibly; a bad one is refused.
-    assert effective_window(runs, 40) == 7 and effective_window(runs, 3) == 3
-    for bad in (0, -3, 2.5):
-        with pytest.raises(ValueError, match="window must be an int >= 1"):
+    # The default smooths as the paper does (40 of 200 records, a fifth of a shorter run's);
+    # a window longer than the records is shortened visibly; a bad one is refused.
+    assert effective_window(runs, 0) == 1 and effective_window(runs, 40) == 7 and effective_window(runs, 3) == 3
+    assert [effective_window([load_run(_fake_run(str(tmp_path / f"r{n}"), "uniform", 0, records=n))], 0)
+            for n in (4, 12, 58, 200, 400)] == [1, 2, 11, 40, 40]
+    for bad in (-3, 2.5):
+        with pytest.raises(ValueError, match="window must be an int >= 0"):
             effective_window(runs, bad)
     # Heatmap cells are centred on their scoring steps.
     np.testing.assert_allclose(_cell_edges(np.array([5000.0, 10000.0, 15000.0])), [2500, 7500, 12500, 17500])
+    # Ant's 105 rows: all labelled would overlap, so a pool's heatmap (blank where no pooled
+    # set hides the feature) names the rows it draws, and a full one every third row.
+    import matplotlib.pyplot as plt
+
+    names = set_names("ant", 1, False)
+    pooled = np.full((3, 105), np.nan)
+    pooled[:, [28, 29, 31]] = [[-1.0, -2.0, -3.0]] * 3
+    for values, rows in ((pooled, [28, 29, 31]), (np.zeros((3, 105)), list(range(0, 105, 3)))):
+        figure, ax = plt.subplots()
+        _heatmap(ax, figure, np.array([5000.0, 10000.0, 15000.0]), values, names, "a_u")
+        assert [label.get_text() for label in ax.get_yticklabels()] == [names[row] for row in rows]
+        plt.close(figure)
     # Rows carry Gymnasium's observation names; one seed is "1 seed".
     assert runs[0].set_names[:3] == ["torso z", "torso angle", "thigh joint angle"]
     assert set_names("hopper", 2, True)[:2] == ["nothing hidden", "torso z + torso angle"]
@@ -147,14 +162,17 @@ def test_plots_say_what_they_show(tmp_path, capsys):
     # The CLI writes into a new folder each time, never over earlier figures, and its
     # summary says how the figure was smoothed.
     root = str(tmp_path / "runs")
-    assert main([root]) == 0 and main([root]) == 0
+    assert main([root]) == 0 and main([root, "window=40"]) == 0
     assert sorted(name for name in os.listdir(root) if name.startswith("figures")) == ["figures", "figures-2"]
     with open(os.path.join(root, "figures", "summary.md")) as file:
+        assert "moving average over 1 record (the paper's 40 of 200, scaled to the runs' 7)" in file.read()
+    with open(os.path.join(root, "figures-2", "summary.md")) as file:
         assert "moving average over 7 records (window=40 shortened: the runs have 7)" in file.read()
     with pytest.raises(SystemExit) as exit_info:
-        main([root, "window=0"])
+        main([root, "window=-1"])
     assert exit_info.value.code == 2
-    assert capsys.readouterr().err.strip().splitlines()[-1] == "error: window must be an int >= 1, got 0"
+    assert capsys.readouterr().err.strip().splitlines()[-1] == ("error: window must be an int >= 0 (0: the paper's "
+                                                                 "40 of 200 records, scaled to the runs), got -1")
     # Rows that do not hold one score per candidate set: one line naming the file, exit 2.
     narrow = _fake_run(str(tmp_path / "narrow"), "uniform", 0, records=2, sets=3)
     with pytest.raises(SystemExit) as exit_info:
