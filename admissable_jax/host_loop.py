@@ -58,6 +58,17 @@ def take_pair(tree: Any, index: int) -> Any:
     return jax.tree.map(lambda leaf: leaf[index], tree)
 
 
+def progress_postfix(rows: list[dict[str, Any]], modes: list[str]) -> dict[str, str]:
+    """The progress bar's latest scores: min_u a_u and the clean return, the mean over the
+    runs; with several missingness modes in one program (an experiment), min_u a_u per mode,
+    so adversarial and uniform can be watched side by side."""
+    mean = lambda key, picked: f"{np.mean([row[key] for row in picked]):.1f}"
+    if len(set(modes)) == 1:
+        return {"min_a_u": mean("min_score", rows), "clean": mean("clean_score", rows)}
+    return {f"min_a_u_{mode}": mean("min_score", [row for row, of in zip(rows, modes) if of == mode])
+            for mode in dict.fromkeys(modes)}
+
+
 class TrainingLoop:
     """The host loop over scorings for one run or a batch of pairs.
 
@@ -191,11 +202,8 @@ class TrainingLoop:
                     self.checkpoints.save(env_steps, state)
                 bar.update(config.score_every)
                 if rows:
-                    bar.set_postfix(
-                        min_a_u=f"{np.mean([row['min_score'] for row in rows]):.1f}",
-                        clean=f"{np.mean([row['clean_score'] for row in rows]):.1f}",
-                        train_sps=f"{config.score_every * self.num_runs / train_seconds:.0f}",
-                    )
+                    bar.set_postfix(progress_postfix(rows, [run.missingness for run in self.runs]),
+                                    train_sps=f"{config.score_every * self.num_runs / train_seconds:.0f}")
                 if pause:
                     report(f"paused at {env_steps} of {config.planned_steps} env steps: another scoring interval "
                            f"would pass time_limit={config.time_limit:g} s; {self._kept_checkpoint()}; "

@@ -111,6 +111,15 @@ def test_experiment_cli_rejects_bad_input_with_one_line(args, message, tmp_path,
     assert len(stderr.strip().splitlines()) == 1, stderr
 
 
+def test_the_progress_bar_shows_min_score_per_mode():
+    from admissable_jax.host_loop import progress_postfix
+
+    rows = [{"min_score": low, "clean_score": clean} for low, clean in ((10, 50), (30, 70), (20, 60), (40, 80))]
+    assert progress_postfix(rows, ["adversarial"] * 4) == {"min_a_u": "25.0", "clean": "65.0"}
+    assert progress_postfix(rows, ["adversarial", "uniform", "adversarial", "uniform"]) == {
+        "min_a_u_adversarial": "15.0", "min_a_u_uniform": "35.0"}
+
+
 def test_pair_configs_name_one_directory_per_pair():
     pairs = pair_configs(ExperimentConfig(env="Hopper-v5", seeds=3, first_seed=4, modes="uniform,none"))
     assert [p.out for p in pairs] == [f"runs/fig1-hopper/{m}-s{s}" for m in ("uniform", "none") for s in (4, 5, 6)]
