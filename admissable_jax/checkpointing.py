@@ -9,8 +9,10 @@ from the run's own freshly built state on restore.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import shutil
+from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
@@ -89,33 +91,58 @@ class Checkpoints:
         self._set_aside_newer_than(step)
         return step, state
 
-    def read(self, like, step: int | None = None, resizable_leading_axis: bool = False) -> tuple[int, object]:
+    def read(self, like, step: int | None = None, resizable_leading_axis: bool = False,
+             part: Callable[[Any], Any] | None = None) -> tuple[int, object]:
         """:meth:`restore` without moving anything: for reading a run (a policy, an audit)
-        rather than continuing it."""
+        rather than continuing it. ``part`` (e.g. ``lambda state: state.sac``) reads only
+        that subtree of ``like`` from disk and returns it, not the replay buffer beside it
+        (GBs in a 1M-step run, more in an experiment's)."""
         step = self.step_to_restore(step)
         try:
-            return step, self._restore(like, step, resizable_leading_axis)
+            return step, self._restore(like, step, resizable_leading_axis, part)
         except CheckpointError as error:
             older = sorted((s for s in self._manager.all_steps() if s < step), reverse=True)
-            intact = next((s for s in older if self._readable(like, s, resizable_leading_axis)), None)
+            intact = next((s for s in older if self._readable(like, s, resizable_leading_axis, part)), None)
             offer = (f"checkpoint {intact} is intact: resume with resume_step={intact}" if intact is not None
                      else "no older checkpoint is intact")
             raise CheckpointError(f"{error}; {offer}") from error.__cause__
 
-    def _restore(self, like, step: int, resizable_leading_axis: bool = False):
-        abstract = jax.tree.map(_placed_shape, _non_empty_leaves(like))
+    def _restore(self, like, step: int, resizable_leading_axis: bool = False, part: Callable[[Any], Any] | None = None):
+        leaves, treedef = jax.tree.flatten(like)
+        wanted = {id(leaf) for leaf in jax.tree.leaves(part(like))} if part else {id(leaf) for leaf in leaves}
+        abstract = {key: _placed_shape(leaf) for key, leaf in _non_empty_leaves(like).items()}
         try:
             resize = resizable_leading_axis and self._differs_in_leading_axis_only(abstract, step)
-            saved = self._manager.restore(step, args=ocp.args.StandardRestore(abstract, strict=not resize))
+            if part:
+                saved = self._read_part(step, {key: shape for key, shape in abstract.items()
+                                               if id(leaves[int(key)]) in wanted}, strict=not resize)
+            else:
+                saved = self._manager.restore(step, args=ocp.args.StandardRestore(abstract, strict=not resize))
         except Exception as error:  # orbax raises many types for unreadable data
             first_line = str(error).strip().splitlines()[0][:200] if str(error).strip() else type(error).__name__
             raise CheckpointError(
                 f"checkpoint {step} in {self.directory} is corrupt or does not fit this run ({first_line})"
             ) from error
-        leaves, treedef = jax.tree.flatten(like)
         # Zero-size leaves were not saved: the run's own (or, for an abstract ``like``, zeros).
-        leaves = [saved[str(i)] if str(i) in saved else jnp.zeros(leaf.shape, leaf.dtype) for i, leaf in enumerate(leaves)]
-        return jax.tree.unflatten(treedef, leaves)
+        leaves = [leaf if id(leaf) not in wanted else saved[str(i)] if str(i) in saved
+                  else jnp.zeros(leaf.shape, leaf.dtype) for i, leaf in enumerate(leaves)]
+        restored = jax.tree.unflatten(treedef, leaves)
+        return part(restored) if part else restored
+
+    def _read_part(self, step: int, abstract: dict, strict: bool) -> dict:
+        """The leaves of checkpoint ``step`` that ``abstract`` names, and nothing else read
+        from disk: orbax's partial restore, which its StandardCheckpointHandler (the one
+        the manager writes with; the same files) does not offer."""
+        restore_args = ocp.checkpoint_utils.construct_restore_args(abstract)
+        if not strict:
+            restore_args = jax.tree.map(lambda arg: dataclasses.replace(arg, strict=False), restore_args)
+        reader = ocp.Checkpointer(ocp.PyTreeCheckpointHandler())
+        try:
+            return reader.restore(os.path.join(self.directory, str(step), ocp.checkpoint_manager.DEFAULT_ITEM_NAME),
+                                  args=ocp.args.PyTreeRestore(item=abstract, restore_args=restore_args,
+                                                              partial_restore=True))
+        finally:
+            reader.close()
 
     def _differs_in_leading_axis_only(self, abstract: dict, step: int) -> bool:
         """Whether checkpoint ``step`` holds the same leaves as ``abstract`` with the same
@@ -127,9 +154,10 @@ class Checkpoints:
         return (all(len(a) == len(b) > 0 and a[1:] == b[1:] for a, b in shapes)
                 and len({a[0] for a, _ in shapes}) == 1 and any(a[0] != b[0] for a, b in shapes))
 
-    def _readable(self, like, step: int, resizable_leading_axis: bool = False) -> bool:
+    def _readable(self, like, step: int, resizable_leading_axis: bool = False,
+                  part: Callable[[Any], Any] | None = None) -> bool:
         try:
-            self._restore(like, step, resizable_leading_axis)
+            self._restore(like, step, resizable_leading_axis, part)
         except CheckpointError:
             return False
         return True

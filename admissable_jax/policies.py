@@ -64,7 +64,8 @@ class TrainedPolicy:
 
 def load_policy(run_dir: str, step: int | None = None) -> TrainedPolicy:
     """The deterministic policy of the run in ``run_dir`` at checkpoint ``step`` (default:
-    the latest). FileNotFoundError/CheckpointError with one line when there is none."""
+    the latest). FileNotFoundError/CheckpointError with one line when there is none. Only
+    the networks are read from the checkpoint, not the replay buffers beside them."""
     config_path = os.path.join(run_dir, "config.yaml")
     if not os.path.isfile(config_path):
         raise FileNotFoundError(f"{run_dir} is not a run directory (no config.yaml)")
@@ -86,14 +87,15 @@ def load_policy(run_dir: str, step: int | None = None) -> TrainedPolicy:
         seeds = jnp.array([pair.seed for pair in pairs])
         flags = [jnp.array(flag) for flag in zip(*(mode_flags(pair.missingness) for pair in pairs))]
         like = jax.eval_shape(lambda: jax.vmap(trainer.init)(seeds, *flags))
-        pick = lambda state: take_pair(state, index)
+        pick = lambda tree: take_pair(tree, index)
         checkpoint_dir = os.path.join(experiment.out, "checkpoints")
     else:
         raise FileNotFoundError(f"{run_dir} has no checkpoints (no checkpoints/ and no experiment.yaml above it)")
     checkpoints = Checkpoints(checkpoint_dir)
-    try:  # an experiment's checkpoint may hold padding pairs after the real ones: cut off
-        restored_step, state = checkpoints.read(like, step, resizable_leading_axis=pick is not None)
+    try:  # the networks only; an experiment's checkpoint may hold padding pairs after the real ones: cut off
+        restored_step, sac = checkpoints.read(like, step, resizable_leading_axis=pick is not None,
+                                              part=lambda state: state.sac)
     finally:
         checkpoints.close()
-    sac = (pick(state) if pick else state).sac
+    sac = pick(sac) if pick else sac
     return TrainedPolicy(config, trainer, sac.actor_params, restored_step, sac.critic_params)

@@ -159,11 +159,20 @@ def test_loggers_mirror_the_jsonl_rows(point_mass_run):
         assert glob.glob(os.path.join(point_mass_run.run_dir, "wandb", f"offline-run-*-{file.read().strip()}"))
 
 
-def test_load_policy_is_the_trainers_deterministic_policy(point_mass_run):
-    """load_policy reads a run's checkpoint without touching it, and acts as scoring does."""
+def test_load_policy_is_the_trainers_deterministic_policy(point_mass_run, monkeypatch):
+    """load_policy reads a run's checkpoint without touching it, only its networks (not
+    the replay buffer beside them: GBs in a long run), and acts as scoring does."""
+    import orbax.checkpoint as ocp
+
+    asked = []
+    restore = ocp.Checkpointer.restore
+    monkeypatch.setattr(ocp.Checkpointer, "restore",
+                        lambda reader, path, **kwargs: asked.append(kwargs["args"].item) or restore(reader, path, **kwargs))
     run_dir = point_mass_run.run_dir
     before = sorted(os.listdir(os.path.join(run_dir, "checkpoints")))
     policy = load_policy(run_dir)
+    assert sorted(leaf.size for leaf in asked[0].values()) == sorted(
+        leaf.size for leaf in jax.tree.leaves(point_mass_run.state.sac) if leaf.size)
     assert policy.step == 6000
     obs = np.random.default_rng(0).normal(size=(7, 4)).astype(np.float32)
     expected = jax.vmap(point_mass_run.trainer.policy, (None, 0))(point_mass_run.actor_params,
