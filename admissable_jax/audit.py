@@ -1,6 +1,7 @@
 """Which sensors break a policy? A robustness audit over every set of k hidden features.
 
     python -m admissable_jax.audit RUN_DIR k=1,2 episodes=50 out=DIR [step=N]
+    python -m admissable_jax.audit EXPERIMENT_DIR k=1,2      # every pair, then comparison.md
 
 For every u with |u| in ``k`` (all C(d, |u|) sets, scored exactly: one batched rollout for
 all of them and the clean case, N = ``episodes`` deterministic episodes each from the same N
@@ -20,6 +21,11 @@ each k > 1 by beam search of width ``beam_width`` (:mod:`admissable_jax.scoring.
 ranking the candidates by ``ranker`` (rollout, or the critic's cheaper estimates), and
 scores only the finalists by ``score_estimator`` (by default rollouts confirm them): at most
 d + (k − 1) · b · d sets ranked instead of C(d, k). k = 1 is always scored exactly.
+
+Given an experiment's folder, every pair is audited so (into ``PAIR/audit-step<STEP>``, or
+``out/PAIR``) and ``comparison.md`` (in ``EXPERIMENT/audit-step<STEP>`` or ``out``) sets the
+modes side by side per k: each pair's worst a_u, mean ± 95% interval over seeds, and
+adversarial − uniform with Welch's interval (:func:`audit_experiment`).
 
 In Python, :func:`audit` takes any JAX ``policy_fn(params, masked_obs) -> action`` on any of
 our envs, and :func:`write_audit` writes its files.
@@ -47,7 +53,8 @@ SEARCHES = ("exact", "beam")
 
 @dataclasses.dataclass
 class AuditConfig:
-    run_dir: str = setting("", "a train run directory or an experiment pair's (may be given first, without run_dir=)")
+    run_dir: str = setting("", "a train run directory, an experiment pair's, or an experiment's folder (every pair, "
+                               "then comparison.md of the modes); may be given first, without run_dir=")
     k: str = setting("1", "set sizes to audit, comma separated (e.g. 1,2)")
     episodes: int = setting(50, "N: deterministic episodes per set (the CI narrows as 1/sqrt(N))")
     out: str = setting("", "where the report goes (default RUN_DIR/audit-step<STEP>)")
@@ -322,10 +329,74 @@ def audit_run(config: AuditConfig) -> tuple[AuditResult, list[str]]:
                    f"compiling included)"):
         result = audit(env, policy.trainer.policy, policy.actor_params, ks, config.episodes, config.seed, slots,
                        observation_names(train.env), {"run": os.path.abspath(config.run_dir),
-                                                      "checkpoint (env step)": policy.step},
+                                                      "checkpoint (env step)": policy.step,
+                                                      "mode": train.missingness, "seed": train.seed},
                        config.score_estimator, policy.trainer.critic_values, policy.critic_params,
                        config.score_horizon, train.gamma, config.search, config.beam_width, config.ranker)
     return result, write_audit(result, out, config.top)
+
+
+def is_experiment(path: str) -> bool:
+    return os.path.isfile(os.path.join(path, "experiment.yaml"))
+
+
+def audit_experiment(config: AuditConfig) -> tuple[list[AuditResult], list[str]]:
+    """Audit every (seed, mode) pair of the experiment in ``config.run_dir`` at the same
+    checkpoint, each into its own folder as :func:`audit_run` does (under ``out`` if given),
+    then compare the modes in ``comparison.md``: per k, each pair's worst a_u, mean ± 95%
+    t-interval over seeds per mode, and adversarial − uniform with Welch's interval. It
+    answers what the paper's Figure 1 cannot: does training against one missing feature
+    also protect against two?"""
+    check_audit_config(config)
+    root = config.run_dir
+    pairs = sorted(name for name in os.listdir(root) if os.path.isfile(os.path.join(root, name, "config.yaml")))
+    if not pairs:
+        raise FileNotFoundError(f"{root} holds an experiment.yaml but no pair directories")
+    results, written = [], []
+    for name in pairs:
+        result, files = audit_run(dataclasses.replace(
+            config, run_dir=os.path.join(root, name), out=os.path.join(config.out, name) if config.out else ""))
+        results.append(result)
+        written += files
+    out = config.out or os.path.join(root, f"audit-step{results[0].source['checkpoint (env step)']}")
+    make_directory(out, "audit folder")
+    written.append(os.path.join(out, "comparison.md"))
+    with open(written[-1], "w") as file:
+        file.write(compare_modes(results))
+    return results, written
+
+
+def compare_modes(results: list[AuditResult]) -> str:
+    """Markdown: per k and mode, the pairs' worst a_u and clean return (mean ± 95%
+    t-interval over seeds) and the set most often worst; then adversarial − uniform per k
+    (Welch's t: the seeds of one mode are independent of the other's)."""
+    from admissable_jax.plot import Difference, estimate
+
+    by_mode: dict[str, list[AuditResult]] = {}
+    for result in results:
+        by_mode.setdefault(result.source["mode"], []).append(result)
+    first = results[0]
+    lines = [f"# Robustness audit of an experiment: {first.env}, checkpoint {first.source['checkpoint (env step)']}", "",
+             f"Each pair audited as its own report says (N = {first.n_episodes} episodes per set, `{first.estimator}`); "
+             "here, per pair, the worst a_u over the sets of each size, then mean ± 95% t-interval over the seeds "
+             "of a mode. Where a k was searched (`search=beam`), the worst found is an upper bound on the worst.", "",
+             "| k | mode | seeds | worst a_u | most often worst | clean return |", "|---|---|---|---|---|---|"]
+    worst = {(k, mode): np.array([min(entry.score for entry in result.sets[k]) for result in group])
+             for mode, group in by_mode.items() for k in first.sets}
+    for k in first.sets:
+        for mode, group in sorted(by_mode.items()):
+            names = [", ".join(result.worst(k, 1)[0].names) for result in group]
+            common = max(set(names), key=names.count)
+            clean = np.array([result.clean_score for result in group])
+            lines.append(f"| {k} | {mode} | {len(group)} | {estimate(worst[(k, mode)])} | {common} "
+                         f"({names.count(common)} of {len(group)}) | {estimate(clean)} |")
+    if {"adversarial", "uniform"} <= set(by_mode):
+        lines += ["", "| k | adversarial − uniform, worst a_u | 95% interval (Welch) | p (two-sided) | reading |",
+                  "|---|---|---|---|---|"]
+        for k in first.sets:
+            difference = Difference(f"worst a_u, k={k}", worst[(k, "adversarial")], worst[(k, "uniform")])
+            lines.append(f"| {k} | {difference.cells()} |")
+    return "\n".join(lines) + "\n"
 
 
 def main(argv: list[str]) -> int:
@@ -333,15 +404,23 @@ def main(argv: list[str]) -> int:
                         "Which sensors break a policy? a_u of every set of k hidden features, with CIs, on one page.",
                         validate=check_audit_config, positional="run_dir")
     enable_compilation_cache()
-    outcome, status = run_from_cli(audit_run, config)
+    experiment = bool(config.run_dir) and is_experiment(config.run_dir)
+    outcome, status = run_from_cli(audit_experiment if experiment else audit_run, config)
     if status:
         return status
-    result, written = outcome
-    for k in result.sets:
-        (worst,) = result.worst(k, 1)
-        print(f"k={k}: worst {', '.join(worst.names)} ({list(worst.hidden)}): a_u {worst.score:.1f} ± {worst.ci95:.1f}, "
-              f"{worst.drop_percent:.1f}% below clean {result.clean_score:.1f}")
-    print(f"wrote {', '.join(written)}")
+    results, written = outcome if experiment else ([outcome[0]], outcome[1])
+    for result in results:
+        pair = f"{result.source['mode']} seed {result.source['seed']}: " if experiment else ""
+        for k in result.sets:
+            (worst,) = result.worst(k, 1)
+            print(f"{pair}k={k}: worst {', '.join(worst.names)} ({list(worst.hidden)}): a_u {worst.score:.1f} ± "
+                  f"{worst.ci95:.1f}, {worst.drop_percent:.1f}% below clean {result.clean_score:.1f}")
+    if experiment:
+        with open(written[-1]) as file:
+            print(file.read())
+        print(f"wrote each pair's report, audit.json and figures into its audit folder, and {written[-1]}")
+    else:
+        print(f"wrote {', '.join(written)}")
     return 0
 
 

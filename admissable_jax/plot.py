@@ -295,7 +295,8 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0) -> list[str]:
     return written
 
 
-def _estimate(values: np.ndarray) -> str:
+def estimate(values: np.ndarray) -> str:
+    """Per-seed values as text: "mean ± 95% t-interval half-width" (the mean alone for one seed)."""
     mean, low, _ = mean_and_interval(values[:, None])
     return f"{mean[0]:.1f} ± {mean[0] - low[0]:.1f}" if len(values) > 1 else f"{mean[0]:.1f}"
 
@@ -320,8 +321,8 @@ def summary_table(run_dirs: list[str]) -> str:
         steps, minimum = _aligned(runs, "min_score")
         _, clean = _aligned(runs, "clean_score")
         lines.append(
-            f"| {env} | {mode} | {len(runs)} | {int(steps[-1])} | {_estimate(minimum[:, -1])} | "
-            f"{_estimate(minimum.mean(axis=1))} | {_estimate(clean[:, -1])} |"
+            f"| {env} | {mode} | {len(runs)} | {int(steps[-1])} | {estimate(minimum[:, -1])} | "
+            f"{estimate(minimum.mean(axis=1))} | {estimate(clean[:, -1])} |"
         )
     return "\n".join(lines) + "\n"
 
@@ -358,6 +359,12 @@ class Difference:
             return "uniform higher"
         return "not distinguishable (95% interval holds 0)"
 
+    def cells(self) -> str:
+        """A markdown table's cells: difference | 95% interval | p | reading."""
+        interval = self.interval()
+        low_high, p = ("—", "—") if interval is None else (f"[{interval[0]:.1f}, {interval[1]:.1f}]", f"{interval[2]:.3g}")
+        return f"{self.mean:+.1f} | {low_high} | {p} | {self.reading()}"
+
 
 def mode_differences(run_dirs: list[str]) -> dict[str, list[Difference]]:
     """Per env with both adversarial and uniform runs: the paper's comparison (final and AUC
@@ -388,9 +395,7 @@ def comparison_table(run_dirs: list[str]) -> str:
              "|---|---|---|---|---|---|"]
     for env, rows in differences.items():
         for difference in rows:
-            interval = difference.interval()
-            low_high, p = ("—", "—") if interval is None else (f"[{interval[0]:.1f}, {interval[1]:.1f}]", f"{interval[2]:.3g}")
-            lines.append(f"| {env} | {difference.metric} | {difference.mean:+.1f} | {low_high} | {p} | {difference.reading()} |")
+            lines.append(f"| {env} | {difference.metric} | {difference.cells()} |")
     return "\n".join(lines) + "\n"
 
 

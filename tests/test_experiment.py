@@ -15,6 +15,8 @@ from admissable_jax import mask_observation
 from admissable_jax.experiment import ExperimentConfig, pair_configs, run_experiment
 from admissable_jax.plot import find_runs, plot_runs
 from admissable_jax.memory import MemoryBudgetExceeded
+from admissable_jax.audit import AuditConfig, audit_experiment
+from admissable_jax.audit import main as audit_main  # the command line, in this process
 from admissable_jax.policies import load_policy
 
 EXPERIMENT = dict(
@@ -28,11 +30,11 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 def _scores(root: str) -> dict[str, list]:
     return {
         name: [json.loads(line)["scores"] for line in open(os.path.join(root, name, "scores.jsonl"))]
-        for name in sorted(os.listdir(root)) if name not in ("checkpoints", "experiment.yaml", "figures")
+        for name in sorted(os.listdir(root)) if os.path.isfile(os.path.join(root, name, "scores.jsonl"))
     }
 
 
-def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path):
+def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys):
     straight = run_experiment(ExperimentConfig(**EXPERIMENT, total_steps=3000, out=str(tmp_path / "straight")))
     assert [(r.config.missingness, r.config.seed) for r in straight] == [
         ("adversarial", 0), ("adversarial", 1), ("uniform", 0), ("uniform", 1)]
@@ -52,6 +54,24 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path):
     expected = jax.vmap(straight[2].trainer.policy, (None, 0))(straight[2].actor_params, mask_observation(obs, np.array([0, 1, 0, 0])))
     assert policy.step == 3000 and policy.config.missingness == "uniform"
     np.testing.assert_allclose(policy(obs, hidden=[1]), expected, rtol=1e-5, atol=1e-6)
+    # The whole experiment audited: every pair into its own folder, then the modes compared per k.
+    results, written = audit_experiment(AuditConfig(run_dir=str(tmp_path / "straight"), k="1,2", episodes=3))
+    assert [(result.source["mode"], result.source["seed"]) for result in results] == [
+        ("adversarial", 0), ("adversarial", 1), ("uniform", 0), ("uniform", 1)]
+    assert written[-1] == str(tmp_path / "straight" / "audit-step3000" / "comparison.md")
+    assert os.path.isfile(tmp_path / "straight" / "uniform-s1" / "audit-step3000" / "report.md")
+    comparison = open(written[-1]).read()
+    for k in (1, 2):
+        worst = [min(entry.score for entry in result.sets[k]) for result in results[2:]]
+        assert f"| {k} | uniform | 2 | {np.mean(worst):.1f} ± " in comparison
+        gap = np.mean([min(e.score for e in r.sets[k]) for r in results[:2]]) - np.mean(worst)
+        assert f"| {k} | {gap:+.1f} | [" in comparison.split("adversarial − uniform")[1]
+    assert audit_main([str(tmp_path / "straight"), "k=1", "episodes=2", f"out={tmp_path / 'audits'}"]) == 0
+    said = capsys.readouterr().out
+    assert "uniform seed 1: k=1: worst" in said and "| 1 | adversarial | 2 |" in said
+    assert said.strip().endswith(f"and {tmp_path / 'audits' / 'comparison.md'}")
+    assert sorted(os.listdir(tmp_path / "audits")) == ["adversarial-s0", "adversarial-s1", "comparison.md",
+                                                       "uniform-s0", "uniform-s1"]
 
     resumed_root = str(tmp_path / "resumed")
     run_experiment(ExperimentConfig(**EXPERIMENT, total_steps=2000, out=resumed_root))
