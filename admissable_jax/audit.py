@@ -25,7 +25,8 @@ d + (k − 1) · b · d sets ranked instead of C(d, k). k = 1 is always scored e
 Given an experiment's folder, every pair is audited so (into ``PAIR/audit-step<STEP>``, or
 ``out/PAIR``) and ``comparison.md`` (in ``EXPERIMENT/audit-step<STEP>`` or ``out``) sets the
 modes side by side per k: each pair's worst a_u, mean ± 95% interval over seeds, and
-adversarial − uniform with Welch's interval (:func:`audit_experiment`).
+adversarial − uniform with Welch's interval; ``comparison.png`` draws it
+(:func:`audit_experiment`).
 
 In Python, :func:`audit` takes any JAX ``policy_fn(params, masked_obs) -> action`` on any of
 our envs, and :func:`write_audit` writes its files.
@@ -360,10 +361,55 @@ def audit_experiment(config: AuditConfig) -> tuple[list[AuditResult], list[str]]
         written += files
     out = config.out or os.path.join(root, f"audit-step{results[0].source['checkpoint (env step)']}")
     make_directory(out, "audit folder")
+    written.append(_comparison_chart(results, os.path.join(out, "comparison.png")))
     written.append(os.path.join(out, "comparison.md"))
     with open(written[-1], "w") as file:
-        file.write(compare_modes(results))
+        file.write(compare_modes(results) + "\n![worst a_u per k and mode](comparison.png)\n")
     return results, written
+
+
+def _worst_by_mode(results: list[AuditResult]) -> dict[str, dict[int, np.ndarray]]:
+    """Per mode and k: each pair's worst a_u (the lowest over the sets of that size)."""
+    by_mode: dict[str, dict[int, list[float]]] = {}
+    for result in results:
+        for k, entries in result.sets.items():
+            by_mode.setdefault(result.source["mode"], {}).setdefault(k, []).append(min(e.score for e in entries))
+    return {mode: {k: np.array(values) for k, values in per_k.items()} for mode, per_k in by_mode.items()}
+
+
+def _comparison_chart(results: list[AuditResult], path: str) -> str:
+    """Bars per k and mode: the mean of the pairs' worst a_u with its 95% t-interval, and
+    each pair's own as a dot."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from admissable_jax.plot import MODE_COLORS, mean_and_interval
+
+    worst = _worst_by_mode(results)
+    ks, modes = list(results[0].sets), sorted(worst)
+    width = 0.8 / len(modes)
+    figure, ax = plt.subplots(figsize=(max(5, 1.6 * len(ks) * len(modes)), 4))
+    for offset, mode in enumerate(modes):
+        x = np.arange(len(ks)) + (offset - (len(modes) - 1) / 2) * width
+        bounds = [mean_and_interval(worst[mode][k][:, None]) for k in ks]
+        means = np.array([mean[0] for mean, _, _ in bounds])
+        errors = np.array([[mean[0] - low[0] for mean, low, _ in bounds], [high[0] - mean[0] for mean, _, high in bounds]])
+        color = MODE_COLORS.get(mode, "black")
+        ax.bar(x, means, width, yerr=errors, capsize=3, color=color, alpha=0.6,
+               label=f"{mode} ({len(worst[mode][ks[0]])} seeds)")
+        for position, k in zip(x, ks):
+            ax.plot(np.full(len(worst[mode][k]), position), worst[mode][k], "o", color=color, markersize=3)
+    ax.set_xticks(range(len(ks)), [f"k = {k}" for k in ks])
+    ax.set_ylabel("worst $a_u$ over the sets of size k")
+    ax.set_title(f"{results[0].env}, checkpoint {results[0].source['checkpoint (env step)']}: "
+                 f"the worst hidden set per pair (bars: mean, 95% CI; dots: pairs)", fontsize=9)
+    ax.legend()
+    ax.grid(alpha=0.3, axis="y")
+    figure.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(figure)
+    return path
 
 
 def compare_modes(results: list[AuditResult]) -> str:
@@ -381,8 +427,8 @@ def compare_modes(results: list[AuditResult]) -> str:
              "here, per pair, the worst a_u over the sets of each size, then mean ± 95% t-interval over the seeds "
              "of a mode. Where a k was searched (`search=beam`), the worst found is an upper bound on the worst.", "",
              "| k | mode | seeds | worst a_u | most often worst | clean return |", "|---|---|---|---|---|---|"]
-    worst = {(k, mode): np.array([min(entry.score for entry in result.sets[k]) for result in group])
-             for mode, group in by_mode.items() for k in first.sets}
+    worst_by_mode = _worst_by_mode(results)
+    worst = {(k, mode): worst_by_mode[mode][k] for mode in by_mode for k in first.sets}
     for k in first.sets:
         for mode, group in sorted(by_mode.items()):
             names = [", ".join(result.worst(k, 1)[0].names) for result in group]

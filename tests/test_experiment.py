@@ -71,7 +71,7 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys):
     assert "uniform seed 1: k=1: worst" in said and "| 1 | adversarial | 2 |" in said
     assert said.strip().endswith(f"and {tmp_path / 'audits' / 'comparison.md'}")
     assert sorted(os.listdir(tmp_path / "audits")) == ["adversarial-s0", "adversarial-s1", "comparison.md",
-                                                       "uniform-s0", "uniform-s1"]
+                                                       "comparison.png", "uniform-s0", "uniform-s1"]
 
     resumed_root = str(tmp_path / "resumed")
     run_experiment(ExperimentConfig(**EXPERIMENT, total_steps=2000, out=resumed_root))
