@@ -312,27 +312,45 @@ def _pair_heatmap(result: AuditResult, path: str) -> str:
 def audit_run(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     """Audit the run in ``config.run_dir`` at ``config.step``; write the report."""
     check_audit_config(config)
-    import jax
-
-    from admissable_jax.envs import make_env, observation_names
     from admissable_jax.policies import load_policy
 
     policy = load_policy(config.run_dir, None if config.step < 0 else config.step)
+    return _audit_policy(config, policy, _audit_env(config, policy), policy.trainer)
+
+
+def _audit_env(config: AuditConfig, policy):
+    """The run's env, sized for every episode the audit steps at once (at most ``slots``)."""
+    from admissable_jax.envs import make_env
+
+    train = policy.config
+    return make_env(train.env, physics=train.physics, episode_length=train.episode_length,
+                    max_batch=_slots(config, policy))
+
+
+def _slots(config: AuditConfig, policy) -> int:
+    """Episodes stepped at once: all (sets + clean) × N, at most ``slots`` (or 4096)."""
+    episodes = (sum(num_candidate_sets(policy.observation_size, k) for k in _ks(config.k)) + 1) * config.episodes
+    return min(episodes, config.slots or 4096)
+
+
+def _audit_policy(config: AuditConfig, policy, env, trainer) -> tuple[AuditResult, list[str]]:
+    """Audit ``policy``'s networks with ``env`` and ``trainer``'s policy and critic functions
+    (an experiment passes its first pair's to every pair, so the rollout compiles once)."""
+    import jax
+
+    from admissable_jax.envs import observation_names
+
     out = config.out or os.path.join(config.run_dir, f"audit-step{policy.step}")
     make_directory(out, "audit folder")  # before the rollout, not after it
     train = policy.config
-    ks = _ks(config.k)
-    episodes = (sum(num_candidate_sets(policy.observation_size, k) for k in ks) + 1) * config.episodes
-    slots = min(episodes, config.slots or 4096)  # a bound on every batch the audit steps
-    env = make_env(train.env, physics=train.physics, episode_length=train.episode_length, max_batch=slots)
     with reporting(f"auditing checkpoint {policy.step} of {train.env} for k={config.k} ({config.search} search, "
                    f"{config.episodes} episodes per set, {env.physics_name} physics on {jax.default_backend()}; "
                    f"compiling included)"):
-        result = audit(env, policy.trainer.policy, policy.actor_params, ks, config.episodes, config.seed, slots,
-                       observation_names(train.env), {"run": os.path.abspath(config.run_dir),
-                                                      "checkpoint (env step)": policy.step,
-                                                      "mode": train.missingness, "seed": train.seed},
-                       config.score_estimator, policy.trainer.critic_values, policy.critic_params,
+        result = audit(env, trainer.policy, policy.actor_params, _ks(config.k), config.episodes, config.seed,
+                       _slots(config, policy), observation_names(train.env),
+                       {"run": os.path.abspath(config.run_dir), "checkpoint (env step)": policy.step,
+                        "mode": train.missingness, "seed": train.seed},
+                       config.score_estimator, trainer.critic_values, policy.critic_params,
                        config.score_horizon, train.gamma, config.search, config.beam_width, config.ranker)
     return result, write_audit(result, out, config.top)
 
@@ -353,10 +371,16 @@ def audit_experiment(config: AuditConfig) -> tuple[list[AuditResult], list[str]]
     pairs = sorted(name for name in os.listdir(root) if os.path.isfile(os.path.join(root, name, "config.yaml")))
     if not pairs:
         raise FileNotFoundError(f"{root} holds an experiment.yaml but no pair directories")
-    results, written = [], []
+    from admissable_jax.policies import load_policy
+
+    results, written, env, trainer = [], [], None, None
     for name in pairs:
-        result, files = audit_run(dataclasses.replace(
-            config, run_dir=os.path.join(root, name), out=os.path.join(config.out, name) if config.out else ""))
+        pair = dataclasses.replace(config, run_dir=os.path.join(root, name),
+                                   out=os.path.join(config.out, name) if config.out else "")
+        policy = load_policy(pair.run_dir, None if config.step < 0 else config.step)
+        if env is None:  # the pairs share one env and one network shape: their rollout compiles once
+            env, trainer = _audit_env(pair, policy), policy.trainer
+        result, files = _audit_policy(pair, policy, env, trainer)
         results.append(result)
         written += files
     out = config.out or os.path.join(root, f"audit-step{results[0].source['checkpoint (env step)']}")
@@ -432,7 +456,7 @@ def compare_modes(results: list[AuditResult]) -> str:
     for k in first.sets:
         for mode, group in sorted(by_mode.items()):
             names = [", ".join(result.worst(k, 1)[0].names) for result in group]
-            common = max(set(names), key=names.count)
+            common = max(names, key=names.count)  # ties: the first pair's
             clean = np.array([result.clean_score for result in group])
             lines.append(f"| {k} | {mode} | {len(group)} | {estimate(worst[(k, mode)])} | {common} "
                          f"({names.count(common)} of {len(group)}) | {estimate(clean)} |")
