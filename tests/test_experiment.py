@@ -15,7 +15,7 @@ from admissable_jax import mask_observation
 from admissable_jax.experiment import ExperimentConfig, pair_configs, run_experiment
 from admissable_jax.plot import find_runs, plot_runs
 from admissable_jax.memory import MemoryBudgetExceeded
-from admissable_jax.audit import AuditConfig, audit_experiment
+from admissable_jax.audit import AuditConfig, audit_experiment, audit_run
 from admissable_jax.audit import main as audit_main  # the command line, in this process
 from admissable_jax.policies import load_policy
 
@@ -60,6 +60,10 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys):
         ("adversarial", 0), ("adversarial", 1), ("uniform", 0), ("uniform", 1)]
     assert written[-1] == str(tmp_path / "straight" / "audit-step3000" / "comparison.md")
     assert os.path.isfile(tmp_path / "straight" / "uniform-s1" / "audit-step3000" / "report.md")
+    alone, _ = audit_run(AuditConfig(run_dir=str(tmp_path / "straight" / "uniform-s1"), k="1,2", episodes=3,
+                                     out=str(tmp_path / "alone")))  # its own env and policy function
+    for k in (1, 2):
+        np.testing.assert_allclose([e.score for e in alone.sets[k]], [e.score for e in results[3].sets[k]], rtol=1e-6)
     comparison = open(written[-1]).read()
     for k in (1, 2):
         worst = [min(entry.score for entry in result.sets[k]) for result in results[2:]]
