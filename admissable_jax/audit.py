@@ -39,7 +39,7 @@ import json
 import math
 import os
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -47,6 +47,11 @@ from admissable_jax.cli import enable_compilation_cache, parse_args, reporting, 
 from admissable_jax.errors import make_directory
 from admissable_jax.method import candidate_sets, num_candidate_sets
 from admissable_jax.scoring import SCORE_ESTIMATORS
+
+if TYPE_CHECKING:  # for the annotations only
+    from admissable_jax.envs import MjxEnv
+    from admissable_jax.policies import TrainedPolicy
+    from admissable_jax.training import Trainer
 
 MAX_AUDIT_EPISODES = 200_000  # sets × N stepped in one program; beyond it, audit fewer k or episodes
 SEARCHES = ("exact", "beam")
@@ -318,7 +323,7 @@ def audit_run(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     return _audit_policy(config, policy, _audit_env(config, policy), policy.trainer)
 
 
-def _audit_env(config: AuditConfig, policy):
+def _audit_env(config: AuditConfig, policy: TrainedPolicy) -> MjxEnv:
     """The run's env, sized for every episode the audit steps at once (at most ``slots``)."""
     from admissable_jax.envs import make_env
 
@@ -327,13 +332,14 @@ def _audit_env(config: AuditConfig, policy):
                     max_batch=_slots(config, policy))
 
 
-def _slots(config: AuditConfig, policy) -> int:
+def _slots(config: AuditConfig, policy: TrainedPolicy) -> int:
     """Episodes stepped at once: all (sets + clean) × N, at most ``slots`` (or 4096)."""
     episodes = (sum(num_candidate_sets(policy.observation_size, k) for k in _ks(config.k)) + 1) * config.episodes
     return min(episodes, config.slots or 4096)
 
 
-def _audit_policy(config: AuditConfig, policy, env, trainer) -> tuple[AuditResult, list[str]]:
+def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
+                  trainer: Trainer) -> tuple[AuditResult, list[str]]:
     """Audit ``policy``'s networks with ``env`` and ``trainer``'s policy and critic functions
     (an experiment passes its first pair's to every pair, so the rollout compiles once)."""
     import jax
