@@ -25,7 +25,8 @@ a shorter run over the same fifth of its records; a window longer than the runs'
 shortened to their length; the figures and the summary say which. ``python -m
 admissable_jax.plot runs/fig1-hopper [window=0] [out=DIR]``
 finds every run directory (one holding ``scores.jsonl``) under the given paths and writes
-into a new folder (``<first path>/figures``, or ``figures-2``, ... if that exists).
+into a new folder (``<first path>/figures``, or ``figures-2``, ... if that exists); runs of
+several envs get a subfolder of figures each and one summary.
 """
 
 from __future__ import annotations
@@ -425,9 +426,17 @@ def main(argv: list[str]) -> int:
         runs = find_runs(paths)
         if not runs:
             raise ValueError(f"no run directories (config.yaml + scores.jsonl) under {', '.join(paths)}")
-        smoothing = _window_note([load_run(path) for path in runs], config.window)
+        by_env: dict[str, list[str]] = collections.defaultdict(list)
+        for path in runs:
+            by_env[load_run(path).env].append(path)
+        notes = {env: _window_note([load_run(path) for path in env_runs], config.window)
+                 for env, env_runs in sorted(by_env.items())}
+        smoothing = "; ".join(notes.values()) if len(notes) == 1 else "; ".join(
+            f"{env}: {note}" for env, note in notes.items())
         out_dir = config.out or new_folder(os.path.join(paths[0], "figures"))
-        written = plot_runs(runs, out_dir, config.window)
+        written = []  # one env's figures in out_dir, several envs' each in out_dir/<env>
+        for env, env_runs in sorted(by_env.items()):
+            written += plot_runs(env_runs, out_dir if len(by_env) == 1 else os.path.join(out_dir, env), config.window)
         table = summary_table(runs)
         comparison = comparison_table(runs)
     except (ValueError, FileNotFoundError, KeyError, UnusableDirectory) as error:
@@ -441,7 +450,7 @@ def main(argv: list[str]) -> int:
         file.write(table)
     print(table)
     print(f"figures and summary.md written to {out_dir}/:")
-    print("\n".join(f"  {os.path.basename(path)}" for path in [*written, os.path.join(out_dir, "summary.md")]))
+    print("\n".join(f"  {os.path.relpath(path, out_dir)}" for path in [*written, os.path.join(out_dir, "summary.md")]))
     return 0
 
 

@@ -15,10 +15,10 @@ from admissable_jax.plot import (
 )
 
 
-def _fake_run(root, mode, seed, records=12, sets=11):
+def _fake_run(root, mode, seed, records=12, sets=11, env="hopper"):
     path = os.path.join(root, f"{mode}-s{seed}")
     os.makedirs(path)
-    OmegaConf.save(OmegaConf.structured(TrainConfig(env="hopper", missingness=mode, seed=seed)), os.path.join(path, "config.yaml"))
+    OmegaConf.save(OmegaConf.structured(TrainConfig(env=env, missingness=mode, seed=seed)), os.path.join(path, "config.yaml"))
     rng = np.random.default_rng(seed)
     with open(os.path.join(path, "scores.jsonl"), "w") as file:
         for t in range(records):
@@ -59,6 +59,14 @@ def test_plot_runs_writes_every_figure(tmp_path):
     assert height("p_miss_uniform") < 450 < height("p_miss_adversarial")
     with pytest.raises(FileNotFoundError):
         find_runs([str(tmp_path / "missing")])
+    # Runs of several envs from the command line: a figures subfolder per env, one summary.
+    _fake_run(str(tmp_path / "runs" / "walker"), "uniform", 0, sets=17, env="walker2d")
+    assert main([str(tmp_path / "runs"), f"out={tmp_path / 'both'}"]) == 0
+    assert sorted(os.listdir(tmp_path / "both")) == ["hopper", "summary.md", "walker2d"]
+    assert os.path.isfile(tmp_path / "both" / "walker2d" / "scores_uniform.png")
+    summary = (tmp_path / "both" / "summary.md").read_text()
+    assert "| walker2d | uniform | 1 |" in summary and "| hopper | adversarial | 3 |" in summary
+    assert "hopper: moving average over 2 records (the paper's 40 of 200, scaled to the runs' 12)" in summary
 
 
 def _run_with_minimums(root, mode, seed, minimums, final_clean, score_every=5000):
