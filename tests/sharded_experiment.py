@@ -1,8 +1,9 @@
 """Run by tests/test_sharding.py in a process of its own with 4 CPU devices
 (``XLA_FLAGS=--xla_force_host_platform_device_count=4``, which must be set before JAX
 starts): one point-mass experiment of 4 pairs on 4 devices and on 1, then its checkpoint
-read back onto 3 devices (4 pairs padded to 6) and trained on there; and the padding
-slots that such a restore leaves, refilled with the last pair.
+read back onto 3 devices (4 pairs padded to 6) and trained on there; the padding slots
+that such a restore leaves, refilled with the last pair; and one pair's policy read from
+that padded checkpoint.
 
     python tests/sharded_experiment.py OUT
 
@@ -24,6 +25,7 @@ import numpy as np
 
 from admissable_jax.experiment import ExperimentConfig, run_experiment
 from admissable_jax.placement import PairPlacement
+from admissable_jax.policies import load_policy
 
 EXPERIMENT = dict(
     env="point_mass", seeds=2, modes="adversarial,uniform", score_every=1000, num_envs=4, physics="jax",
@@ -61,7 +63,12 @@ def main(out: str) -> None:
         "restored_pairs": [f"{r.config.missingness}-s{r.config.seed}" for r in restored],
         "restored_vs_saved": max(largest_difference(a.state, b.state) for a, b in zip(four, restored)),
         "resumed_steps": [[row["env_steps"] for row in r.scores] for r in resumed],
+        "resumed_pairs": [f"{r.config.missingness}-s{r.config.seed}" for r in resumed],
         "resumed_finite": all(np.isfinite(row["min_score"]) for r in resumed for row in r.scores),
+        # The resumed run's last checkpoint holds 6 pairs (4 padded to 3 devices × 2); a
+        # pair's policy reads its networks alone and cuts the padding off.
+        "policy_vs_resumed": largest_difference(
+            load_policy(os.path.join(out, "four", "uniform-s1")).actor_params, resumed[3].actor_params),
         "stderr": printed.getvalue(),
     }
     with open(os.path.join(out, "report.json"), "w") as file:
