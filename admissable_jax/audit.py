@@ -457,20 +457,19 @@ def compare_modes(results: list[AuditResult]) -> str:
              "here, per pair, the worst a_u over the sets of each size, then mean ± 95% t-interval over the seeds "
              "of a mode. Where a k was searched (`search=beam`), the worst found is an upper bound on the worst.", "",
              "| k | mode | seeds | worst a_u | most often worst | clean return |", "|---|---|---|---|---|---|"]
-    worst_by_mode = _worst_by_mode(results)
-    worst = {(k, mode): worst_by_mode[mode][k] for mode in by_mode for k in first.sets}
+    worst = _worst_by_mode(results)
     for k in first.sets:
         for mode, group in sorted(by_mode.items()):
             names = [", ".join(result.worst(k, 1)[0].names) for result in group]
             common = max(names, key=names.count)  # ties: the first pair's
             clean = np.array([result.clean_score for result in group])
-            lines.append(f"| {k} | {mode} | {len(group)} | {estimate(worst[(k, mode)])} | {common} "
+            lines.append(f"| {k} | {mode} | {len(group)} | {estimate(worst[mode][k])} | {common} "
                          f"({names.count(common)} of {len(group)}) | {estimate(clean)} |")
     if {"adversarial", "uniform"} <= set(by_mode):
         lines += ["", "| k | adversarial − uniform, worst a_u | 95% interval (Welch) | p (two-sided) | reading |",
                   "|---|---|---|---|---|"]
         for k in first.sets:
-            difference = Difference(f"worst a_u, k={k}", worst[(k, "adversarial")], worst[(k, "uniform")])
+            difference = Difference(f"worst a_u, k={k}", worst["adversarial"][k], worst["uniform"][k])
             lines.append(f"| {k} | {difference.cells()} |")
     return "\n".join(lines) + "\n"
 

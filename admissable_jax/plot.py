@@ -426,17 +426,18 @@ def main(argv: list[str]) -> int:
         runs = find_runs(paths)
         if not runs:
             raise ValueError(f"no run directories (config.yaml + scores.jsonl) under {', '.join(paths)}")
-        by_env: dict[str, list[str]] = collections.defaultdict(list)
+        by_env: dict[str, list[Run]] = collections.defaultdict(list)
         for path in runs:
-            by_env[load_run(path).env].append(path)
-        notes = {env: _window_note([load_run(path) for path in env_runs], config.window)
-                 for env, env_runs in sorted(by_env.items())}
+            run = load_run(path)
+            by_env[run.env].append(run)
+        notes = {env: _window_note(env_runs, config.window) for env, env_runs in sorted(by_env.items())}
         smoothing = "; ".join(notes.values()) if len(notes) == 1 else "; ".join(
             f"{env}: {note}" for env, note in notes.items())
         out_dir = config.out or new_folder(os.path.join(paths[0], "figures"))
         written = []  # one env's figures in out_dir, several envs' each in out_dir/<env>
         for env, env_runs in sorted(by_env.items()):
-            written += plot_runs(env_runs, out_dir if len(by_env) == 1 else os.path.join(out_dir, env), config.window)
+            written += plot_runs([run.path for run in env_runs], out_dir if len(by_env) == 1 else os.path.join(out_dir, env),
+                                 config.window)
         table = summary_table(runs)
         comparison = comparison_table(runs)
     except (ValueError, FileNotFoundError, KeyError, UnusableDirectory) as error:
