@@ -139,6 +139,12 @@ class AuditResult:
     def worst(self, k: int, top: int) -> list[SetScore]:
         return sorted(self.sets[k], key=lambda entry: entry.score)[:top]
 
+    def mean(self, k: int) -> float:
+        """The mean a_u over all sets of size k: the average case (u drawn uniformly), where
+        the paper warns a weak spot hides. NaN where k was searched (its finalists are the
+        worst found, not all the sets)."""
+        return float("nan") if k in self.search else float(np.mean([entry.score for entry in self.sets[k]]))
+
 
 def _ci95(returns: np.ndarray) -> float:
     from scipy import stats
@@ -201,13 +207,17 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
         for hidden_row in block:
             hidden = tuple(int(i) for i in np.flatnonzero(hidden_row))
             score_ = float(returns[row].mean())
-            drop = 100.0 * (clean_score - score_) / abs(clean_score) if clean_score else float("nan")
-            entries.append(SetScore(hidden, tuple(names[i] for i in hidden), score_, _ci95(returns[row]), drop,
-                                    returns[row].tolist()))
+            entries.append(SetScore(hidden, tuple(names[i] for i in hidden), score_, _ci95(returns[row]),
+                                    _drop(clean_score, score_), returns[row].tolist()))
             row += 1
         sets[k] = entries
     return AuditResult(env.name, estimator, n_episodes, clean_score, _ci95(clean), clean.tolist(), sets, list(names),
                        source or {}, search_info)
+
+
+def _drop(clean_score: float, score: float) -> float:
+    """How far ``score`` lies below the clean return, in percent of it."""
+    return 100.0 * (clean_score - score) / abs(clean_score) if clean_score else float("nan")
 
 
 def _check_size(env, num_sets: int, n_episodes: int, ks, search: str) -> None:
@@ -256,7 +266,10 @@ def _report(result: AuditResult, top: int, figures: list[str]) -> str:
                       f"are scored here as every set above. A search may miss the worst set: "
                       f"`search=exact` scores them all.", ""]
         else:
-            lines += [f"## k = {k}: the {len(worst)} worst of {len(entries)} sets", ""]
+            lines += [f"## k = {k}: the {len(worst)} worst of {len(entries)} sets", "",
+                      f"Mean over all {len(entries)} sets (the average case, u drawn uniformly): "
+                      f"{result.mean(k):.1f}, {_drop(result.clean_score, result.mean(k)):.1f}% below clean; "
+                      f"the worst: {worst[0].score:.1f}.", ""]
         lines += ["| rank | hidden features | indices | a_u ± 95% CI | drop |", "|---|---|---|---|---|"]
         for rank, entry in enumerate(worst, 1):
             lines.append(f"| {rank} | {', '.join(entry.names)} | {', '.join(map(str, entry.hidden))} | "
@@ -400,10 +413,15 @@ def audit_experiment(config: AuditConfig) -> tuple[list[AuditResult], list[str]]
 
 def _worst_by_mode(results: list[AuditResult]) -> dict[str, dict[int, np.ndarray]]:
     """Per mode and k: each pair's worst a_u (the lowest over the sets of that size)."""
+    return _per_pair_by_mode(results, lambda result, k: min(entry.score for entry in result.sets[k]))
+
+
+def _per_pair_by_mode(results: list[AuditResult], measure) -> dict[str, dict[int, np.ndarray]]:
+    """Per mode and k: ``measure(result, k)`` of each pair, in pair order."""
     by_mode: dict[str, dict[int, list[float]]] = {}
     for result in results:
-        for k, entries in result.sets.items():
-            by_mode.setdefault(result.source["mode"], {}).setdefault(k, []).append(min(e.score for e in entries))
+        for k in result.sets:
+            by_mode.setdefault(result.source["mode"], {}).setdefault(k, []).append(measure(result, k))
     return {mode: {k: np.array(values) for k, values in per_k.items()} for mode, per_k in by_mode.items()}
 
 
@@ -443,8 +461,9 @@ def _comparison_chart(results: list[AuditResult], path: str) -> str:
 
 
 def compare_modes(results: list[AuditResult]) -> str:
-    """Markdown: per k and mode, the pairs' worst a_u and clean return (mean ± 95%
-    t-interval over seeds) and the set most often worst; then adversarial − uniform per k
+    """Markdown: per k and mode, the pairs' worst a_u, their mean a_u over the sets (the
+    average case; not for a searched k) and clean return (mean ± 95% t-interval over seeds)
+    and the set most often worst; then adversarial − uniform per k on the worst and the mean
     (Welch's t: the seeds of one mode are independent of the other's)."""
     from admissable_jax.plot import Difference, estimate
 
@@ -454,23 +473,29 @@ def compare_modes(results: list[AuditResult]) -> str:
     first = results[0]
     lines = [f"# Robustness audit of an experiment: {first.env}, checkpoint {first.source['checkpoint (env step)']}", "",
              f"Each pair audited as its own report says (N = {first.n_episodes} episodes per set, `{first.estimator}`); "
-             "here, per pair, the worst a_u over the sets of each size, then mean ± 95% t-interval over the seeds "
-             "of a mode. Where a k was searched (`search=beam`), the worst found is an upper bound on the worst.", "",
-             "| k | mode | seeds | worst a_u | most often worst | clean return |", "|---|---|---|---|---|---|"]
-    worst = _worst_by_mode(results)
+             "here, per pair, the worst a_u over the sets of each size and the mean a_u over them (the average case, "
+             "u drawn uniformly), then mean ± 95% t-interval over the seeds of a mode. Where a k was searched "
+             "(`search=beam`), the worst found is an upper bound on the worst, and there is no mean.", "",
+             "| k | mode | seeds | worst a_u | mean a_u over the sets | most often worst | clean return |",
+             "|---|---|---|---|---|---|---|"]
+    measures = {"worst a_u": _worst_by_mode(results), "mean a_u": _per_pair_by_mode(results, AuditResult.mean)}
     for k in first.sets:
         for mode, group in sorted(by_mode.items()):
             names = [", ".join(result.worst(k, 1)[0].names) for result in group]
             common = max(names, key=names.count)  # ties: the first pair's
             clean = np.array([result.clean_score for result in group])
-            lines.append(f"| {k} | {mode} | {len(group)} | {estimate(worst[mode][k])} | {common} "
+            average = measures["mean a_u"][mode][k]
+            lines.append(f"| {k} | {mode} | {len(group)} | {estimate(measures['worst a_u'][mode][k])} | "
+                         f"{'—' if np.isnan(average).any() else estimate(average)} | {common} "
                          f"({names.count(common)} of {len(group)}) | {estimate(clean)} |")
     if {"adversarial", "uniform"} <= set(by_mode):
-        lines += ["", "| k | adversarial − uniform, worst a_u | 95% interval (Welch) | p (two-sided) | reading |",
-                  "|---|---|---|---|---|"]
+        lines += ["", "| k | measure | adversarial − uniform | 95% interval (Welch) | p (two-sided) | reading |",
+                  "|---|---|---|---|---|---|"]
         for k in first.sets:
-            difference = Difference(f"worst a_u, k={k}", worst["adversarial"][k], worst["uniform"][k])
-            lines.append(f"| {k} | {difference.cells()} |")
+            for name, per_mode in measures.items():
+                if not np.isnan(per_mode["adversarial"][k]).any():
+                    difference = Difference(f"{name}, k={k}", per_mode["adversarial"][k], per_mode["uniform"][k])
+                    lines.append(f"| {k} | {name} | {difference.cells()} |")
     return "\n".join(lines) + "\n"
 
 
@@ -488,8 +513,9 @@ def main(argv: list[str]) -> int:
         pair = f"{result.source['mode']} seed {result.source['seed']}: " if experiment else ""
         for k in result.sets:
             (worst,) = result.worst(k, 1)
+            average = "" if math.isnan(result.mean(k)) else f"; mean over the {len(result.sets[k])} sets {result.mean(k):.1f}"
             print(f"{pair}k={k}: worst {', '.join(worst.names)} ({list(worst.hidden)}): a_u {worst.score:.1f} ± "
-                  f"{worst.ci95:.1f}, {worst.drop_percent:.1f}% below clean {result.clean_score:.1f}")
+                  f"{worst.ci95:.1f}, {worst.drop_percent:.1f}% below clean {result.clean_score:.1f}{average}")
     if experiment:
         with open(written[-1]) as file:
             print(file.read())

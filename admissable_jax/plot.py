@@ -8,8 +8,9 @@ and PDF:
 
 * ``min_score.*`` — the paper's Figure 1: min_u a_u against env steps, one line per mode
   (adversarial blue, uniform red, as in the paper; none grey), the mean over seeds of the
-  moving average over ``window`` records, shaded with a 95% t-interval over seeds; a
-  second panel shows the clean return (nothing hidden) the same way;
+  moving average over ``window`` records, shaded with a 95% t-interval over seeds; beside
+  it, on the same scale, mean_u a_u (the average case: where the paper warns a weak spot
+  hides) and the clean return (nothing hidden) the same way;
 * ``scores_<mode>.*`` — a_u for every missing set over time (mean over seeds), a heatmap
   whose rows are named after Gymnasium's observation entries ("torso z", ...) and whose
   cells are centred on their scoring steps;
@@ -17,8 +18,9 @@ and PDF:
   note that it stayed uniform; for a run with a candidate pool (``pool_size`` > 0), whose
   scored sets change every round, both heatmaps have a row per feature instead: the lowest
   a_u of the pool's sets that hide it (blank where none does) and the p_miss mass on them;
-* ``summary.md`` (CLI) — :func:`summary_table`: final and AUC min_u a_u per mode, and
-  :func:`comparison_table`: adversarial − uniform with Welch's 95% interval and p-value.
+* ``summary.md`` (CLI) — :func:`summary_table`: final and AUC min_u a_u, final mean_u a_u
+  (the average over U) and clean return per mode, and :func:`comparison_table`: adversarial
+  − uniform on each with Welch's 95% interval and p-value.
 
 The default ``window=0`` smooths as the paper's Figure 1 does (40 of its 200 records), and
 a shorter run over the same fifth of its records; a window longer than the runs' records is
@@ -64,6 +66,7 @@ class Run:
     env_steps: np.ndarray  # (T,)
     scores: np.ndarray  # (T, |U|) a_u; with a pool (T, d): the lowest a_u of the pool's sets hiding each feature
     min_score: np.ndarray  # (T,)
+    mean_score: np.ndarray  # (T,) mean_u a_u over U, the average case; NaN with a pool (it scores only its sets)
     clean_score: np.ndarray  # (T,)
     p_miss: np.ndarray  # (T, |U|); with a pool (T, d): the p_miss mass on the pool's sets hiding each feature
     set_names: list[str]  # (|U|,) the hidden features of each candidate set; with a pool each feature's name
@@ -101,9 +104,10 @@ def load_run(path: str) -> Run:
     elif scores.ndim != 2 or scores.shape[1] != len(names) or p_miss.shape != scores.shape:
         raise ValueError(f"{scores_path}: each row must hold {len(names)} scores and p_miss values "
                          f"(one per set of {config.env} with k={config.k}), got {scores.shape[1:]} and {p_miss.shape[1:]}")
+    mean_score = np.full(len(rows), np.nan) if pooled else scores.mean(axis=1)
     return Run(
         path=path, env=str(config.env), mode=str(config.missingness), seed=int(config.seed),
-        env_steps=column("env_steps"), scores=scores, min_score=column("min_score"),
+        env_steps=column("env_steps"), scores=scores, min_score=column("min_score"), mean_score=mean_score,
         clean_score=column("clean_score"), p_miss=p_miss, set_names=names,
         score_episodes=int(config.score_episodes), pooled=pooled, uniform_draws=uniform_draws,
     )
@@ -195,9 +199,11 @@ def _window_note(runs: list[Run], window: int) -> str:
 def _figure_caption(runs: list[Run], window: int) -> str:
     """What Figure 1 shows, in words under it: a_u, the smoothing, the dots, the band."""
     episodes = sorted({run.score_episodes for run in runs})
+    average = ("" if any(run.pooled for run in runs) else
+               "; $\\mathrm{mean}_u\\, a_u$: the mean over all u (the average case, u drawn uniformly)")
     shaded = "; shaded: 95% t-interval over seeds" if max(collections.Counter(run.mode for run in runs).values()) > 1 else ""
     return (f"$a_u$: mean undiscounted return of N = {'/'.join(map(str, episodes))} deterministic episodes with the "
-            f"features u hidden; $\\mathrm{{min}}_u\\, a_u$: the worst u at each scoring.\n"
+            f"features u hidden; $\\mathrm{{min}}_u\\, a_u$: the worst u at each scoring{average}.\n"
             f"Lines: mean over seeds of the trailing {_window_note(runs, window)}{shaded}; dots: each record "
             f"unsmoothed (the summary's 'final' is the last dot).")
 
@@ -251,22 +257,27 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0) -> list[str]:
     make_directory(out_dir, "figures folder")
     written = []
 
-    figure, (ax_min, ax_clean) = plt.subplots(1, 2, figsize=(11, 4))
+    # The worst case (Figure 1), the average case where all of U was scored, and the clean
+    # return, on one y scale: the gaps between them are what the modes trade.
+    panels = [("min_score", "adversarial performance $\\mathrm{min}_u\\, a_u$")]
+    if not any(run.pooled for run in runs):
+        panels.append(("mean_score", "average over hidden sets $\\mathrm{mean}_u\\, a_u$"))
+    panels.append(("clean_score", "clean return (nothing hidden)"))
+    figure, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 4), sharey=True)
     for mode, mode_runs in sorted(by_mode.items()):
-        for ax, attribute in ((ax_min, "min_score"), (ax_clean, "clean_score")):
+        for ax, (attribute, _) in zip(axes, panels):
             steps, values = _aligned(mode_runs, attribute)
             mean, low, high = mean_and_interval(moving_average(values, used))
             color = MODE_COLORS.get(mode, "black")
             ax.plot(steps, mean, color=color, label=f"{mode} ({_seeds(len(mode_runs))})")
             ax.fill_between(steps, low, high, color=color, alpha=0.2, linewidth=0)
             ax.plot(steps, values.mean(axis=0), ".", color=color, alpha=0.35, markersize=3)
-    ax_min.set_title(f"{envs[0]}: adversarial performance $\\mathrm{{min}}_u\\, a_u$")
-    ax_clean.set_title(f"{envs[0]}: clean return (nothing hidden)")
-    for ax in (ax_min, ax_clean):
+    for ax, (_, title) in zip(axes, panels):
+        ax.set_title(f"{envs[0]}: {title}", fontsize=10)
         ax.set_xlabel("env steps")
-        ax.set_ylabel("return")
         ax.grid(alpha=0.3)
         ax.legend()
+    axes[0].set_ylabel("return")
     figure.suptitle(_figure_caption(runs, window), fontsize=9, y=-0.02, va="top")
     written += _save(figure, out_dir, "min_score")
 
@@ -310,20 +321,24 @@ def _by_env_and_mode(run_dirs: list[str]) -> dict[tuple[str, str], list[Run]]:
 
 
 def summary_table(run_dirs: list[str]) -> str:
-    """Markdown table per mode: final and area-under-curve min_u a_u and the final clean
-    return, mean ± 95% t-interval half-width over seeds. The AUC is the mean of min_u a_u
-    over all records (the area under the curve divided by its length in records)."""
+    """Markdown table per mode: final and area-under-curve min_u a_u, the final mean_u a_u
+    (the average case; "—" for runs with a pool, which score only its sets) and the final
+    clean return, mean ± 95% t-interval half-width over seeds. The AUC is the mean of
+    min_u a_u over all records (the area under the curve divided by its length in records)."""
     by_mode = _by_env_and_mode(run_dirs)
     lines = [
-        "| env | mode | seeds | env steps | final min_u a_u | AUC min_u a_u (mean over records) | final clean return |",
-        "|---|---|---|---|---|---|---|",
+        "| env | mode | seeds | env steps | final min_u a_u | AUC min_u a_u (mean over records) | final mean_u a_u "
+        "| final clean return |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for (env, mode), runs in sorted(by_mode.items()):
         steps, minimum = _aligned(runs, "min_score")
+        _, average = _aligned(runs, "mean_score")
         _, clean = _aligned(runs, "clean_score")
+        final_average = "—" if np.isnan(average[:, -1]).any() else estimate(average[:, -1])
         lines.append(
             f"| {env} | {mode} | {len(runs)} | {int(steps[-1])} | {estimate(minimum[:, -1])} | "
-            f"{estimate(minimum.mean(axis=1))} | {estimate(clean[:, -1])} |"
+            f"{estimate(minimum.mean(axis=1))} | {final_average} | {estimate(clean[:, -1])} |"
         )
     return "\n".join(lines) + "\n"
 
@@ -369,21 +384,24 @@ class Difference:
 
 def mode_differences(run_dirs: list[str]) -> dict[str, list[Difference]]:
     """Per env with both adversarial and uniform runs: the paper's comparison (final and AUC
-    min_u a_u) and the price of robustness (final clean return), adversarial − uniform."""
+    min_u a_u), the average case (final mean_u a_u; not for runs with a pool) and the price
+    of robustness (final clean return), adversarial − uniform. The paper's point is that the
+    first may differ where the second does not: a weak spot averaged away."""
     by_mode = _by_env_and_mode(run_dirs)
     differences = {}
     for env in sorted({env for env, _ in by_mode}):
         if (env, "adversarial") not in by_mode or (env, "uniform") not in by_mode:
             continue
         # Both modes over the records every run of the env shares, so the AUCs cover the same steps.
-        _, minimum = _aligned(by_mode[(env, "adversarial")] + by_mode[(env, "uniform")], "min_score")
-        _, clean = _aligned(by_mode[(env, "adversarial")] + by_mode[(env, "uniform")], "clean_score")
+        both = by_mode[(env, "adversarial")] + by_mode[(env, "uniform")]
+        _, minimum = _aligned(both, "min_score")
+        _, average = _aligned(both, "mean_score")
+        _, clean = _aligned(both, "clean_score")
+        metrics = [("final min_u a_u", minimum[:, -1]), ("AUC min_u a_u", minimum.mean(axis=1)),
+                   ("final mean_u a_u", average[:, -1]), ("final clean return", clean[:, -1])]
         n = len(by_mode[(env, "adversarial")])
-        differences[env] = [
-            Difference(name, values[:n], values[n:]) for name, values in (
-                ("final min_u a_u", minimum[:, -1]), ("AUC min_u a_u", minimum.mean(axis=1)),
-                ("final clean return", clean[:, -1]))
-        ]
+        differences[env] = [Difference(name, values[:n], values[n:]) for name, values in metrics
+                            if not np.isnan(values).any()]
     return differences
 
 

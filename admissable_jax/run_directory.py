@@ -81,15 +81,20 @@ def score_row(env_steps: int, scores: MissingnessScores, p_miss, hidden_sets, es
     and which estimator made the scores (``rollout``: the paper's undiscounted returns;
     ``critic``/``horizon``: discounted values, whose ``mean_episode_length`` counts the
     physics steps each estimate ran). ``hidden_sets`` are the scored sets' rows; ``listed``
-    adds them as ``sets`` (a pool's sets change from row to row; U's are the same in all)."""
+    adds them as ``sets`` (a pool's sets change from row to row; U's are the same in all).
+    A row that scores all of U also holds ``mean_score``, the mean of a_u over U: the
+    average case beside the worst (the return when u is drawn uniformly from U, which is
+    what uniform training optimises); a pool's row has none, its sets being the worst found."""
     argmin = int(scores.argmin)
     sets = {"sets": [describe_set(row) for row in np.asarray(hidden_sets)]} if listed else {}
+    average = {} if listed else {"mean_score": float(np.mean(scores.scores))}
     return {
         "env_steps": env_steps,
         "score_estimator": estimator,
         "min_score": float(scores.min_score),
         "argmin": argmin,
         "argmin_set": describe_set(np.asarray(hidden_sets[argmin])),
+        **average,
         "clean_score": float(scores.clean_score),
         "scores": np.asarray(scores.scores).tolist(),
         "p_miss": np.asarray(p_miss).tolist(),

@@ -7,9 +7,10 @@
 Each ``ENV=DIR`` is an experiment's folder (its ``<mode>-s<seed>/`` run directories with
 ``config.yaml`` and ``scores.jsonl``, as ``gpu_campaign.sh`` brings them back). Per env it
 draws the figures (``plot_runs``, into a new ``DIR/figures``), and writes: the settings the
-runs used; final and AUC min_u a_u and the final clean return per mode, mean ± 95%
-t-interval over seeds (``summary_table``); adversarial − uniform with Welch's 95% interval
-and p-value (``comparison_table``); the verdict those numbers give, in words; and mode
+runs used; final and AUC min_u a_u, the final mean_u a_u (the average over U) and the
+final clean return per mode, mean ± 95% t-interval over seeds (``summary_table``);
+adversarial − uniform on each with Welch's 95% interval and p-value (``comparison_table``);
+the verdict those numbers give, in words; and mode
 ``none``'s clean return against the SB3 RL-Zoo SAC at 1M env steps; and what the runs cost,
 from their ``metrics.jsonl`` (seconds per training chunk and per scoring round), with a
 1M-step run projected from it where they stopped short. Everything in the
@@ -151,7 +152,7 @@ def env_section(env: str, folder: str, window: int, out_file: str) -> tuple[str,
         *(f"- {_verdict(difference)}" for difference in differences),
         f"- {_clean_sac_line(env, runs)}", "",
         _cost_line(run_dirs), "",
-        f"![min_u a_u and clean return]({figure})", "",
+        f"![min_u a_u, mean_u a_u and clean return]({figure})", "",
     ]
     rows = [f"| {env} | {steps:,} | {d.metric} | {d.mean:+.1f} | {d.reading()} |" for d in differences[:2]]
     return "\n".join(lines), rows

@@ -8,6 +8,7 @@ JSON and against ``score_missingness``.
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 
@@ -116,6 +117,9 @@ def test_beam_search_finds_the_known_worst_pair():
     assert len(result.sets[2]) == 2 and result.worst(2, 1)[0].hidden == (0, 1)
     assert result.worst(2, 1)[0].score == pytest.approx(float(exact.min()), rel=1e-5)
     assert result.search[2]["ranker"] == "rollout" and 4 < result.search[2]["sets_ranked"] <= 4 + 2 * 3
+    # The average case over the exact k = 1 sets; none over a searched k's finalists.
+    assert result.mean(1) == pytest.approx(float(np.mean(rollout_scores(candidate_sets(4, k=1)))), rel=1e-5)
+    assert math.isnan(result.mean(2))
     with pytest.raises(ValueError, match="score_estimator=critic needs the critic"):
         audit(ENV, steer, gain, ks=(2,), n_episodes=2, search="beam", ranker="critic")
 
@@ -174,6 +178,8 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
     for k in ("1", "2"):
         worst = sorted(record["sets"][k], key=lambda entry: entry["score"])
         section = report.split(f"## k = {k}:")[1].split("##")[0]
+        average = np.mean([entry["score"] for entry in record["sets"][k]])  # the average case, beside the worst
+        assert f"Mean over all {len(worst)} sets (the average case, u drawn uniformly): {average:.1f}, " in section
         table = re.findall(r"^\| (\d+) \| ([^|]+) \| ([^|]+) \| ([-\d.]+) ± ([\d.]+) \| ([-\d.]+)% \|$", section, re.M)
         assert len(table) == len(worst)
         for (rank, names, _, score, ci, drop), entry in zip(table, worst):
@@ -208,7 +214,8 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
     assert beam_record["search"]["2"]["ranker"] == "critic" and beam_record["estimator"] == "rollout"
     assert sorted(os.listdir(beam_out)) == ["audit.json", "report.md"]
     with open(os.path.join(beam_out, "report.md")) as file:
-        assert "worst found by beam search" in file.read()
+        beam_report = file.read()
+    assert "worst found by beam search" in beam_report and "Mean over" not in beam_report  # finalists: no average
 
     # Bad input: one line, exit status 2.
     capsys.readouterr()  # (what the audits above said)

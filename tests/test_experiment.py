@@ -67,9 +67,14 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys):
     comparison = open(written[-1]).read()
     for k in (1, 2):
         worst = [min(entry.score for entry in result.sets[k]) for result in results[2:]]
+        average = [np.mean([entry.score for entry in result.sets[k]]) for result in results[2:]]
         assert f"| {k} | uniform | 2 | {np.mean(worst):.1f} ± " in comparison
+        assert f" | {np.mean(average):.1f} ± " in comparison.split(f"| {k} | uniform | 2 |")[1].splitlines()[0]
+        differences = comparison.split("adversarial − uniform")[-1]
         gap = np.mean([min(e.score for e in r.sets[k]) for r in results[:2]]) - np.mean(worst)
-        assert f"| {k} | {gap:+.1f} | [" in comparison.split("adversarial − uniform")[1]
+        assert f"| {k} | worst a_u | {gap:+.1f} | [" in differences
+        gap = np.mean([np.mean([e.score for e in r.sets[k]]) for r in results[:2]]) - np.mean(average)
+        assert f"| {k} | mean a_u | {gap:+.1f} | [" in differences
     assert audit_main([str(tmp_path / "straight"), "k=1", "episodes=2", f"out={tmp_path / 'audits'}"]) == 0
     said = capsys.readouterr().out
     assert "uniform seed 1: k=1: worst" in said and "| 1 | adversarial | 2 |" in said

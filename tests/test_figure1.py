@@ -51,7 +51,7 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys):
     assert ("Clean SAC (mode `none`, 2 seeds): final clean return 550.0 [-85.3, 1185.3] against the SB3 RL-Zoo "
             "SAC at 1M, 2,326 ± 1,130 (v3 envs): clearly below SB3's (our 95% interval lies under its mean − 1 sd).") in text
     assert "(6 runs, 20,000 env steps each, not the paper's 1M)" in text
-    assert "![min_u a_u and clean return](hopper/figures/min_score.png)" in text
+    assert "![min_u a_u, mean_u a_u and clean return](hopper/figures/min_score.png)" in text
     assert (root / "figures" / "min_score.png").exists()
 
     within, young = tmp_path / "within", tmp_path / "young"

@@ -69,34 +69,36 @@ def test_plot_runs_writes_every_figure(tmp_path):
     assert "hopper: moving average over 2 records (the paper's 40 of 200, scaled to the runs' 12)" in summary
 
 
-def _run_with_minimums(root, mode, seed, minimums, final_clean, score_every=5000):
-    """A Hopper run whose scorings have the given min_u a_u (the other 10 sets score 10, 20, ... more)."""
+def _run_with_minimums(root, mode, seed, minimums, final_clean, score_every=5000, spread=10):
+    """A Hopper run whose scorings have the given min_u a_u (the other 10 sets score ``spread``,
+    2 · ``spread``, ... more: mean_u a_u = min_u a_u + 5 · ``spread``)."""
     path = os.path.join(root, f"{mode}-s{seed}")
     os.makedirs(path)
     OmegaConf.save(OmegaConf.structured(TrainConfig(env="hopper", missingness=mode, seed=seed)), os.path.join(path, "config.yaml"))
     with open(os.path.join(path, "scores.jsonl"), "w") as file:
         for t, minimum in enumerate(minimums):
-            file.write(json.dumps({"env_steps": score_every * (t + 1), "scores": [minimum + 10 * i for i in range(11)],
+            file.write(json.dumps({"env_steps": score_every * (t + 1), "scores": [minimum + spread * i for i in range(11)],
                                    "min_score": minimum, "clean_score": final_clean, "p_miss": [1 / 11] * 11}) + "\n")
     return path
 
 
 def test_summary_table_reports_final_and_auc_per_mode(tmp_path):
     """Hand-computed: two adversarial seeds, min_u a_u [10, 20, 30, 40] and [20, 30, 50, 60],
-    final clean returns 100 and 120; one uniform seed."""
+    final clean returns 100 and 120; one uniform seed, its sets spread wider."""
     paths = [
         _run_with_minimums(str(tmp_path), "adversarial", 0, [10, 20, 30, 40], 100),
         _run_with_minimums(str(tmp_path), "adversarial", 1, [20, 30, 50, 60], 120),
-        _run_with_minimums(str(tmp_path), "uniform", 0, [5, 6, 7, 8], 90),
+        _run_with_minimums(str(tmp_path), "uniform", 0, [5, 6, 7, 8], 90, spread=30),
     ]
     header, rule, adversarial, uniform = summary_table(paths).splitlines()
     cells = lambda row: [cell.strip() for cell in row.strip("|").split("|")]
     # Two seeds: 95% half-width t(0.975, 1) · sd / √2 = 12.706 · sd / √2.
     # final: mean(40, 60) = 50, sd 14.142 → ± 127.1; AUC: mean(25, 40) = 32.5, sd 10.607 → ± 95.3;
-    # clean: mean(100, 120) = 110 ± 127.1.
-    assert cells(adversarial) == ["hopper", "adversarial", "2", "20000", "50.0 ± 127.1", "32.5 ± 95.3", "110.0 ± 127.1"]
-    # One seed: the values alone, no interval (AUC: mean(5, 6, 7, 8) = 6.5).
-    assert cells(uniform) == ["hopper", "uniform", "1", "20000", "8.0", "6.5", "90.0"]
+    # final mean_u a_u: mean(90, 110) = 100 ± 127.1; clean: mean(100, 120) = 110 ± 127.1.
+    assert cells(adversarial) == ["hopper", "adversarial", "2", "20000", "50.0 ± 127.1", "32.5 ± 95.3", "100.0 ± 127.1",
+                                  "110.0 ± 127.1"]
+    # One seed: the values alone, no interval (AUC: mean(5, 6, 7, 8) = 6.5; mean_u a_u: 8 + 5 · 30 = 158).
+    assert cells(uniform) == ["hopper", "uniform", "1", "20000", "8.0", "6.5", "158.0", "90.0"]
 
 
 def test_adversarial_minus_uniform_is_welchs_t(tmp_path):
@@ -115,19 +117,23 @@ def test_adversarial_minus_uniform_is_welchs_t(tmp_path):
     assert Difference("x", tight_low, tight_high).reading() == "uniform higher"
     assert Difference("x", np.array([5.0]), tight_low).interval() is None
 
-    # From run directories: final, AUC and clean return, over the records both modes share
-    # (AUC: mean(25, 40) − mean(6.5, 7.5) = 25.5; clean: 110 − 92 = 18).
+    # From run directories: final and AUC min_u a_u, final mean_u a_u and clean return, over
+    # the records both modes share (AUC: mean(25, 40) − mean(6.5, 7.5) = 25.5; clean: 110 − 92
+    # = 18). The uniform runs' other sets score higher, so their average case is better while
+    # their worst case is not (mean_u a_u: mean(90, 110) − mean(158, 160) = −59; the same
+    # spreads as the finals, so the same half-width, 121.93; t = −59 / √101 = −5.87 on df 1.02, p = 0.104).
     paths = [
         _run_with_minimums(str(tmp_path), "adversarial", 0, [10, 20, 30, 40], 100),
         _run_with_minimums(str(tmp_path), "adversarial", 1, [20, 30, 50, 60], 120),
-        _run_with_minimums(str(tmp_path), "uniform", 0, [5, 6, 7, 8], 90),
-        _run_with_minimums(str(tmp_path), "uniform", 1, [5, 6, 9, 10], 94),
+        _run_with_minimums(str(tmp_path), "uniform", 0, [5, 6, 7, 8], 90, spread=30),
+        _run_with_minimums(str(tmp_path), "uniform", 1, [5, 6, 9, 10], 94, spread=30),
     ]
     cells = lambda row: [cell.strip() for cell in row.strip("|").split("|")]
     rows = [cells(row) for row in comparison_table(paths).splitlines()[2:]]
     assert [row[:3] for row in rows] == [["hopper", "final min_u a_u", "+41.0"], ["hopper", "AUC min_u a_u", "+25.5"],
-                                         ["hopper", "final clean return", "+18.0"]]
+                                         ["hopper", "final mean_u a_u", "-59.0"], ["hopper", "final clean return", "+18.0"]]
     assert rows[0][3:] == ["[-80.9, 162.9]", "0.149", "not distinguishable (95% interval holds 0)"]
+    assert rows[2][3:5] == ["[-180.9, 62.9]", "0.104"]
     assert comparison_table(paths[:2]) == ""  # one mode: nothing to compare
     # The CLI's summary.md carries it under the per-mode table.
     assert main([str(tmp_path), f"out={tmp_path / 'figures'}"]) == 0

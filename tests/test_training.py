@@ -79,6 +79,7 @@ def test_run_directory_contents(point_mass_run):
         assert len(row["scores"]) == 4 and len(row["p_miss"]) == 4
         assert row["min_score"] == pytest.approx(min(row["scores"]), abs=1e-3)
         assert row["scores"][row["argmin"]] == pytest.approx(row["min_score"], abs=1e-3)
+        assert row["mean_score"] == pytest.approx(np.mean(row["scores"]), abs=1e-3)  # the average case over U
         assert sum(row["p_miss"]) == pytest.approx(1.0, abs=1e-5)
         # Adversarial mode: p_miss after the update is the inverse-score distribution.
         inverse = 1.0 / np.maximum(np.array(row["scores"]), 0.0)
@@ -216,7 +217,7 @@ def test_candidate_pool_for_k2_search_draws_and_records(tmp_path):
     pool_explore, any pair of U; uniform mode draws every pair alike; an episode keeps its
     pair when the pool changes under it. End to end, scores.jsonl lists each row's pool and
     plot draws per-feature heatmaps."""
-    from admissable_jax.plot import load_run, plot_runs
+    from admissable_jax.plot import load_run, plot_runs, summary_table
     from admissable_jax.scoring import beam_search_worst_sets
 
     config = dataclasses.replace(POINT_MASS, k=2, pool_size=3, pool_ranker="rollout", pool_explore=0.3, num_envs=20,
@@ -266,9 +267,12 @@ def test_candidate_pool_for_k2_search_draws_and_records(tmp_path):
     result = train_fn(dataclasses.replace(config, total_steps=3000, score_every=1000, checkpoint_every=1))
     rows = result.scores
     assert len(rows) == 3 and all(len(set(row["sets"])) == 3 == len(row["scores"]) for row in rows)
+    assert not any("mean_score" in row for row in rows)  # a pool's sets are the worst found: no average over U
     run = load_run(config.out)
     assert run.scores.shape == (3, 4) and np.allclose(run.p_miss.sum(axis=1), 2.0)  # each pair counts for 2 features
+    assert np.isnan(run.mean_score).all()
     assert any("scores_adversarial.png" in path for path in plot_runs([config.out], str(tmp_path / "figures")))
+    assert summary_table([config.out]).splitlines()[-1].split(" | ")[-2] == "—"  # no final mean_u a_u
 
 
 def _feature_zero_controller(gain, masked_obs):
