@@ -3,8 +3,9 @@
 ``python -m admissable_jax.plot RUN_DIR ... [window=0] [out=DIR]`` from a shell,
 ``plot_runs`` and ``summary_table`` from Python.
 
-``plot_runs(run_dirs, out_dir)`` groups runs by (env, missingness mode) and draws, as PNG
-and PDF:
+``plot_runs(run_dirs, out_dir)`` groups runs by env, missingness mode and the settings in
+which they differ (:func:`label_variants`: a run with k = 2 is never a seed of a k = 1 curve)
+and draws, as PNG and PDF:
 
 * ``min_score.*`` — the paper's Figure 1: min_u a_u against env steps, one line per mode
   (adversarial blue, uniform red, as in the paper; none grey), the mean over seeds of the
@@ -36,6 +37,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import os
+import re
 import sys
 
 import matplotlib
@@ -46,6 +48,7 @@ import numpy as np  # noqa: E402
 from scipy import stats  # noqa: E402
 
 from admissable_jax.cli import fail, parse_args  # noqa: E402
+from admissable_jax.config import TrainConfig  # noqa: E402
 from admissable_jax.envs import observation_names  # noqa: E402
 from admissable_jax.errors import UnusableDirectory, make_directory  # noqa: E402
 from admissable_jax.method import parse_set  # noqa: E402
@@ -55,6 +58,13 @@ from admissable_jax.run_directory import TornLine, load_config_yaml, read_jsonl 
 MODE_COLORS = {"adversarial": "tab:blue", "uniform": "tab:red", "none": "tab:gray"}
 # Figure 1's smoothing: "a moving average over 40 records" of a 1M-step run scored every ζ = 5000.
 PAPER_WINDOW, PAPER_RECORDS = 40, 200
+# Config keys that change neither what a run learns nor how it is scored: runs that differ
+# only in these are seeds of one curve (``physics``: both backends pass the same parity
+# tests; ``score_envs``: the same scores, tested). Runs differing in any other key are
+# separate curves, named by it (``label_variants``).
+NOT_SETTINGS = frozenset({"env", "missingness", "seed", "out", "resume", "resume_step", "progress", "logger",
+                          "time_limit", "checkpoint_every", "total_steps", "score_envs", "physics"})
+LINE_STYLES = ("-", "--", ":", "-.")
 
 
 @dataclasses.dataclass
@@ -73,6 +83,13 @@ class Run:
     score_episodes: int  # N: episodes behind each a_u
     pooled: bool = False  # scores and p_miss are per feature (a run with a candidate pool)
     uniform_draws: bool = False  # p_miss stayed uniform at every scoring
+    settings: dict[str, str] = dataclasses.field(default_factory=dict)  # config keys but NOT_SETTINGS, as text
+    variant: str = ""  # the settings in which it differs from the other runs of its env (label_variants)
+
+    @property
+    def curve(self) -> str:
+        """The curve this run is a seed of: its mode, and its variant where runs differ."""
+        return f"{self.mode}, {self.variant}" if self.variant else self.mode
 
 
 def set_names(env: str, k: int, include_empty: bool) -> list[str]:
@@ -110,7 +127,32 @@ def load_run(path: str) -> Run:
         env_steps=column("env_steps"), scores=scores, min_score=column("min_score"), mean_score=mean_score,
         clean_score=column("clean_score"), p_miss=p_miss, set_names=names,
         score_episodes=int(config.score_episodes), pooled=pooled, uniform_draws=uniform_draws,
+        settings={key: str(value) for key, value in {**dataclasses.asdict(TrainConfig()), **config}.items()
+                  if key not in NOT_SETTINGS},
     )
+
+
+def differing_settings(runs: list[Run]) -> list[str]:
+    """The settings (config keys but ``NOT_SETTINGS``) whose values differ between these runs."""
+    keys = set().union(*(run.settings for run in runs))
+    return sorted(key for key in keys if len({run.settings.get(key) for run in runs}) > 1)
+
+
+def label_variants(runs: list[Run]) -> list[Run]:
+    """The runs, each with its variant named: the settings in which the runs of its env
+    differ ("k=2, score_episodes=5"; "" where all agree). Runs that differ in a setting are
+    separate curves, table rows and comparisons, never seeds of one."""
+    keys = {env: differing_settings([run for run in runs if run.env == env]) for env in {run.env for run in runs}}
+    return [dataclasses.replace(run, variant=", ".join(f"{key}={run.settings.get(key)}" for key in keys[run.env]))
+            for run in runs]
+
+
+def _curves(runs: list[Run]) -> dict[tuple[str, str, str], list[Run]]:
+    """The runs by (env, mode, variant): each group one curve, its runs the seeds."""
+    curves: dict[tuple[str, str, str], list[Run]] = collections.defaultdict(list)
+    for run in runs:
+        curves[(run.env, run.mode, run.variant)].append(run)
+    return dict(sorted(curves.items()))
 
 
 def per_feature(rows: list[dict], num_features: int) -> tuple[np.ndarray, np.ndarray]:
@@ -201,7 +243,7 @@ def _figure_caption(runs: list[Run], window: int) -> str:
     episodes = sorted({run.score_episodes for run in runs})
     average = ("" if any(run.pooled for run in runs) else
                "; $\\mathrm{mean}_u\\, a_u$: the mean over all u (the average case, u drawn uniformly)")
-    shaded = "; shaded: 95% t-interval over seeds" if max(collections.Counter(run.mode for run in runs).values()) > 1 else ""
+    shaded = "; shaded: 95% t-interval over seeds" if max(collections.Counter(run.curve for run in runs).values()) > 1 else ""
     return (f"$a_u$: mean undiscounted return of N = {'/'.join(map(str, episodes))} deterministic episodes with the "
             f"features u hidden; $\\mathrm{{min}}_u\\, a_u$: the worst u at each scoring{average}.\n"
             f"Lines: mean over seeds of the trailing {_window_note(runs, window)}{shaded}; dots: each record "
@@ -244,16 +286,21 @@ def _save(figure, out_dir: str, name: str) -> list[str]:
 def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0) -> list[str]:
     """Draw the figures for these runs into ``out_dir``; returns the files written.
     ``window``: records in the moving average (0: the paper's, :func:`effective_window`)."""
-    runs = [load_run(path) for path in run_dirs]
+    runs = label_variants([load_run(path) for path in run_dirs])
     if not runs:
         raise ValueError("no runs to plot")
     envs = sorted({run.env for run in runs})
     if len(envs) > 1:
         raise ValueError(f"runs of several envs ({', '.join(envs)}): plot one env at a time")
     used = effective_window(runs, window)
-    by_mode: dict[str, list[Run]] = collections.defaultdict(list)
-    for run in runs:
-        by_mode[run.mode].append(run)
+    curves = _curves(runs)
+    variants = sorted({run.variant for run in runs})
+    for curve_runs in curves.values():
+        seeds = [run.seed for run in curve_runs]
+        for seed in sorted({seed for seed in seeds if seeds.count(seed) > 1}):
+            print(f"warning: {curve_runs[0].curve} seed {seed} is in {seeds.count(seed)} runs "
+                  f"({', '.join(run.path for run in curve_runs if run.seed == seed)}); each counts as a seed",
+                  file=sys.stderr)
     make_directory(out_dir, "figures folder")
     written = []
 
@@ -264,12 +311,13 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0) -> list[str]:
         panels.append(("mean_score", "average over hidden sets $\\mathrm{mean}_u\\, a_u$"))
     panels.append(("clean_score", "clean return (nothing hidden)"))
     figure, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 4), sharey=True)
-    for mode, mode_runs in sorted(by_mode.items()):
+    for (_, mode, variant), curve_runs in curves.items():
         for ax, (attribute, _) in zip(axes, panels):
-            steps, values = _aligned(mode_runs, attribute)
+            steps, values = _aligned(curve_runs, attribute)
             mean, low, high = mean_and_interval(moving_average(values, used))
             color = MODE_COLORS.get(mode, "black")
-            ax.plot(steps, mean, color=color, label=f"{mode} ({_seeds(len(mode_runs))})")
+            ax.plot(steps, mean, color=color, linestyle=LINE_STYLES[variants.index(variant) % len(LINE_STYLES)],
+                    label=f"{curve_runs[0].curve} ({_seeds(len(curve_runs))})")
             ax.fill_between(steps, low, high, color=color, alpha=0.2, linewidth=0)
             ax.plot(steps, values.mean(axis=0), ".", color=color, alpha=0.35, markersize=3)
     for ax, (_, title) in zip(axes, panels):
@@ -281,7 +329,7 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0) -> list[str]:
     figure.suptitle(_figure_caption(runs, window), fontsize=9, y=-0.02, va="top")
     written += _save(figure, out_dir, "min_score")
 
-    for mode, mode_runs in sorted(by_mode.items()):
+    for (_, mode, variant), mode_runs in curves.items():
         names = mode_runs[0].set_names
         height = max(4.0, 0.12 * len(names) + 1.5)
         labels = (("lowest $a_u$ of the pool's sets hiding it", "$p_{miss}$ mass on them") if mode_runs[0].pooled
@@ -290,7 +338,7 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0) -> list[str]:
                                           ("scores", "p_miss")):
             steps, values = _aligned(mode_runs, attribute)
             figure, ax = plt.subplots(figsize=(10, height))
-            ax.set_title(f"{envs[0]}, {mode} missingness ({_seeds(len(mode_runs))}): {label}")
+            ax.set_title(f"{envs[0]}, {mode_runs[0].curve} ({_seeds(len(mode_runs))}): {label}")
             if attribute == "p_miss" and all(run.uniform_draws for run in mode_runs):
                 every = ("every set of U drawn alike" if mode_runs[0].pooled else
                          f"1/{values.shape[-1]} = {1.0 / values.shape[-1]:.4f} for every u")
@@ -303,8 +351,13 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0) -> list[str]:
                 _heatmap(ax, figure, steps, values.mean(axis=0), names, label)
                 ax.set_xlabel("env steps (each column one scoring)")
                 ax.set_ylabel("feature (over the pool's sets hiding it)" if mode_runs[0].pooled else "hidden features u")
-            written += _save(figure, out_dir, f"{name}_{mode}")
+            written += _save(figure, out_dir, f"{name}_{mode}" + (f"_{_file_name(variant)}" if variant else ""))
     return written
+
+
+def _file_name(variant: str) -> str:
+    """A variant as part of a file name: "k=2, utd=0.5" -> "k=2_utd=0.5"."""
+    return re.sub(r"[^A-Za-z0-9.=+-]+", "_", variant).strip("_")
 
 
 def estimate(values: np.ndarray) -> str:
@@ -313,31 +366,29 @@ def estimate(values: np.ndarray) -> str:
     return f"{mean[0]:.1f} ± {mean[0] - low[0]:.1f}" if len(values) > 1 else f"{mean[0]:.1f}"
 
 
-def _by_env_and_mode(run_dirs: list[str]) -> dict[tuple[str, str], list[Run]]:
-    by_mode: dict[tuple[str, str], list[Run]] = collections.defaultdict(list)
-    for run in (load_run(path) for path in run_dirs):
-        by_mode[(run.env, run.mode)].append(run)
-    return by_mode
+def _curves_of(run_dirs: list[str]) -> dict[tuple[str, str, str], list[Run]]:
+    """The runs in these directories by (env, mode, variant)."""
+    return _curves(label_variants([load_run(path) for path in run_dirs]))
 
 
 def summary_table(run_dirs: list[str]) -> str:
-    """Markdown table per mode: final and area-under-curve min_u a_u, the final mean_u a_u
-    (the average case; "—" for runs with a pool, which score only its sets) and the final
-    clean return, mean ± 95% t-interval half-width over seeds. The AUC is the mean of
-    min_u a_u over all records (the area under the curve divided by its length in records)."""
-    by_mode = _by_env_and_mode(run_dirs)
+    """Markdown table per mode (and variant, where runs differ in settings): final and
+    area-under-curve min_u a_u, the final mean_u a_u (the average case; "—" for runs with a
+    pool, which score only its sets) and the final clean return, mean ± 95% t-interval
+    half-width over seeds. The AUC is the mean of min_u a_u over all records (the area
+    under the curve divided by its length in records)."""
     lines = [
         "| env | mode | seeds | env steps | final min_u a_u | AUC min_u a_u (mean over records) | final mean_u a_u "
         "| final clean return |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    for (env, mode), runs in sorted(by_mode.items()):
+    for (env, _, _), runs in _curves_of(run_dirs).items():
         steps, minimum = _aligned(runs, "min_score")
         _, average = _aligned(runs, "mean_score")
         _, clean = _aligned(runs, "clean_score")
         final_average = "—" if np.isnan(average[:, -1]).any() else estimate(average[:, -1])
         lines.append(
-            f"| {env} | {mode} | {len(runs)} | {int(steps[-1])} | {estimate(minimum[:, -1])} | "
+            f"| {env} | {runs[0].curve} | {len(runs)} | {int(steps[-1])} | {estimate(minimum[:, -1])} | "
             f"{estimate(minimum.mean(axis=1))} | {final_average} | {estimate(clean[:, -1])} |"
         )
     return "\n".join(lines) + "\n"
@@ -383,25 +434,26 @@ class Difference:
 
 
 def mode_differences(run_dirs: list[str]) -> dict[str, list[Difference]]:
-    """Per env with both adversarial and uniform runs: the paper's comparison (final and AUC
-    min_u a_u), the average case (final mean_u a_u; not for runs with a pool) and the price
-    of robustness (final clean return), adversarial − uniform. The paper's point is that the
-    first may differ where the second does not: a weak spot averaged away."""
-    by_mode = _by_env_and_mode(run_dirs)
+    """Per env (and variant, where runs differ in settings: "hopper, k=2") with both
+    adversarial and uniform runs: the paper's comparison (final and AUC min_u a_u), the
+    average case (final mean_u a_u; not for runs with a pool) and the price of robustness
+    (final clean return), adversarial − uniform. The paper's point is that the first may
+    differ where the second does not: a weak spot averaged away."""
+    curves = _curves_of(run_dirs)
     differences = {}
-    for env in sorted({env for env, _ in by_mode}):
-        if (env, "adversarial") not in by_mode or (env, "uniform") not in by_mode:
+    for env, variant in sorted({(env, variant) for env, _, variant in curves}):
+        adversarial, uniform = curves.get((env, "adversarial", variant)), curves.get((env, "uniform", variant))
+        if not adversarial or not uniform:
             continue
-        # Both modes over the records every run of the env shares, so the AUCs cover the same steps.
-        both = by_mode[(env, "adversarial")] + by_mode[(env, "uniform")]
-        _, minimum = _aligned(both, "min_score")
-        _, average = _aligned(both, "mean_score")
-        _, clean = _aligned(both, "clean_score")
+        # Both modes over the records all their runs share, so the AUCs cover the same steps.
+        _, minimum = _aligned(adversarial + uniform, "min_score")
+        _, average = _aligned(adversarial + uniform, "mean_score")
+        _, clean = _aligned(adversarial + uniform, "clean_score")
         metrics = [("final min_u a_u", minimum[:, -1]), ("AUC min_u a_u", minimum.mean(axis=1)),
                    ("final mean_u a_u", average[:, -1]), ("final clean return", clean[:, -1])]
-        n = len(by_mode[(env, "adversarial")])
-        differences[env] = [Difference(name, values[:n], values[n:]) for name, values in metrics
-                            if not np.isnan(values).any()]
+        n = len(adversarial)
+        differences[f"{env}, {variant}" if variant else env] = [
+            Difference(name, values[:n], values[n:]) for name, values in metrics if not np.isnan(values).any()]
     return differences
 
 
@@ -451,6 +503,9 @@ def main(argv: list[str]) -> int:
         notes = {env: _window_note(env_runs, config.window) for env, env_runs in sorted(by_env.items())}
         smoothing = "; ".join(notes.values()) if len(notes) == 1 else "; ".join(
             f"{env}: {note}" for env, note in notes.items())
+        variants = "".join(
+            f"\n{env} runs differ in {', '.join(keys)}: each setting is its own curve and row, never seeds of one.\n"
+            for env, keys in ((env, differing_settings(env_runs)) for env, env_runs in sorted(by_env.items())) if keys)
         out_dir = config.out or new_folder(os.path.join(paths[0], "figures"))
         written = []  # one env's figures in out_dir, several envs' each in out_dir/<env>
         for env, env_runs in sorted(by_env.items()):
@@ -461,7 +516,7 @@ def main(argv: list[str]) -> int:
     except (ValueError, FileNotFoundError, KeyError, UnusableDirectory) as error:
         fail(str(error))
     table += (f"\nFigures: mean over seeds of the {smoothing}. Table: the last "
-              "record itself (final) and the mean over all records (AUC), unsmoothed.\n")
+              f"record itself (final) and the mean over all records (AUC), unsmoothed.\n{variants}")
     if comparison:
         table += ("\nAdversarial − uniform, per env (over the records both modes share; seeds independent, "
                   "so Welch's t):\n\n" + comparison)

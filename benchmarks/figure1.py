@@ -31,8 +31,8 @@ import numpy as np
 
 from admissable_jax.cli import fail, parse_args
 from admissable_jax.plot import (
-    Difference, Run, comparison_table, find_runs, load_run, mean_and_interval, mode_differences, new_folder, plot_runs,
-    summary_table,
+    Difference, Run, comparison_table, differing_settings, find_runs, load_run, mean_and_interval, mode_differences,
+    new_folder, plot_runs, summary_table,
 )
 from admissable_jax.run_directory import load_config_yaml
 
@@ -137,6 +137,10 @@ def env_section(env: str, folder: str, window: int, out_file: str) -> tuple[str,
     others = sorted({run.env for run in runs} - {env})
     if others:
         raise ValueError(f"{env}={folder} holds runs of {', '.join(others)}")
+    differing = differing_settings(runs)
+    if differing:
+        raise ValueError(f"the runs in {folder} differ in {', '.join(differing)}: Figure 1 compares the modes at one "
+                         "setting per env (plot draws each setting as its own curve)")
     steps = min(int(run.env_steps[-1]) for run in runs)
     figures = new_folder(os.path.join(folder, "figures"))
     plot_runs(run_dirs, figures, window)

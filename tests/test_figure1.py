@@ -3,6 +3,7 @@
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 
@@ -73,3 +74,14 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys):
     capsys.readouterr()
     assert _figure1() == 2
     assert capsys.readouterr().err.strip() == "error: give at least one of hopper=DIR, walker2d=DIR, ant=DIR"
+    # Runs of other settings in one env's folder would be two experiments, not one comparison.
+    mixed = tmp_path / "mixed"
+    shutil.copytree(root / "uniform-s0", mixed / "uniform-s0")
+    shutil.copytree(root / "uniform-s1", mixed / "uniform-s1")
+    config = mixed / "uniform-s1" / "config.yaml"
+    config.write_text(config.read_text().replace("score_episodes: 10", "score_episodes: 5"))
+    assert _figure1(f"hopper={mixed}", f"out={tmp_path / 'mixed.md'}") == 2
+    assert capsys.readouterr().err.strip() == (
+        f"error: the runs in {mixed} differ in score_episodes: Figure 1 compares the modes at one setting per env "
+        "(plot draws each setting as its own curve)")
+    assert not (tmp_path / "mixed.md").exists()

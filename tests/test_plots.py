@@ -2,6 +2,7 @@
 
 import json
 import os
+import shutil
 
 import numpy as np
 import pytest
@@ -15,10 +16,11 @@ from admissable_jax.plot import (
 )
 
 
-def _fake_run(root, mode, seed, records=12, sets=11, env="hopper"):
+def _fake_run(root, mode, seed, records=12, sets=11, env="hopper", **settings):
     path = os.path.join(root, f"{mode}-s{seed}")
     os.makedirs(path)
-    OmegaConf.save(OmegaConf.structured(TrainConfig(env=env, missingness=mode, seed=seed)), os.path.join(path, "config.yaml"))
+    config = TrainConfig(env=env, missingness=mode, seed=seed, **settings)
+    OmegaConf.save(OmegaConf.structured(config), os.path.join(path, "config.yaml"))
     rng = np.random.default_rng(seed)
     with open(os.path.join(path, "scores.jsonl"), "w") as file:
         for t in range(records):
@@ -67,6 +69,32 @@ def test_plot_runs_writes_every_figure(tmp_path):
     summary = (tmp_path / "both" / "summary.md").read_text()
     assert "| walker2d | uniform | 1 |" in summary and "| hopper | adversarial | 3 |" in summary
     assert "hopper: moving average over 2 records (the paper's 40 of 200, scaled to the runs' 12)" in summary
+
+
+def test_runs_that_differ_in_settings_are_separate_curves(tmp_path, capsys):
+    """Runs of one mode with other settings (k = 1 and k = 2 here) are separate curves, rows
+    and comparisons, named by the settings that differ, never seeds of one; settings that
+    change nothing learned or scored (physics, total_steps, ...) do not split them; a seed
+    twice in one curve is warned about."""
+    root = tmp_path / "runs"
+    for mode in ("adversarial", "uniform"):
+        for seed in range(2):
+            _fake_run(str(root / "k1"), mode, seed, physics="jax" if seed else "warp", total_steps=5000 * (seed + 1))
+    _fake_run(str(root / "k2"), "adversarial", 0, sets=55, k=2)
+    assert main([str(root), f"out={tmp_path / 'figures'}"]) == 0
+    summary = (tmp_path / "figures" / "summary.md").read_text()
+    assert [line.split(" | ")[1:3] for line in summary.splitlines() if line.startswith("| hopper | ")][:3] == [
+        ["adversarial, k=1", "2"], ["adversarial, k=2", "1"], ["uniform, k=1", "2"]]
+    compared = [line.split(" | ")[0] for line in summary.split("Welch's t):")[1].splitlines() if line.startswith("| ")]
+    assert set(compared[2:]) == {"| hopper, k=1"}  # k = 2 has no uniform runs to compare with
+    assert "hopper runs differ in k: each setting is its own curve and row, never seeds of one." in summary
+    assert {"scores_adversarial_k=1.png", "scores_adversarial_k=2.png", "p_miss_uniform_k=1.png"} <= set(
+        os.listdir(tmp_path / "figures"))
+    assert capsys.readouterr().err == ""
+    shutil.copytree(root / "k1" / "uniform-s1", root / "copy")
+    assert main([str(root), f"out={tmp_path / 'again'}"]) == 0
+    assert (f"warning: uniform, k=1 seed 1 is in 2 runs ({root / 'copy'}, {root / 'k1' / 'uniform-s1'}); "
+            "each counts as a seed") in capsys.readouterr().err
 
 
 def _run_with_minimums(root, mode, seed, minimums, final_clean, score_every=5000, spread=10):
