@@ -34,7 +34,18 @@ def _type_name(field: dataclasses.Field) -> str:
     return getattr(field.type, "__name__", str(field.type))
 
 
-def help_text(config_cls: type, program: str, summary: str) -> str:
+@dataclasses.dataclass(frozen=True)
+class ConfigFile:
+    """What ``config=FILE`` may set for a command: the file's keys in ``taken`` are defaults
+    that ``key=value`` items override; those in ``skipped`` say which run the file came from
+    (``out``, ``resume``, another command's own keys) and are left out, in one line; any
+    other key in the file is an error."""
+
+    taken: frozenset[str]
+    skipped: frozenset[str]
+
+
+def help_text(config_cls: type, program: str, summary: str, config_file: ConfigFile | None = None) -> str:
     """Usage line, summary and one line per key: name, type, default and description."""
     lines = [f"usage: python -m {program} [key=value ...]", "", summary, "", "keys:"]
     defaults = config_cls()
@@ -43,7 +54,14 @@ def help_text(config_cls: type, program: str, summary: str) -> str:
         doc = field.metadata.get("help", "")
         setting = f"{field.name}={default}"
         lines.append(f"  {setting:<28} ({_type_name(field)}) {doc}")
+    if config_file is not None:
+        lines.append(f"  {'config=FILE':<28} (str) take the keys from a YAML file (a run's config.yaml, an experiment's "
+                     f"experiment.yaml, your own); key=value items override them; never {', '.join(sorted(RUN_LOCATION))}")
     return "\n".join(lines)
+
+
+# Keys that say where a run is and whether it continues: never taken from a config file.
+RUN_LOCATION = ("out", "resume", "resume_step")
 
 
 def parse_args(
@@ -53,17 +71,19 @@ def parse_args(
     summary: str,
     validate: Callable[[ConfigT], None] | None = None,
     positional: str | None = None,
+    config_file: ConfigFile | None = None,
 ) -> ConfigT:
     """The config given by ``argv`` (``key=value`` items) over ``config_cls``'s defaults.
 
     With ``positional``, a first item without ``=`` is that key's value
-    (``python -m admissable_jax.video RUN_DIR ...``). Exits with status 0 after printing help
-    for ``-h``/``--help``, and with status 2 and a one-line message on stderr for anything
-    malformed, unknown, mistyped or rejected by ``validate`` (which raises
-    ``ValueError``/``TypeError``).
+    (``python -m admissable_jax.video RUN_DIR ...``). With ``config_file``, a ``config=FILE``
+    item sets the file's keys between the defaults and the other items. Exits with status 0
+    after printing help for ``-h``/``--help``, and with status 2 and a one-line message on
+    stderr for anything malformed, unknown, mistyped or rejected by ``validate`` (which
+    raises ``ValueError``/``TypeError``).
     """
     if any(arg in ("-h", "--help") for arg in argv):
-        print(help_text(config_cls, program, summary))
+        print(help_text(config_cls, program, summary, config_file))
         raise SystemExit(0)
     if positional is not None and argv and "=" not in argv[0]:
         argv = [f"{positional}={argv[0]}", *argv[1:]]
@@ -71,6 +91,16 @@ def parse_args(
     if malformed:
         fail(f"expected key=value, got {malformed[0]!r} (see --help)")
     schema = OmegaConf.structured(config_cls)
+    if config_file is not None:
+        files = [arg.split("=", 1)[1] for arg in argv if arg.startswith("config=")]
+        argv = [arg for arg in argv if not arg.startswith("config=")]
+        if len(files) > 1:
+            fail(f"config= given {len(files)} times; give one file and override its keys with key=value")
+        if files:
+            try:
+                schema = OmegaConf.merge(schema, OmegaConf.create(_read_config_file(files[0], config_file)))
+            except OmegaConfBaseException as error:
+                fail(f"in config={files[0]}: {_one_line(error)}")
     # "key=" means the empty string (OmegaConf would read None, which no key accepts).
     argv = [f"{arg}''" if arg.endswith("=") else arg for arg in argv]
     try:
@@ -84,6 +114,31 @@ def parse_args(
         except (ValueError, TypeError) as error:
             fail(str(error))
     return config
+
+
+def _read_config_file(path: str, config_file: ConfigFile) -> dict[str, Any]:
+    """The keys ``config=path`` sets (see :class:`ConfigFile`); one line and exit 2 for a
+    file that is missing, not YAML, not a mapping, or holds a key no command takes."""
+    import yaml
+
+    try:
+        with open(path) as file:
+            loaded = yaml.safe_load(file)
+    except OSError as error:
+        fail(f"cannot read config={path}: {error.strerror or error}")
+    except yaml.YAMLError as error:
+        where = getattr(error, "problem_mark", None)
+        fail(f"config={path} is not valid YAML{f' (line {where.line + 1})' if where else ''}: "
+             f"{getattr(error, 'problem', None) or str(error).splitlines()[0]}")
+    if not isinstance(loaded, dict):
+        fail(f"config={path} must hold key: value lines, got {type(loaded).__name__}")
+    unknown = sorted(str(key) for key in loaded if key not in config_file.taken | config_file.skipped)
+    if unknown:
+        fail(f"unknown key {unknown[0]!r} in config={path} (see --help for the valid keys)")
+    skipped = sorted(key for key in loaded if key in config_file.skipped)
+    if skipped:
+        report(f"config={path}: {', '.join(skipped)} not taken from it (they say which run it came from)")
+    return {key: value for key, value in loaded.items() if key in config_file.taken}
 
 
 def _one_line(error: OmegaConfBaseException) -> str:

@@ -12,7 +12,7 @@ import math
 import jax
 
 from admissable_jax.adversary import MODES
-from admissable_jax.cli import setting
+from admissable_jax.cli import RUN_LOCATION, ConfigFile, setting
 from admissable_jax.envs import canonical_env_name, observation_size, resolve_physics
 from admissable_jax.loggers import parse_logger_names
 from admissable_jax.missingness import num_candidate_sets
@@ -110,6 +110,31 @@ class TrainConfig(RunSettings):
         if not config.out:
             config.out = f"runs/{config.env}-{config.missingness}-s{config.seed}"
         return config
+
+
+@dataclasses.dataclass
+class ExperimentConfig(RunSettings):
+    """An experiment: the settings every pair shares (``RunSettings``, as ``train`` takes
+    them), plus which seeds and modes make the pairs and where they go."""
+
+    seeds: int = setting(5, "seeds per mode: first_seed .. first_seed + seeds - 1")
+    first_seed: int = setting(0, "the first seed")
+    modes: str = setting("adversarial,uniform", "comma-separated missingness modes (adversarial, uniform, none)")
+    out: str = setting("", "experiment directory; '' = runs/fig1-<env>")
+    devices: int = setting(0, "devices the pairs are spread over: 0 = every device (of every process under "
+                              "jax.distributed), N = the first N")
+    budget_only: bool = setting(False, "print the memory budget and stop")
+
+
+def config_file_of(cls: type) -> ConfigFile:
+    """What ``config=FILE`` takes for the command of ``cls`` (``TrainConfig`` or
+    ``ExperimentConfig``): its own keys; skipped, which run the file came from (``out``,
+    ``resume``, ``resume_step``) and the other command's own keys (a train run's
+    ``missingness`` and ``seed`` given to ``experiment``; an experiment's ``seeds`` and
+    ``modes`` given to ``train``)."""
+    own = {field.name for field in dataclasses.fields(cls)}
+    every = own | {field.name for command in (TrainConfig, ExperimentConfig) for field in dataclasses.fields(command)}
+    return ConfigFile(taken=frozenset(own - set(RUN_LOCATION)), skipped=frozenset((every - own) | set(RUN_LOCATION)))
 
 
 def default_num_envs(score_every: int) -> int:

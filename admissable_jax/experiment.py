@@ -31,27 +31,13 @@ from omegaconf import OmegaConf
 from admissable_jax.adversary import MODES
 from admissable_jax.checkpointing import CheckpointError, Checkpoints
 from admissable_jax.cli import enable_compilation_cache, parse_args, run_from_cli
-from admissable_jax.config import RunSettings, TrainConfig
+from admissable_jax.config import ExperimentConfig, RunSettings, TrainConfig, config_file_of
 from admissable_jax.envs import canonical_env_name
 from admissable_jax.errors import make_directory, remove_if_unused
 from admissable_jax.host_loop import TrainingLoop, make_trainer, mode_flags
 from admissable_jax.placement import PairPlacement, initialize_distributed
 from admissable_jax.run_directory import RunDirectory, load_config
 from admissable_jax.train import TrainResult
-
-@dataclasses.dataclass
-class ExperimentConfig(RunSettings):
-    """An experiment: the settings every pair shares (``RunSettings``, as ``train`` takes
-    them), plus which seeds and modes make the pairs and where they go."""
-
-    seeds: int = dataclasses.field(default=5, metadata={"help": "seeds per mode: first_seed .. first_seed + seeds - 1"})
-    first_seed: int = dataclasses.field(default=0, metadata={"help": "the first seed"})
-    modes: str = dataclasses.field(default="adversarial,uniform", metadata={"help": "comma-separated missingness modes (adversarial, uniform, none)"})
-    out: str = dataclasses.field(default="", metadata={"help": "experiment directory; '' = runs/fig1-<env>"})
-    devices: int = dataclasses.field(default=0, metadata={"help": "devices the pairs are spread over: 0 = every device "
-                                                                  "(of every process under jax.distributed), N = the first N"})
-    budget_only: bool = dataclasses.field(default=False, metadata={"help": "print the memory budget and stop"})
-
 
 def pair_configs(config) -> list[TrainConfig]:
     """One resolved TrainConfig per (mode, seed) pair, in the batch's order (modes outer)."""
@@ -139,6 +125,7 @@ def main(argv: list[str]) -> int:
     config = parse_args(
         ExperimentConfig, argv, "admissable_jax.experiment",
         "Train every (seed, mode) pair in one vmapped program: the data for the paper's Figure 1.",
+        config_file=config_file_of(ExperimentConfig),
     )
     enable_compilation_cache()
     results, status = run_from_cli(run_experiment, config)

@@ -17,7 +17,7 @@ import jax
 
 from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.cli import enable_compilation_cache, parse_args, run_from_cli
-from admissable_jax.config import TrainConfig
+from admissable_jax.config import TrainConfig, config_file_of
 from admissable_jax.host_loop import TrainingLoop, make_trainer, mode_flags
 from admissable_jax.run_directory import RunDirectory
 from admissable_jax.training import Trainer, TrainState
@@ -79,6 +79,7 @@ def main(argv: list[str]) -> int:
     config = parse_args(
         TrainConfig, argv, "admissable_jax.train",
         "Train SAC against adversarial (or uniform) missingness on an MJX Gymnasium v5 env.",
+        config_file=config_file_of(TrainConfig),
     )
     enable_compilation_cache()
     result, status = run_from_cli(train_fn, config)

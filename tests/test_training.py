@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from omegaconf import OmegaConf
 
 from admissable_jax import TrainConfig, candidate_sets, make_env, mask_observation, score_missingness, train_fn
 from admissable_jax.checkpointing import CheckpointError
@@ -388,6 +389,48 @@ def test_cli_rejects_bad_input_with_one_line(args, message, tmp_path, capsys):
     assert message in stderr
     assert len(stderr.strip().splitlines()) == 1, stderr
     assert not os.path.exists(tmp_path / "x")  # refused before anything is created
+
+
+def test_config_file_sets_keys_the_command_line_overrides(tmp_path, capsys):
+    """``config=FILE``: a run's config.yaml (or an experiment's, or one's own) sets the keys,
+    key=value items override them; the keys that say which run the file came from are left
+    out, said in one line; a bad file is one line and exit 2, from train's and experiment's
+    own command lines."""
+    from admissable_jax.cli import parse_args
+    from admissable_jax.config import ExperimentConfig, config_file_of
+    from admissable_jax.experiment import main as experiment_main
+    from admissable_jax.train import main as train_main
+
+    saved = tmp_path / "config.yaml"
+    OmegaConf.save(OmegaConf.structured(dataclasses.replace(POINT_MASS, k=2, score_episodes=3, missingness="uniform",
+                                                            seed=4, out="runs/old").resolved()), saved)
+    train = parse_args(TrainConfig, [f"config={saved}", "seed=1"], "t", "", config_file=config_file_of(TrainConfig))
+    assert (train.env, train.k, train.score_episodes, train.missingness, train.seed, train.out) == (
+        "point_mass", 2, 3, "uniform", 1, "")
+    assert capsys.readouterr().err == f"config={saved}: out, resume, resume_step not taken from it (they say which run it came from)\n"
+    experiment = parse_args(ExperimentConfig, [f"config={saved}", "seeds=2"], "e", "",
+                            config_file=config_file_of(ExperimentConfig))
+    assert (experiment.env, experiment.k, experiment.score_episodes, experiment.seeds, experiment.modes) == (
+        "point_mass", 2, 3, 2, "adversarial,uniform")
+    assert "missingness, out, resume, resume_step, seed not taken" in capsys.readouterr().err
+
+    (tmp_path / "typo.yaml").write_text("env: hopper\nlerning_rate: 0.001\n")
+    (tmp_path / "bad_value.yaml").write_text("k: two\n")
+    (tmp_path / "broken.yaml").write_text("k: [1\n")
+    (tmp_path / "list.yaml").write_text("- k\n")
+    for main, args, message in [
+        (train_main, [f"config={tmp_path / 'missing.yaml'}"], f"cannot read config={tmp_path / 'missing.yaml'}: No such file"),
+        (train_main, [f"config={tmp_path / 'typo.yaml'}"], f"unknown key 'lerning_rate' in config={tmp_path / 'typo.yaml'}"),
+        (experiment_main, [f"config={tmp_path / 'bad_value.yaml'}"], f"in config={tmp_path / 'bad_value.yaml'}: bad value for 'k'"),
+        (experiment_main, [f"config={tmp_path / 'broken.yaml'}"], f"config={tmp_path / 'broken.yaml'} is not valid YAML (line 2)"),
+        (train_main, [f"config={tmp_path / 'list.yaml'}"], f"config={tmp_path / 'list.yaml'} must hold key: value lines"),
+        (train_main, [f"config={saved}", f"config={saved}"], "config= given 2 times"),
+    ]:
+        with pytest.raises(SystemExit) as exit_info:
+            main([*args, f"out={tmp_path / 'never'}"])
+        error = capsys.readouterr().err.strip()
+        assert exit_info.value.code == 2 and error.startswith(f"error: {message}") and "\n" not in error, error
+    assert not (tmp_path / "never").exists()
 
 
 def test_cli_help_lists_every_key():
