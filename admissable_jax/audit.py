@@ -292,6 +292,7 @@ def _bar_chart(result: AuditResult, path: str) -> str:
     ax.bar(range(len(entries)), [e.score for e in entries], yerr=[e.ci95 for e in entries], capsize=2,
            color=["tab:red" if i == worst else "tab:blue" for i in range(len(entries))])
     ax.axhline(result.clean_score, color="black", linestyle="--", label=f"nothing hidden ({result.clean_score:.0f})")
+    ax.axhline(result.mean(1), color="gray", linestyle=":", label=f"mean over the {len(entries)} sets ({result.mean(1):.0f})")
     ax.set_xticks(range(len(entries)), [", ".join(e.names) for e in entries], rotation=60, ha="right", fontsize=7)
     ax.set_ylabel(f"$a_u$: mean return of {result.n_episodes} episodes (95% CI)")
     ax.set_title(f"{result.env}: return with one feature hidden (worst in red)")

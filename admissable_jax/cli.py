@@ -127,9 +127,7 @@ def _read_config_file(path: str, config_file: ConfigFile) -> dict[str, Any]:
     except OSError as error:
         fail(f"cannot read config={path}: {error.strerror or error}")
     except yaml.YAMLError as error:
-        where = getattr(error, "problem_mark", None)
-        fail(f"config={path} is not valid YAML{f' (line {where.line + 1})' if where else ''}: "
-             f"{getattr(error, 'problem', None) or str(error).splitlines()[0]}")
+        fail(f"config={path} is not valid YAML{yaml_problem(error)}")
     if not isinstance(loaded, dict):
         fail(f"config={path} must hold key: value lines, got {type(loaded).__name__}")
     unknown = sorted(str(key) for key in loaded if key not in config_file.taken | config_file.skipped)
@@ -139,6 +137,13 @@ def _read_config_file(path: str, config_file: ConfigFile) -> dict[str, Any]:
     if skipped:
         report(f"config={path}: {', '.join(skipped)} not taken from it (they say which run it came from)")
     return {key: value for key, value in loaded.items() if key in config_file.taken}
+
+
+def yaml_problem(error: Exception) -> str:
+    """A YAML parse error in one line: `` (line L): <problem>``."""
+    where = getattr(error, "problem_mark", None)
+    line = f" (line {where.line + 1})" if where is not None else ""
+    return f"{line}: {getattr(error, 'problem', None) or str(error).splitlines()[0]}"
 
 
 def _one_line(error: OmegaConfBaseException) -> str:

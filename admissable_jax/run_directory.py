@@ -18,7 +18,7 @@ import yaml
 from omegaconf import OmegaConf
 
 from admissable_jax.checkpointing import CheckpointError, Checkpoints
-from admissable_jax.cli import report
+from admissable_jax.cli import report, yaml_problem
 from admissable_jax.config import TrainConfig
 from admissable_jax.envs import resolve_physics
 from admissable_jax.errors import make_directory, remove_if_unused
@@ -63,10 +63,7 @@ def load_config_yaml(path: str):
     try:
         return OmegaConf.load(path)
     except yaml.YAMLError as error:
-        where = getattr(error, "problem_mark", None)
-        line = f" (line {where.line + 1})" if where is not None else ""
-        problem = getattr(error, "problem", None) or str(error).splitlines()[0]
-        raise ValueError(f"{path} is not valid YAML{line}: {problem}") from None
+        raise ValueError(f"{path} is not valid YAML{yaml_problem(error)}") from None
 
 
 def load_config(path: str, cls=TrainConfig):
@@ -87,7 +84,7 @@ def score_row(env_steps: int, scores: MissingnessScores, p_miss, hidden_sets, es
     what uniform training optimises); a pool's row has none, its sets being the worst found."""
     argmin = int(scores.argmin)
     sets = {"sets": [describe_set(row) for row in np.asarray(hidden_sets)]} if listed else {}
-    average = {} if listed else {"mean_score": float(np.mean(scores.scores))}
+    average = {} if listed else {"mean_score": float(scores.mean_score)}
     return {
         "env_steps": env_steps,
         "score_estimator": estimator,

@@ -53,6 +53,11 @@ class MissingnessScores:
     def argmin(self) -> jax.Array:
         return jnp.argmin(self.scores)
 
+    @property
+    def mean_score(self) -> jax.Array:
+        """The average case beside the worst: a_u's mean over the scored sets."""
+        return jnp.mean(self.scores)
+
 
 def score_by_rollout(
     env,
