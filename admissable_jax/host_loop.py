@@ -28,6 +28,7 @@ from admissable_jax.envs import make_env
 from admissable_jax.errors import Interrupted, RunFailed
 from admissable_jax.memory import MemoryBudget, MemoryBudgetExceeded, memory_budget
 from admissable_jax.placement import PairPlacement
+from admissable_jax.provenance import invocation_record
 from admissable_jax.run_directory import RunDirectory, metrics_row, score_row
 from admissable_jax.run_spec import RunSpec
 from admissable_jax.training import Trainer, TrainState
@@ -166,6 +167,10 @@ class TrainingLoop:
                 for note in run.set_aside_rows_after(start_step):
                     report(note)
         num_scorings = config.planned_steps // config.score_every
+        device = jax.devices()[0]
+        invocation = invocation_record(start_step, f"{device.platform}:{getattr(device, 'device_kind', '')}",
+                                       self.placement.num_devices if self.placement else 1,
+                                       self.trainer.env.physics_name, self.num_runs)
         bar = tqdm(total=config.planned_steps, initial=start_step, unit="step", disable=not config.progress,
                    dynamic_ncols=True)
         try:
@@ -186,6 +191,8 @@ class TrainingLoop:
                 rows = []
                 for index, run in enumerate(self.runs):
                     pick = lambda tree: self.select_pair(tree, index)
+                    if scoring == start_step // config.score_every:  # this command's first row: say what made it
+                        run.record_invocation(invocation)
                     rows.append(score_row(env_steps, pick(scores), pick(p_miss),
                                           np.asarray(self.trainer.scored_sets(pick(pool))),
                                           self.trainer.spec.score_estimator, listed=self.trainer.pooled))

@@ -25,6 +25,7 @@ from admissable_jax.errors import make_directory, remove_if_unused
 from admissable_jax.locks import RunLock
 from admissable_jax.loggers import Loggers
 from admissable_jax.missingness import describe_set
+from admissable_jax.provenance import INVOCATIONS
 from admissable_jax.scoring import MissingnessScores
 
 # Settings that may change when a run is resumed; any other difference is refused.
@@ -185,6 +186,11 @@ class RunDirectory:
                 f"cannot resume with total_steps={config.total_steps}: the run in {config.out} "
                 f"already reached {reached} env steps"
             )
+
+    def record_invocation(self, record: dict[str, Any]) -> None:
+        """Add the command now training to ``invocations.jsonl`` (admissable_jax.provenance)."""
+        with open(os.path.join(self.path, INVOCATIONS), "a") as file:
+            file.write(json.dumps(record) + "\n")
 
     def append(self, name: str, row: dict[str, Any]) -> None:
         """Append ``row`` to the JSONL file ``name`` (the record), and to the loggers if any."""

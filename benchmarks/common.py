@@ -7,13 +7,14 @@ import json
 import os
 import platform
 import resource
-import subprocess
 import sys
 import time
 from typing import Any, Callable
 
 import jax
 import mujoco
+
+from admissable_jax.provenance import source_commit
 
 # Where records go: benchmarks/results, or BENCHMARK_RESULTS_DIR (the campaign's smoke runs).
 COMMITTED_RESULTS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
@@ -34,7 +35,8 @@ def environment_record() -> dict:
         "mujoco": mujoco.__version__,
         "warp": _warp_version(),
         "command": " ".join([os.path.basename(sys.executable), *sys.argv]),
-        "commit": _commit(),
+        # The records under benchmarks/results do not count: appending one must not mark the next.
+        "commit": source_commit(exclude=("benchmarks/results",)) or "unknown",
     }
 
 
@@ -44,17 +46,6 @@ def _warp_version() -> str | None:
     except ImportError:
         return None
     return warp.__version__
-
-
-def _commit() -> str:
-    """The repository's commit, marked ``+changes`` when the code differs from it (the records
-    under ``benchmarks/results/`` do not count: appending a record must not mark the next)."""
-    def git(*args: str) -> str:
-        return subprocess.run(["git", *args], capture_output=True, text=True, cwd=os.path.dirname(__file__)).stdout.strip()
-
-    commit = git("rev-parse", "--short", "HEAD") or "unknown"
-    return commit + ("+changes" if git("status", "--porcelain", "--untracked-files=no", "--",
-                                              ":(top)", ":(top,exclude)benchmarks/results") else "")
 
 
 def timed(function: Callable, *args) -> tuple[Any, float]:

@@ -10,21 +10,22 @@ draws the figures (``plot_runs``, into a new ``DIR/figures``), and writes: the s
 runs used; final and AUC min_u a_u, the final mean_u a_u (the average over U) and the
 final clean return per mode, mean ± 95% t-interval over seeds (``summary_table``);
 adversarial − uniform on each with Welch's 95% interval and p-value (``comparison_table``);
-the verdict those numbers give, in words; and mode
-``none``'s clean return against the SB3 RL-Zoo SAC at 1M env steps; and what the runs cost,
-from their ``metrics.jsonl`` (seconds per training chunk and per scoring round), with a
-1M-step run projected from it where they stopped short. Everything in the
-file is computed from the runs; what you suspect or noticed goes under it by hand.
+the verdict those numbers give, in words; mode ``none``'s clean return against the SB3
+RL-Zoo SAC at 1M env steps; what the runs cost, from their ``metrics.jsonl`` (seconds per
+training chunk and per scoring round), with a 1M-step run projected from it where they
+stopped short; and where they were trained (device, physics, versions, commit: their
+``invocations.jsonl``). Everything in the file is computed from the runs; what you suspect
+or noticed goes under it by hand.
 """
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import datetime
 import json
 import math
 import os
-import subprocess
 import sys
 
 import numpy as np
@@ -34,6 +35,7 @@ from admissable_jax.plot import (
     Difference, Run, comparison_table, differing_settings, find_runs, load_run, mean_and_interval, mode_differences,
     new_folder, plot_runs, summary_table,
 )
+from admissable_jax.provenance import INVOCATIONS, source_commit
 from admissable_jax.run_directory import load_config_yaml
 
 # The SB3 RL-Zoo's SAC at 1M env steps (mean ± std over its evaluations; v3 envs): the
@@ -128,6 +130,26 @@ def _cost_line(run_dirs: list[str]) -> str:
     return line
 
 
+def _provenance_line(run_dirs: list[str]) -> str:
+    """Where the runs were trained, from their ``invocations.jsonl`` (one record per command
+    that trained a run): each distinct device, physics, versions and commit, with its count."""
+    records = []
+    for path in run_dirs:
+        if os.path.exists(os.path.join(path, INVOCATIONS)):
+            with open(os.path.join(path, INVOCATIONS)) as file:
+                records += [json.loads(line) for line in file if line.strip()]
+    if not records:
+        return "Trained on: not recorded (runs written before `invocations.jsonl`)."
+    setups = collections.Counter(
+        f"{record['device']} × {record['devices']}, {record['physics']} physics, "
+        + ", ".join(f"{name} {record['versions'][name]}" for name in ("jax", "mujoco", "mujoco-mjx", "warp-lang")
+                    if name in record["versions"])
+        + f", commit {record['commit'] or 'unknown'}"
+        for record in records)
+    return "Trained on (the runs' `invocations.jsonl`): " + "; ".join(
+        f"{setup} ({count} of {len(records)} records)" for setup, count in setups.items()) + "."
+
+
 def env_section(env: str, folder: str, window: int, out_file: str) -> tuple[str, list[str]]:
     """(the env's Markdown section, one summary row per Difference for the top table)."""
     run_dirs = find_runs([folder])
@@ -156,15 +178,11 @@ def env_section(env: str, folder: str, window: int, out_file: str) -> tuple[str,
         *(f"- {_verdict(difference)}" for difference in differences),
         f"- {_clean_sac_line(env, runs)}", "",
         _cost_line(run_dirs), "",
+        _provenance_line(run_dirs), "",
         f"![min_u a_u, mean_u a_u and clean return]({figure})", "",
     ]
     rows = [f"| {env} | {steps:,} | {d.metric} | {d.mean:+.1f} | {d.reading()} |" for d in differences[:2]]
     return "\n".join(lines), rows
-
-
-def _commit() -> str:
-    return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                          cwd=os.path.dirname(os.path.abspath(__file__))).stdout.strip() or "unknown"
 
 
 def main(argv: list[str]) -> int:
@@ -183,7 +201,7 @@ def main(argv: list[str]) -> int:
     command = " ".join(["python", "benchmarks/figure1.py", *argv])
     text = "\n".join([
         "# Figure 1: adversarial against uniform missingness (min_u a_u)", "",
-        f"Written by `{command}` on {datetime.date.today()} at commit {_commit()}, from the runs' `scores.jsonl` "
+        f"Written by `{command}` on {datetime.date.today()} at commit {source_commit() or 'unknown'}, from the runs' `scores.jsonl` "
         "and `config.yaml`. Final: the last scoring; AUC: the mean of min_u a_u over all scorings; ± and [ ]: 95% "
         "t-intervals over seeds; adversarial − uniform by Welch's t (seeds independent across modes).", "",
         "| env | env steps | metric | adversarial − uniform | reading |", "|---|---|---|---|---|", *rows, "",

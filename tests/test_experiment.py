@@ -39,7 +39,9 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys):
     assert [(r.config.missingness, r.config.seed) for r in straight] == [
         ("adversarial", 0), ("adversarial", 1), ("uniform", 0), ("uniform", 1)]
     for result in straight:
-        assert sorted(os.listdir(result.run_dir)) == ["config.yaml", "metrics.jsonl", "scores.jsonl"]
+        assert sorted(os.listdir(result.run_dir)) == ["config.yaml", "invocations.jsonl", "metrics.jsonl", "scores.jsonl"]
+        (invocation,) = [json.loads(line) for line in open(os.path.join(result.run_dir, "invocations.jsonl"))]
+        assert invocation["runs_in_program"] == 4 and invocation["from_env_steps"] == 0
         assert [row["env_steps"] for row in result.scores] == [1000, 2000, 3000]
         assert result.metrics[-1]["runs_in_program"] == 4
         if result.config.missingness == "uniform":

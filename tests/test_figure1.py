@@ -40,9 +40,16 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys):
         for t, seconds in enumerate((1.0, 2.0, 3.0, 4.0)):
             file.write(json.dumps({"env_steps": 5000 * (t + 1), "env_steps_per_s": 2500.0, "score_seconds": seconds,
                                    "runs_in_program": 6}) + "\n")
+    # Where they were trained: two runs' records of one setup, as the host loop writes them.
+    record = {"device": "gpu:NVIDIA H200", "devices": 1, "physics": "warp", "commit": "abc1234",
+              "versions": {"jax": "0.10.2", "mujoco": "3.5.0", "warp-lang": "1.19.0"}}
+    for name in ("adversarial-s0", "uniform-s0"):
+        (root / name / "invocations.jsonl").write_text(json.dumps(record) + "\n")
     out = tmp_path / "FIGURE1.md"
     assert _figure1(f"hopper={root}", "window=2", f"out={out}") == 0
     text = out.read_text()
+    assert ("Trained on (the runs' `invocations.jsonl`): gpu:NVIDIA H200 × 1, warp physics, jax 0.10.2, mujoco 3.5.0, "
+            "warp-lang 1.19.0, commit abc1234 (2 of 2 records).") in text
     assert ("Cost (measured, the program of 6 runs, compiling not counted): 4 scorings in 18 s; a training chunk of "
             "5,000 env steps per run 2.00 s (median), a scoring round 2.50 s on average, 2.50 s over the last 4. "
             "1M env steps projected at 900 s (15.0 min): the remaining 196 scorings") in text
@@ -60,6 +67,7 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys):
         _run_with_minimums(str(within), "none", seed, [1, 2, 3, 4], clean, score_every=250_000)
         _run_with_minimums(str(young), "none", seed, [1, 2, 3, 4], clean)
     assert _figure1(f"hopper={within}", f"out={out}") == 0
+    assert "Trained on: not recorded (runs written before `invocations.jsonl`)." in out.read_text()
     assert ("final clean return 1050.0 [414.7, 1685.3] against the SB3 RL-Zoo SAC at 1M, 2,326 ± 1,130 (v3 envs): "
             "within SB3's spread (our 95% interval reaches its mean ± 1 sd).") in out.read_text()
     assert _figure1(f"hopper={young}", f"out={out}") == 0

@@ -256,12 +256,18 @@ def test_faults_of_long_runs_cost_nothing_finished(tmp_path, monkeypatch, capsys
     assert resumed.finished and resumed.scores == straight.scores
     assert f"dropped the cut-off last line of {os.path.join(paused_dir, 'scores.jsonl')}" in capsys.readouterr().err
 
+    # Each command that trained here says so in invocations.jsonl, from the step it started at;
+    # one that found nothing left to train (below) adds nothing.
+    invocations = [json.loads(line) for line in open(os.path.join(paused_dir, "invocations.jsonl"))]
+    assert [record["from_env_steps"] for record in invocations] == [0, 500]
+
     # Resuming a finished run says so at once, compiles nothing, and returns its state.
     again = train_fn(dataclasses.replace(RUN, out=paused_dir, resume=True))
     said = capsys.readouterr().err
     assert "nothing left to train: the run reached 2000 of 2000 env steps" in said and "compiling" not in said
     for a, b in zip(jax.tree.leaves(again.state), jax.tree.leaves(straight.state)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert len(open(os.path.join(paused_dir, "invocations.jsonl")).readlines()) == 2
 
     # A run stopped before its first checkpoint leaves rows and no checkpoint: a new run in
     # its directory starts afresh and sets the earlier rows aside, stamped, never deleted,

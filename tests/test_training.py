@@ -19,6 +19,7 @@ import unittest.mock
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 import pytest
 from omegaconf import OmegaConf
@@ -74,8 +75,13 @@ def test_sac_learns_point_mass(point_mass_run):
 
 def test_run_directory_contents(point_mass_run):
     run_dir = point_mass_run.run_dir
-    assert sorted(os.listdir(run_dir)) == ["checkpoints", "config.yaml", "metrics.jsonl", "scores.jsonl", "tensorboard",
-                                           "wandb", "wandb_run_id"]
+    assert sorted(os.listdir(run_dir)) == ["checkpoints", "config.yaml", "invocations.jsonl", "metrics.jsonl",
+                                           "scores.jsonl", "tensorboard", "wandb", "wandb_run_id"]
+    # What produced the run: this command, from step 0, on this machine's device and packages.
+    (invocation,) = [json.loads(line) for line in open(os.path.join(run_dir, "invocations.jsonl"))]
+    assert invocation["from_env_steps"] == 0 and invocation["physics"] == "jax" and invocation["runs_in_program"] == 1
+    assert invocation["device"].startswith("cpu:") and invocation["devices"] == 1 and invocation["command"][1:] == sys.argv
+    assert invocation["versions"]["jax"] == jax.__version__ and invocation["versions"]["mujoco"] == mujoco.__version__
     for row in point_mass_run.scores:
         assert len(row["scores"]) == 4 and len(row["p_miss"]) == 4
         assert row["min_score"] == pytest.approx(min(row["scores"]), abs=1e-3)

@@ -1,0 +1,69 @@
+"""What produced a run: each command that trains in a run directory adds one line to its
+``invocations.jsonl`` (when, the command line, host, device, physics, library versions,
+source commit, and the env step it started from), so a run resumed on another machine, or
+after an upgrade, says so in its own folder. JAX-free: the caller names the device.
+"""
+
+from __future__ import annotations
+
+import datetime
+import importlib.metadata
+import os
+import platform
+import subprocess
+import sys
+from typing import Any
+
+INVOCATIONS = "invocations.jsonl"
+PACKAGES = ("admissable_jax", "jax", "jaxlib", "mujoco", "mujoco-mjx", "warp-lang", "flax", "optax", "orbax-checkpoint",
+            "brax", "numpy", "gymnasium")
+
+
+def package_versions() -> dict[str, str]:
+    """The installed versions of the packages a run's numbers depend on (absent ones left out)."""
+    versions = {}
+    for name in PACKAGES:
+        try:
+            versions[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            continue
+    return versions
+
+
+def source_commit(exclude: tuple[str, ...] = ()) -> str | None:
+    """The git commit of the checkout this package runs from (short), marked ``+changes``
+    where tracked files differ from it (paths under ``exclude``, relative to the repository
+    root, not counted); None outside a git checkout (an installed wheel) or without git."""
+    def git(*args: str) -> str:
+        try:
+            return subprocess.run(["git", *args], capture_output=True, text=True, timeout=10,
+                                  cwd=os.path.dirname(os.path.abspath(__file__))).stdout.strip()
+        except (OSError, subprocess.SubprocessError):
+            return ""
+
+    commit = git("rev-parse", "--short", "HEAD")
+    if not commit:
+        return None
+    excluded = [f":(top,exclude){path}" for path in exclude]
+    changed = git("status", "--porcelain", "--untracked-files=no", "--", ":(top)", *excluded)
+    return commit + ("+changes" if changed else "")
+
+
+def invocation_record(from_env_steps: int, device: str, devices: int, physics: str,
+                      runs_in_program: int) -> dict[str, Any]:
+    """One ``invocations.jsonl`` line for the command now training (``device``: the kind,
+    e.g. ``gpu:NVIDIA H100 80GB HBM3``, of the ``devices`` it runs on; ``runs_in_program``:
+    the pairs trained together)."""
+    return {
+        "started": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "from_env_steps": from_env_steps,
+        "command": [os.path.basename(sys.executable), *sys.argv],
+        "host": platform.node(),
+        "device": device,
+        "devices": devices,
+        "physics": physics,
+        "runs_in_program": runs_in_program,
+        "python": platform.python_version(),
+        "versions": package_versions(),
+        "commit": source_commit(),
+    }
