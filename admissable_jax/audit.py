@@ -29,7 +29,8 @@ adversarial − uniform with Welch's interval; ``comparison.png`` draws it
 (:func:`audit_experiment`).
 
 In Python, :func:`audit` takes any JAX ``policy_fn(params, masked_obs) -> action`` on any of
-our envs, and :func:`write_audit` writes its files.
+our envs, :func:`audit_gymnasium` any Python policy on any Gymnasium env (Stable-Baselines3,
+CleanRL, PyTorch), and :func:`write_audit` writes either's files.
 """
 
 from __future__ import annotations
@@ -135,6 +136,7 @@ class AuditResult:
     feature_names: list[str]
     source: dict[str, Any]  # what was audited (run directory, step), for the report
     search: dict[int, dict[str, Any]] = dataclasses.field(default_factory=dict)  # by searched k: how, and ranks
+    same_starts: bool = True  # every set's episode i starts from one state (False: a Gymnasium vector env's resets)
 
     def worst(self, k: int, top: int) -> list[SetScore]:
         return sorted(self.sets[k], key=lambda entry: entry.score)[:top]
@@ -198,9 +200,16 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
                           "ranker_scores": [[np.flatnonzero(row).tolist(), float(score_)]
                                             for row, score_ in zip(finalists, ranker_scores)]}
     returns = np.asarray(score(np.concatenate(blocks), estimator).returns, np.float64)
+    return _audit_result(env.name, estimator, returns, ks, blocks, feature_names or [str(i) for i in range(d)],
+                         source or {}, search_info)
+
+
+def _audit_result(env_name: str, estimator: str, returns: np.ndarray, ks, blocks: list[np.ndarray],
+                  names: list[str], source: dict[str, Any], search_info: dict[int, dict[str, Any]]) -> AuditResult:
+    """The audit of one rollout: ``returns`` ((sets + 1, N), the clean case last) of the
+    sets in ``blocks``, one block of 0/1 rows per k in ``ks``."""
     clean = returns[-1]
     clean_score = float(clean.mean())
-    names = feature_names or [str(i) for i in range(d)]
     sets, row = {}, 0
     for k, block in zip(ks, blocks):
         entries = []
@@ -211,8 +220,46 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
                                     _drop(clean_score, score_), returns[row].tolist()))
             row += 1
         sets[k] = entries
-    return AuditResult(env.name, estimator, n_episodes, clean_score, _ci95(clean), clean.tolist(), sets, list(names),
-                       source or {}, search_info)
+    return AuditResult(env_name, estimator, returns.shape[1], clean_score, _ci95(clean), clean.tolist(), sets,
+                       list(names), source, search_info)
+
+
+def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs: int = 8, seed: int = 0,
+                    feature_names: list[str] | None = None, **env_kwargs) -> AuditResult:
+    """:func:`audit` for any policy on any Gymnasium env (Stable-Baselines3, CleanRL, your
+    own PyTorch): every set of each size in ``ks`` and the clean case, N = ``n_episodes``
+    episodes each, in one rollout on ``num_envs`` copies of ``gymnasium.make_vec(env_id)``
+    by :func:`~admissable_jax.wrappers.score_policy` (``policy(masked_obs_batch) ->
+    actions``). Episode starts follow the vector env's seed, so unlike :func:`audit` the
+    sets do not share their N start states. ``feature_names`` default to our env's for
+    Hopper-v5, Walker2d-v5 and Ant-v5, else the indices. :func:`write_audit` writes the files."""
+    import gymnasium
+
+    from admissable_jax.envs import canonical_env_name, observation_names
+    from admissable_jax.wrappers import score_policy
+
+    probe = gymnasium.make(env_id, **env_kwargs)
+    d = int(probe.observation_space.shape[0])
+    probe.close()
+    if not ks or any(not 1 <= k < d for k in ks):
+        raise ValueError(f"ks must be set sizes 1 <= k < d = {d}, got {tuple(ks)}")
+    blocks = [candidate_sets(d, k) for k in ks]
+    if (sum(len(block) for block in blocks) + 1) * n_episodes > MAX_AUDIT_EPISODES:
+        raise ValueError(f"auditing k={','.join(map(str, ks))} on {env_id} is over {MAX_AUDIT_EPISODES:,} episodes: "
+                         "lower n_episodes or drop the largest k")
+    if feature_names is None:
+        try:
+            feature_names = observation_names(canonical_env_name(env_id))
+        except ValueError:  # not one of our envs
+            feature_names = []
+        if len(feature_names) != d:  # or made with other observation arguments
+            feature_names = [str(i) for i in range(d)]
+    scored = score_policy(env_id, policy, n_episodes=n_episodes, num_envs=num_envs, seed=seed,
+                          hidden_sets=np.concatenate(blocks), **env_kwargs)
+    source = {"Gymnasium env": env_id, "policy": getattr(policy, "__name__", type(policy).__name__)}
+    result = _audit_result(env_id, "rollout", np.asarray(scored.returns, np.float64), ks, blocks, feature_names,
+                           source, {})
+    return dataclasses.replace(result, same_starts=False)
 
 
 def _drop(clean_score: float, score: float) -> float:
@@ -246,13 +293,15 @@ def write_audit(result: AuditResult, out: str, top: int = 10) -> list[str]:
 
 def _report(result: AuditResult, top: int, figures: list[str]) -> str:
     source = ", ".join(f"{key} {value}" for key, value in result.source.items())
+    episodes = ("deterministic episodes from the same N start states" if result.same_starts else
+                "episodes of the policy as given, each set's from the vector env's own resets")
     measure = ("the mean undiscounted return of" if result.estimator == "rollout" else
                f"the `{result.estimator}` estimate (the critic's discounted value; admissable_jax.scoring) over")
     lines = [
         f"# Robustness audit: {result.env}", "",
         f"{source}. Every set u of the sizes below was hidden for whole episodes (hidden features read 0, "
         f"with the 0/1 indicator of the paper's masked observation); a_u is {measure} "
-        f"N = {result.n_episodes} deterministic episodes from the same N start states, ± the 95% confidence "
+        f"N = {result.n_episodes} {episodes}, ± the 95% confidence "
         f"interval (Student's t); the drop is relative to the clean case.", "",
         f"**Clean return (nothing hidden): {result.clean_score:.1f} ± {result.clean_ci95:.1f}**", "",
     ]

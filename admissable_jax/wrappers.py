@@ -120,9 +120,12 @@ class PolicyScores:
 
 def score_policy(env_id: str, policy: Callable[[np.ndarray], Any], k: int = 1, n_episodes: int = 10,
                  num_envs: int = 8, include_empty_set: bool = False, seed: int = 0,
-                 vectorization_mode: str = "sync", **env_kwargs) -> PolicyScores:
+                 vectorization_mode: str = "sync", hidden_sets: np.ndarray | None = None,
+                 **env_kwargs) -> PolicyScores:
     """a_u for every set u of ``k`` features (paper §3): the mean undiscounted return of
     ``n_episodes`` episodes with u hidden, and the clean return, for any Python policy.
+    ``hidden_sets`` ((|U|, d) 0/1 rows) scores those sets instead, in one rollout (the
+    audit's sets of several sizes).
 
     ``policy(masked_obs) -> actions`` maps a (num_envs, 2·d) batch of masked observations to
     a batch of actions: NumPy, PyTorch behind ``.numpy()``, or SB3's
@@ -136,7 +139,12 @@ def score_policy(env_id: str, policy: Callable[[np.ndarray], Any], k: int = 1, n
     envs = gymnasium.make_vec(env_id, num_envs=num_envs, vectorization_mode=vectorization_mode, **env_kwargs)
     try:
         num_features = int(envs.single_observation_space.shape[0])
-        hidden_sets = candidate_sets(num_features, k, include_empty_set)
+        if hidden_sets is None:
+            hidden_sets = candidate_sets(num_features, k, include_empty_set)
+        hidden_sets = np.asarray(hidden_sets, np.float32)
+        if hidden_sets.ndim != 2 or hidden_sets.shape[1] != num_features:
+            raise ValueError(f"hidden_sets must be (sets, {num_features}) 0/1 rows for {env_id}, "
+                             f"got shape {hidden_sets.shape}")
         rows = np.concatenate([hidden_sets, np.zeros((1, num_features), np.float32)])
         returns = np.zeros((len(rows), n_episodes))
         lengths = np.zeros((len(rows), n_episodes), np.int64)

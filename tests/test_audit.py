@@ -124,6 +124,29 @@ def test_beam_search_finds_the_known_worst_pair():
         audit(ENV, steer, gain, ks=(2,), n_episodes=2, search="beam", ranker="critic")
 
 
+def test_audit_of_any_gymnasium_policy(tmp_path):
+    """audit_gymnasium on tests/test_wrappers.py's ConstantFeatures env (observes 1, 2, 3;
+    earns 5 · the sum it sees): hand-computed a_u for every set of 1 and 2 features, the worst,
+    the mean over the sets, and the same report as a run's audit."""
+    from test_wrappers import sum_of_visible  # registers ConstantFeatures-v0
+
+    from admissable_jax.audit import audit_gymnasium, write_audit
+
+    result = audit_gymnasium("ConstantFeatures-v0", sum_of_visible, ks=(1, 2), n_episodes=2, num_envs=3)
+    assert result.clean_score == 30.0 and result.n_episodes == 2 and result.feature_names == ["0", "1", "2"]
+    assert [(entry.hidden, entry.score) for entry in result.sets[1]] == [((0,), 25.0), ((1,), 20.0), ((2,), 15.0)]
+    assert [(entry.hidden, entry.score) for entry in result.sets[2]] == [((0, 1), 15.0), ((0, 2), 10.0), ((1, 2), 5.0)]
+    assert result.worst(2, 1)[0].drop_percent == pytest.approx(100 * 25 / 30)
+    assert (result.mean(1), result.mean(2)) == (20.0, 10.0)
+    written = write_audit(result, str(tmp_path / "audit"))
+    assert sorted(os.path.basename(path) for path in written) == ["audit.json", "pairs_k2.png", "report.md", "scores_k1.png"]
+    report = (tmp_path / "audit" / "report.md").read_text()
+    assert "Gymnasium env ConstantFeatures-v0, policy sum_of_visible" in report and "| 1 | 1, 2 | 1, 2 | 5.0 ± 0.0 | 83.3% |" in report
+    assert "N = 2 episodes of the policy as given, each set's from the vector env's own resets" in report
+    with pytest.raises(ValueError, match="ks must be set sizes 1 <= k < d = 3"):
+        audit_gymnasium("ConstantFeatures-v0", sum_of_visible, ks=(3,))
+
+
 @pytest.fixture(scope="module")
 def short_run(tmp_path_factory):
     """A short adversarial run whose scorings are 3-step horizon estimates."""
