@@ -53,6 +53,7 @@ from admissable_jax.envs import observation_names  # noqa: E402
 from admissable_jax.errors import UnusableDirectory, make_directory  # noqa: E402
 from admissable_jax.method import parse_set  # noqa: E402
 from admissable_jax.missingness import candidate_sets  # noqa: E402
+from admissable_jax.provenance import INVOCATIONS  # noqa: E402
 from admissable_jax.run_directory import TornLine, load_config_yaml, read_jsonl  # noqa: E402
 
 MODE_COLORS = {"adversarial": "tab:blue", "uniform": "tab:red", "none": "tab:gray"}
@@ -470,6 +471,23 @@ def comparison_table(run_dirs: list[str]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def trained_on(run_dirs: list[str]) -> str:
+    """Where the runs were trained, from their ``invocations.jsonl`` (one record per command
+    that trained a run): each distinct device, physics, versions and commit, with its count."""
+    records = [record for path in run_dirs if os.path.exists(os.path.join(path, INVOCATIONS))
+               for record in read_jsonl(os.path.join(path, INVOCATIONS), torn="drop")]
+    if not records:
+        return "Trained on: not recorded (runs written before `invocations.jsonl`)."
+    setups = collections.Counter(
+        f"{record['device']} × {record['devices']}, {record['physics']} physics, "
+        + ", ".join(f"{name} {record['versions'][name]}" for name in ("jax", "mujoco", "mujoco-mjx", "warp-lang")
+                    if name in record["versions"])
+        + f", commit {record['commit'] or 'unknown'}"
+        for record in records)
+    return "Trained on (the runs' `invocations.jsonl`): " + "; ".join(
+        f"{setup} ({count} of {len(records)} records)" for setup, count in setups.items()) + "."
+
+
 @dataclasses.dataclass
 class PlotConfig:
     window: int = dataclasses.field(default=0, metadata={
@@ -513,10 +531,12 @@ def main(argv: list[str]) -> int:
                                  config.window)
         table = summary_table(runs)
         comparison = comparison_table(runs)
+        provenance = trained_on(runs)
     except (ValueError, FileNotFoundError, KeyError, UnusableDirectory) as error:
         fail(str(error))
     table += (f"\nFigures: mean over seeds of the {smoothing}. Table: the last "
-              f"record itself (final) and the mean over all records (AUC), unsmoothed.\n{variants}")
+              f"record itself (final) and the mean over all records (AUC), unsmoothed.\n{variants}"
+              f"\n{provenance}\n")
     if comparison:
         table += ("\nAdversarial − uniform, per env (over the records both modes share; seeds independent, "
                   "so Welch's t):\n\n" + comparison)

@@ -20,7 +20,6 @@ or noticed goes under it by hand.
 
 from __future__ import annotations
 
-import collections
 import dataclasses
 import datetime
 import json
@@ -33,9 +32,9 @@ import numpy as np
 from admissable_jax.cli import fail, parse_args
 from admissable_jax.plot import (
     Difference, Run, comparison_table, differing_settings, find_runs, load_run, mean_and_interval, mode_differences,
-    new_folder, plot_runs, summary_table,
+    new_folder, plot_runs, summary_table, trained_on,
 )
-from admissable_jax.provenance import INVOCATIONS, source_commit
+from admissable_jax.provenance import source_commit
 from admissable_jax.run_directory import load_config_yaml
 
 # The SB3 RL-Zoo's SAC at 1M env steps (mean ± std over its evaluations; v3 envs): the
@@ -130,26 +129,6 @@ def _cost_line(run_dirs: list[str]) -> str:
     return line
 
 
-def _provenance_line(run_dirs: list[str]) -> str:
-    """Where the runs were trained, from their ``invocations.jsonl`` (one record per command
-    that trained a run): each distinct device, physics, versions and commit, with its count."""
-    records = []
-    for path in run_dirs:
-        if os.path.exists(os.path.join(path, INVOCATIONS)):
-            with open(os.path.join(path, INVOCATIONS)) as file:
-                records += [json.loads(line) for line in file if line.strip()]
-    if not records:
-        return "Trained on: not recorded (runs written before `invocations.jsonl`)."
-    setups = collections.Counter(
-        f"{record['device']} × {record['devices']}, {record['physics']} physics, "
-        + ", ".join(f"{name} {record['versions'][name]}" for name in ("jax", "mujoco", "mujoco-mjx", "warp-lang")
-                    if name in record["versions"])
-        + f", commit {record['commit'] or 'unknown'}"
-        for record in records)
-    return "Trained on (the runs' `invocations.jsonl`): " + "; ".join(
-        f"{setup} ({count} of {len(records)} records)" for setup, count in setups.items()) + "."
-
-
 def env_section(env: str, folder: str, window: int, out_file: str) -> tuple[str, list[str]]:
     """(the env's Markdown section, one summary row per Difference for the top table)."""
     run_dirs = find_runs([folder])
@@ -178,7 +157,7 @@ def env_section(env: str, folder: str, window: int, out_file: str) -> tuple[str,
         *(f"- {_verdict(difference)}" for difference in differences),
         f"- {_clean_sac_line(env, runs)}", "",
         _cost_line(run_dirs), "",
-        _provenance_line(run_dirs), "",
+        trained_on(run_dirs), "",
         f"![min_u a_u, mean_u a_u and clean return]({figure})", "",
     ]
     rows = [f"| {env} | {steps:,} | {d.metric} | {d.mean:+.1f} | {d.reading()} |" for d in differences[:2]]

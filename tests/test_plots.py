@@ -69,6 +69,7 @@ def test_plot_runs_writes_every_figure(tmp_path):
     summary = (tmp_path / "both" / "summary.md").read_text()
     assert "| walker2d | uniform | 1 |" in summary and "| hopper | adversarial | 3 |" in summary
     assert "hopper: moving average over 2 records (the paper's 40 of 200, scaled to the runs' 12)" in summary
+    assert "Trained on: not recorded (runs written before `invocations.jsonl`)." in summary
 
 
 def test_runs_that_differ_in_settings_are_separate_curves(tmp_path, capsys):
