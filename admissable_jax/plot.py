@@ -29,7 +29,8 @@ shortened to their length; the figures and the summary say which. ``python -m
 admissable_jax.plot runs/fig1-hopper [window=0] [out=DIR]``
 finds every run directory (one holding ``scores.jsonl``) under the given paths and writes
 into a new folder (``<first path>/figures``, or ``figures-2``, ... if that exists); runs of
-several envs get a subfolder of figures each and one summary.
+several envs get a subfolder of figures each, one summary, and ``figure1.png``: every env's
+min_u a_u side by side as the paper lays its Figure 1 out (:func:`plot_envs_side_by_side`).
 """
 
 from __future__ import annotations
@@ -49,7 +50,7 @@ from scipy import stats  # noqa: E402
 
 from admissable_jax.cli import fail, parse_args  # noqa: E402
 from admissable_jax.config import TrainConfig  # noqa: E402
-from admissable_jax.envs import observation_names  # noqa: E402
+from admissable_jax.envs import ENV_CLASSES, observation_names  # noqa: E402
 from admissable_jax.errors import UnusableDirectory, make_directory  # noqa: E402
 from admissable_jax.method import parse_set  # noqa: E402
 from admissable_jax.missingness import candidate_sets  # noqa: E402
@@ -284,6 +285,50 @@ def _save(figure, out_dir: str, name: str) -> list[str]:
     return paths
 
 
+def draw_curves(ax, runs: list[Run], attribute: str, window: int) -> None:
+    """One panel: ``attribute`` (``min_score``, ``mean_score``, ``clean_score``) of each curve
+    of these labelled runs of one env against env steps: the mean over seeds of the trailing
+    moving average (mode's colour, variant's line style), its 95% t-band, and the unsmoothed
+    mean of each record as dots."""
+    used = effective_window(runs, window)
+    variants = sorted({run.variant for run in runs})
+    for (_, mode, variant), curve_runs in _curves(runs).items():
+        steps, values = _aligned(curve_runs, attribute)
+        mean, low, high = mean_and_interval(moving_average(values, used))
+        color = MODE_COLORS.get(mode, "black")
+        ax.plot(steps, mean, color=color, linestyle=LINE_STYLES[variants.index(variant) % len(LINE_STYLES)],
+                label=f"{curve_runs[0].curve} ({_seeds(len(curve_runs))})")
+        ax.fill_between(steps, low, high, color=color, alpha=0.2, linewidth=0)
+        ax.plot(steps, values.mean(axis=0), ".", color=color, alpha=0.35, markersize=3)
+    ax.set_xlabel("env steps")
+    ax.grid(alpha=0.3)
+    ax.legend()
+
+
+def plot_envs_side_by_side(run_dirs: list[str], out_dir: str, window: int = 0) -> list[str]:
+    """The paper's Figure 1 as it lays it out: min_u a_u of each env's runs in a panel of its
+    own, side by side (Hopper-v5, Walker2d-v5, Ant-v5 first), as ``figure1.png``/``.pdf`` in
+    ``out_dir``; each env smoothed by its own records (:func:`effective_window`)."""
+    runs = label_variants([load_run(path) for path in run_dirs])
+    if not runs:
+        raise ValueError("no runs to plot")
+    order = list(ENV_CLASSES)
+    envs = sorted({run.env for run in runs}, key=lambda env: (order.index(env) if env in order else len(order), env))
+    figure, axes = plt.subplots(1, len(envs), figsize=(5 * len(envs), 4), squeeze=False)
+    notes = []
+    for ax, env in zip(axes[0], envs):
+        env_runs = [run for run in runs if run.env == env]
+        draw_curves(ax, env_runs, "min_score", window)
+        ax.set_title(getattr(ENV_CLASSES.get(env), "gymnasium_id", None) or env)
+        notes.append(f"{env}: {_window_note(env_runs, window)}")
+    axes[0][0].set_ylabel("adversarial performance $\\mathrm{min}_u\\, a_u$")
+    figure.suptitle(f"Performance under adversarial missingness: $\\mathrm{{min}}_u\\, a_u$ at every scoring. Lines: "
+                    f"mean over seeds, smoothed per env ({'; '.join(notes)}); shaded: 95% t-interval over seeds",
+                    fontsize=8, y=-0.02, va="top", wrap=True)
+    make_directory(out_dir, "figures folder")
+    return _save(figure, out_dir, "figure1")
+
+
 def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0) -> list[str]:
     """Draw the figures for these runs into ``out_dir``; returns the files written.
     ``window``: records in the moving average (0: the paper's, :func:`effective_window`)."""
@@ -293,9 +338,8 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0) -> list[str]:
     envs = sorted({run.env for run in runs})
     if len(envs) > 1:
         raise ValueError(f"runs of several envs ({', '.join(envs)}): plot one env at a time")
-    used = effective_window(runs, window)
+    effective_window(runs, window)  # a bad window is refused before anything is written
     curves = _curves(runs)
-    variants = sorted({run.variant for run in runs})
     for curve_runs in curves.values():
         seeds = [run.seed for run in curve_runs]
         for seed in sorted({seed for seed in seeds if seeds.count(seed) > 1}):
@@ -312,20 +356,9 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0) -> list[str]:
         panels.append(("mean_score", "average over hidden sets $\\mathrm{mean}_u\\, a_u$"))
     panels.append(("clean_score", "clean return (nothing hidden)"))
     figure, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 4), sharey=True)
-    for (_, mode, variant), curve_runs in curves.items():
-        for ax, (attribute, _) in zip(axes, panels):
-            steps, values = _aligned(curve_runs, attribute)
-            mean, low, high = mean_and_interval(moving_average(values, used))
-            color = MODE_COLORS.get(mode, "black")
-            ax.plot(steps, mean, color=color, linestyle=LINE_STYLES[variants.index(variant) % len(LINE_STYLES)],
-                    label=f"{curve_runs[0].curve} ({_seeds(len(curve_runs))})")
-            ax.fill_between(steps, low, high, color=color, alpha=0.2, linewidth=0)
-            ax.plot(steps, values.mean(axis=0), ".", color=color, alpha=0.35, markersize=3)
-    for ax, (_, title) in zip(axes, panels):
+    for ax, (attribute, title) in zip(axes, panels):
+        draw_curves(ax, runs, attribute, window)
         ax.set_title(f"{envs[0]}: {title}", fontsize=10)
-        ax.set_xlabel("env steps")
-        ax.grid(alpha=0.3)
-        ax.legend()
     axes[0].set_ylabel("return")
     figure.suptitle(_figure_caption(runs, window), fontsize=9, y=-0.02, va="top")
     written += _save(figure, out_dir, "min_score")
@@ -529,6 +562,8 @@ def main(argv: list[str]) -> int:
         for env, env_runs in sorted(by_env.items()):
             written += plot_runs([run.path for run in env_runs], out_dir if len(by_env) == 1 else os.path.join(out_dir, env),
                                  config.window)
+        if len(by_env) > 1:  # the paper's layout: every env's min_u a_u side by side
+            written += plot_envs_side_by_side(runs, out_dir, config.window)
         table = summary_table(runs)
         comparison = comparison_table(runs)
         provenance = trained_on(runs)

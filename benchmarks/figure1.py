@@ -6,7 +6,8 @@
 
 Each ``ENV=DIR`` is an experiment's folder (its ``<mode>-s<seed>/`` run directories with
 ``config.yaml`` and ``scores.jsonl``, as ``gpu_campaign.sh`` brings them back). Per env it
-draws the figures (``plot_runs``, into a new ``DIR/figures``), and writes: the settings the
+draws the figures (``plot_runs``, into a new ``DIR/figures``; and every env's min_u a_u side by
+side, as the paper lays Figure 1 out, into ``figure1.png`` beside the file), and writes: the settings the
 runs used; final and AUC min_u a_u, the final mean_u a_u (the average over U) and the
 final clean return per mode, mean ± 95% t-interval over seeds (``summary_table``);
 adversarial − uniform on each with Welch's 95% interval and p-value (``comparison_table``);
@@ -30,9 +31,10 @@ import sys
 import numpy as np
 
 from admissable_jax.cli import fail, parse_args
+from admissable_jax.errors import UnusableDirectory
 from admissable_jax.plot import (
     Difference, Run, comparison_table, differing_settings, find_runs, load_run, mean_and_interval, mode_differences,
-    new_folder, plot_runs, summary_table, trained_on,
+    new_folder, plot_envs_side_by_side, plot_runs, summary_table, trained_on,
 )
 from admissable_jax.provenance import source_commit
 from admissable_jax.run_directory import load_config_yaml
@@ -170,12 +172,16 @@ def main(argv: list[str]) -> int:
     if not folders:
         fail("give at least one of hopper=DIR, walker2d=DIR, ant=DIR")
     sections, rows = [], []
+    out_folder = os.path.dirname(os.path.abspath(config.out))
     try:
         for env, folder in folders.items():
             section, env_rows = env_section(env, folder, config.window, config.out)
             sections.append(section)
             rows += env_rows
-    except (ValueError, FileNotFoundError, KeyError) as error:
+        # The paper's layout, beside FIGURE1.md: every env's min_u a_u in a panel of its own.
+        plot_envs_side_by_side([path for folder in folders.values() for path in find_runs([folder])], out_folder,
+                               config.window)
+    except (ValueError, FileNotFoundError, KeyError, UnusableDirectory) as error:
         fail(str(error))
     command = " ".join(["python", "benchmarks/figure1.py", *argv])
     text = "\n".join([
@@ -184,9 +190,9 @@ def main(argv: list[str]) -> int:
         "and `config.yaml`. Final: the last scoring; AUC: the mean of min_u a_u over all scorings; ± and [ ]: 95% "
         "t-intervals over seeds; adversarial − uniform by Welch's t (seeds independent across modes).", "",
         "| env | env steps | metric | adversarial − uniform | reading |", "|---|---|---|---|---|", *rows, "",
+        "![every env's min_u a_u, as the paper's Figure 1 lays it out](figure1.png)", "",
         *sections,
     ])
-    os.makedirs(os.path.dirname(os.path.abspath(config.out)), exist_ok=True)
     with open(config.out, "w") as file:
         file.write(text)
     print(text)

@@ -61,6 +61,8 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys):
     assert "(6 runs, 20,000 env steps each, not the paper's 1M)" in text
     assert "![min_u a_u, mean_u a_u and clean return](hopper/figures/min_score.png)" in text
     assert (root / "figures" / "min_score.png").exists()
+    assert "![every env's min_u a_u, as the paper's Figure 1 lays it out](figure1.png)" in text
+    assert (tmp_path / "figure1.png").exists()
 
     within, young = tmp_path / "within", tmp_path / "young"
     for seed, clean in enumerate((1000, 1100)):

@@ -64,7 +64,9 @@ def test_plot_runs_writes_every_figure(tmp_path):
     # Runs of several envs from the command line: a figures subfolder per env, one summary.
     _fake_run(str(tmp_path / "runs" / "walker"), "uniform", 0, sets=17, env="walker2d")
     assert main([str(tmp_path / "runs"), f"out={tmp_path / 'both'}"]) == 0
-    assert sorted(os.listdir(tmp_path / "both")) == ["hopper", "summary.md", "walker2d"]
+    assert sorted(os.listdir(tmp_path / "both")) == ["figure1.pdf", "figure1.png", "hopper", "summary.md", "walker2d"]
+    height, width, _ = imread(os.path.join(tmp_path, "both", "figure1.png")).shape
+    assert width > 2 * height  # the paper's layout: a panel per env, side by side
     assert os.path.isfile(tmp_path / "both" / "walker2d" / "scores_uniform.png")
     summary = (tmp_path / "both" / "summary.md").read_text()
     assert "| walker2d | uniform | 1 |" in summary and "| hopper | adversarial | 3 |" in summary
