@@ -14,7 +14,7 @@ from typing import Any, Callable
 import jax
 import mujoco
 
-from admissable_jax.provenance import source_commit
+from admissable_jax.provenance import package_versions, source_commit
 
 # Where records go: benchmarks/results, or BENCHMARK_RESULTS_DIR (the campaign's smoke runs).
 COMMITTED_RESULTS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
@@ -33,19 +33,11 @@ def environment_record() -> dict:
         "python": platform.python_version(),
         "jax": jax.__version__,
         "mujoco": mujoco.__version__,
-        "warp": _warp_version(),
+        "warp": package_versions().get("warp-lang"),
         "command": " ".join([os.path.basename(sys.executable), *sys.argv]),
         # The records under benchmarks/results do not count: appending one must not mark the next.
         "commit": source_commit(exclude=("benchmarks/results",)) or "unknown",
     }
-
-
-def _warp_version() -> str | None:
-    try:
-        import warp
-    except ImportError:
-        return None
-    return warp.__version__
 
 
 def timed(function: Callable, *args) -> tuple[Any, float]:
