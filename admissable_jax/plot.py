@@ -19,6 +19,9 @@ and draws, as PNG and PDF:
   note that it stayed uniform; for a run with a candidate pool (``pool_size`` > 0), whose
   scored sets change every round, both heatmaps have a row per feature instead: the lowest
   a_u of the pool's sets that hide it (blank where none does) and the p_miss mass on them;
+* ``final_scores.*`` — where each mode is weak at the end: the last scoring's a_u per hidden
+  set (per feature with a pool), the modes' bars side by side, mean over seeds with 95%
+  t-intervals (:func:`final_scores`);
 * ``summary.md`` (CLI) — :func:`summary_table`: final and AUC min_u a_u, final mean_u a_u
   (the average over U) and clean return per mode, and :func:`comparison_table`: adversarial
   − uniform on each with Welch's 95% interval and p-value.
@@ -386,7 +389,51 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0) -> list[str]:
                 ax.set_xlabel("env steps (each column one scoring)")
                 ax.set_ylabel("feature (over the pool's sets hiding it)" if mode_runs[0].pooled else "hidden features u")
             written += _save(figure, out_dir, f"{name}_{mode}" + (f"_{_file_name(variant)}" if variant else ""))
+
+    # Where each mode is weak at the end: a_u per hidden set, the modes' bars side by side
+    # (one figure per candidate-set list: runs of another k have other sets).
+    groups: dict[tuple[str, ...], list[list[Run]]] = collections.defaultdict(list)
+    for curve_runs in curves.values():
+        groups[tuple(curve_runs[0].set_names)].append(curve_runs)
+    for names, group in groups.items():
+        variant = group[0][0].variant
+        name = "final_scores" + (f"_{_file_name(variant)}" if len(groups) > 1 and variant else "")
+        written += _save(_final_scores_figure(envs[0], list(names), group), out_dir, name)
     return written
+
+
+def final_scores(curve_runs: list[Run]) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+    """One curve's a_u per candidate set (per feature, with a pool) at the last record its
+    runs share: (env steps, mean over seeds, 95% t-interval low, high); NaN where a pool
+    scored no set hiding the feature."""
+    steps, values = _aligned(curve_runs, "scores")  # (seeds, records, sets)
+    return (int(steps[-1]), *mean_and_interval(values[:, -1, :]))
+
+
+def _final_scores_figure(env: str, names: list[str], group: list[list[Run]]):
+    """Bars per hidden set (x) and curve (side by side, the mode's colour): the last record's
+    a_u; with a pool only the features some pooled set hides."""
+    finals = [final_scores(curve_runs) for curve_runs in group]
+    shown = np.flatnonzero(np.isfinite(np.stack([mean for _, mean, _, _ in finals])).any(axis=0))
+    names = [names[i] for i in shown]
+    x, width = np.arange(len(names)), 0.8 / len(group)
+    variants = sorted({curve_runs[0].variant for curve_runs in group})
+    figure, ax = plt.subplots(figsize=(min(30.0, max(8.0, 0.25 * len(names) * len(group))), 4.5))
+    for index, (curve_runs, (steps, mean, low, high)) in enumerate(zip(group, finals)):
+        mean, low, high = mean[shown], low[shown], high[shown]
+        run = curve_runs[0]
+        ax.bar(x + (index - (len(group) - 1) / 2) * width, mean, width, yerr=[mean - low, high - mean],
+               capsize=1.5 if len(names) <= 40 else 0, color=MODE_COLORS.get(run.mode, "black"), alpha=0.75,
+               hatch=("", "//", "..", "xx")[variants.index(run.variant) % 4],
+               label=f"{run.curve} ({_seeds(len(curve_runs))}, {steps} env steps)")
+    ax.set_xticks(x, names, rotation=60, ha="right", fontsize=7 if len(names) <= 40 else 5)
+    ax.set_xlim(-0.6, len(names) - 0.4)
+    ax.set_ylabel("lowest $a_u$ of the pool's sets hiding it" if group[0][0].pooled else "$a_u$")
+    ax.set_title(f"{env}: the last scoring's $a_u$ per hidden {'feature' if group[0][0].pooled else 'set'} "
+                 f"(mean over seeds; bars: 95% t-interval)", fontsize=10)
+    ax.grid(alpha=0.3, axis="y")
+    ax.legend(fontsize=8)
+    return figure
 
 
 def _file_name(variant: str) -> str:
@@ -552,8 +599,8 @@ def main(argv: list[str]) -> int:
             run = load_run(path)
             by_env[run.env].append(run)
         notes = {env: _window_note(env_runs, config.window) for env, env_runs in sorted(by_env.items())}
-        smoothing = "; ".join(notes.values()) if len(notes) == 1 else "; ".join(
-            f"{env}: {note}" for env, note in notes.items())
+        smoothing = (f"mean over seeds of the {next(iter(notes.values()))}" if len(notes) == 1 else
+                     "mean over seeds, smoothed per env (" + "; ".join(f"{env}: {note}" for env, note in notes.items()) + ")")
         variants = "".join(
             f"\n{env} runs differ in {', '.join(keys)}: each setting is its own curve and row, never seeds of one.\n"
             for env, keys in ((env, differing_settings(env_runs)) for env, env_runs in sorted(by_env.items())) if keys)
@@ -569,7 +616,7 @@ def main(argv: list[str]) -> int:
         provenance = trained_on(runs)
     except (ValueError, FileNotFoundError, KeyError, UnusableDirectory) as error:
         fail(str(error))
-    table += (f"\nFigures: mean over seeds of the {smoothing}. Table: the last "
+    table += (f"\nFigures: {smoothing}. Table: the last "
               f"record itself (final) and the mean over all records (AUC), unsmoothed.\n{variants}"
               f"\n{provenance}\n")
     if comparison:

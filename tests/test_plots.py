@@ -11,8 +11,8 @@ from omegaconf import OmegaConf
 
 from admissable_jax.config import TrainConfig
 from admissable_jax.plot import (
-    Difference, _cell_edges, _heatmap, _seeds, comparison_table, effective_window, find_runs, load_run, main, mean_and_interval,
-    moving_average, plot_runs, set_names, summary_table,
+    Difference, _cell_edges, _heatmap, _seeds, comparison_table, effective_window, final_scores, find_runs, load_run, main,
+    mean_and_interval, moving_average, plot_runs, set_names, summary_table,
 )
 
 
@@ -52,7 +52,8 @@ def test_plot_runs_writes_every_figure(tmp_path):
     written = plot_runs(runs, str(tmp_path / "figures"), window=4)
     names = sorted(os.path.basename(p) for p in written)
     assert names == sorted(
-        f"{stem}.{ext}" for stem in ("min_score", "scores_adversarial", "scores_uniform", "p_miss_adversarial", "p_miss_uniform")
+        f"{stem}.{ext}" for stem in ("min_score", "scores_adversarial", "scores_uniform", "p_miss_adversarial", "p_miss_uniform",
+                                      "final_scores")
         for ext in ("png", "pdf")
     )
     # A p_miss that never left uniform is said in words (a short figure), not drawn as a
@@ -130,6 +131,11 @@ def test_summary_table_reports_final_and_auc_per_mode(tmp_path):
                                   "110.0 ± 127.1"]
     # One seed: the values alone, no interval (AUC: mean(5, 6, 7, 8) = 6.5; mean_u a_u: 8 + 5 · 30 = 158).
     assert cells(uniform) == ["hopper", "uniform", "1", "20000", "8.0", "6.5", "158.0", "90.0"]
+    # final_scores.png's numbers: set i scores (40, 60) + 10 i at the last record: 50 + 10 i ± 127.1.
+    steps, mean, low, high = final_scores([load_run(path) for path in paths[:2]])
+    assert steps == 20000
+    np.testing.assert_allclose(mean, 50.0 + 10.0 * np.arange(11))
+    np.testing.assert_allclose(high - mean, 127.06, atol=0.01)
 
 
 def test_adversarial_minus_uniform_is_welchs_t(tmp_path):
