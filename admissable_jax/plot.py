@@ -375,7 +375,8 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0) -> list[str]:
                                           ("scores", "p_miss")):
             steps, values = _aligned(mode_runs, attribute)
             figure, ax = plt.subplots(figsize=(10, height))
-            ax.set_title(f"{envs[0]}, {mode_runs[0].curve} ({_seeds(len(mode_runs))}): {label}")
+            ax.set_title(f"{envs[0]}, {mode} missingness{f', {variant}' if variant else ''} "
+                         f"({_seeds(len(mode_runs))}): {label}")
             if attribute == "p_miss" and all(run.uniform_draws for run in mode_runs):
                 every = ("every set of U drawn alike" if mode_runs[0].pooled else
                          f"1/{values.shape[-1]} = {1.0 / values.shape[-1]:.4f} for every u")
