@@ -68,7 +68,7 @@ class AuditConfig:
     step: int = setting(-1, "the checkpoint (env step) to audit; -1 = the latest")
     seed: int = setting(0, "seed of the N start states")
     top: int = setting(10, "worst sets listed per k in report.md")
-    slots: int = setting(0, "envs stepped at once (0 = every episode at once, at most 4096)")
+    slots: int = setting(0, "envs stepped at once (0 = every episode at once, at most 4096; with policy=: 8 Gymnasium envs)")
     score_estimator: str = setting("rollout", "rollout (the paper's a_u) | critic | horizon: the run's critic's discounted "
                                               "value (see admissable_jax.scoring)")
     score_horizon: int = setting(100, "H of score_estimator=horizon")
@@ -76,6 +76,9 @@ class AuditConfig:
                                    "finalists confirmed by score_estimator)")
     beam_width: int = setting(4, "b of search=beam: sets kept per level, and finalists per k")
     ranker: str = setting("rollout", "what ranks the candidates of search=beam: rollout | critic | horizon")
+    policy: str = setting("", "instead of a run: MODULE:NAME, any Python policy masked_obs_batch -> actions "
+                              "(Stable-Baselines3, CleanRL, PyTorch) to audit on the Gymnasium env gym=")
+    gym: str = setting("", "with policy=: the Gymnasium env id (Hopper-v5, or any other) the policy acts in")
 
 
 def _ks(text: str) -> tuple[int, ...]:
@@ -89,7 +92,12 @@ def _ks(text: str) -> tuple[int, ...]:
 
 
 def check_audit_config(config: AuditConfig) -> None:
-    if not config.run_dir:
+    if config.policy or config.gym:
+        if config.run_dir or not (config.policy and config.gym):
+            raise ValueError("a Python policy is audited with policy=MODULE:NAME and gym=ENV_ID, and no run directory")
+        if config.score_estimator != "rollout" or config.search != "exact":
+            raise ValueError("a Python policy is audited by rollouts of every set (it has no critic to estimate with)")
+    elif not config.run_dir:
         raise ValueError("give the run directory: python -m admissable_jax.audit RUN_DIR [k=1,2] [episodes=50]")
     _ks(config.k)
     if config.top < 1:
@@ -224,6 +232,22 @@ def _audit_result(env_name: str, estimator: str, returns: np.ndarray, ks, blocks
                        list(names), source, search_info)
 
 
+def _gymnasium_features(env_id: str, ks, **env_kwargs) -> int:
+    """d of the Gymnasium env ``env_id``; one-line ValueError if it cannot be made or a k
+    in ``ks`` does not fit it."""
+    import gymnasium
+
+    try:
+        probe = gymnasium.make(env_id, **env_kwargs)
+    except gymnasium.error.Error as error:
+        raise ValueError(f"cannot make the Gymnasium env {env_id!r}: {error}") from None
+    d = int(probe.observation_space.shape[0])
+    probe.close()
+    if not ks or any(not 1 <= k < d for k in ks):
+        raise ValueError(f"ks must be set sizes 1 <= k < d = {d}, got {tuple(ks)}")
+    return d
+
+
 def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs: int = 8, seed: int = 0,
                     feature_names: list[str] | None = None, **env_kwargs) -> AuditResult:
     """:func:`audit` for any policy on any Gymnasium env (Stable-Baselines3, CleanRL, your
@@ -233,16 +257,10 @@ def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs
     actions``). Episode starts follow the vector env's seed, so unlike :func:`audit` the
     sets do not share their N start states. ``feature_names`` default to our env's for
     Hopper-v5, Walker2d-v5 and Ant-v5, else the indices. :func:`write_audit` writes the files."""
-    import gymnasium
-
     from admissable_jax.envs import canonical_env_name, observation_names
     from admissable_jax.wrappers import score_policy
 
-    probe = gymnasium.make(env_id, **env_kwargs)
-    d = int(probe.observation_space.shape[0])
-    probe.close()
-    if not ks or any(not 1 <= k < d for k in ks):
-        raise ValueError(f"ks must be set sizes 1 <= k < d = {d}, got {tuple(ks)}")
+    d = _gymnasium_features(env_id, ks, **env_kwargs)
     blocks = [candidate_sets(d, k) for k in ks]
     if (sum(len(block) for block in blocks) + 1) * n_episodes > MAX_AUDIT_EPISODES:
         raise ValueError(f"auditing k={','.join(map(str, ks))} on {env_id} is over {MAX_AUDIT_EPISODES:,} episodes: "
@@ -375,6 +393,31 @@ def _pair_heatmap(result: AuditResult, path: str) -> str:
     figure.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(figure)
     return path
+
+
+def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
+    """Audit ``config.policy`` (MODULE:NAME, importable from here) on the Gymnasium env
+    ``config.gym`` by :func:`audit_gymnasium`; write the report into ``config.out`` (default
+    ``audit-<ENV_ID>-<NAME>``)."""
+    import importlib
+
+    check_audit_config(config)
+    module_name, _, name = config.policy.partition(":")
+    if not module_name or not name:
+        raise ValueError(f"policy must be MODULE:NAME (a callable in an importable module), got {config.policy!r}")
+    try:
+        policy = getattr(importlib.import_module(module_name), name)
+    except (ImportError, AttributeError) as error:
+        raise ValueError(f"cannot load policy={config.policy}: {error}") from None
+    if not callable(policy):
+        raise ValueError(f"policy={config.policy} is a {type(policy).__name__}, not a callable masked_obs_batch -> actions")
+    ks = _ks(config.k)
+    _gymnasium_features(config.gym, ks)  # before anything is written
+    out = config.out or f"audit-{config.gym}-{name}"
+    make_directory(out, "audit folder")
+    with reporting(f"auditing {config.policy} on {config.gym} for k={config.k} ({config.episodes} episodes per set)"):
+        result = audit_gymnasium(config.gym, policy, ks, config.episodes, num_envs=config.slots or 8, seed=config.seed)
+    return result, write_audit(result, out, config.top)
 
 
 def audit_run(config: AuditConfig) -> tuple[AuditResult, list[str]]:
@@ -555,7 +598,8 @@ def main(argv: list[str]) -> int:
                         validate=check_audit_config, positional="run_dir")
     enable_compilation_cache()
     experiment = bool(config.run_dir) and is_experiment(config.run_dir)
-    outcome, status = run_from_cli(audit_experiment if experiment else audit_run, config)
+    command = audit_python_policy if config.policy else audit_experiment if experiment else audit_run
+    outcome, status = run_from_cli(command, config)
     if status:
         return status
     results, written = outcome if experiment else ([outcome[0]], outcome[1])
