@@ -2,6 +2,7 @@
 
     python -m admissable_jax.audit RUN_DIR k=1,2 episodes=50 out=DIR [step=N]
     python -m admissable_jax.audit EXPERIMENT_DIR k=1,2      # every pair, then comparison.md
+    python -m admissable_jax.audit policy=MODULE:NAME gym=Hopper-v5 k=1,2   # any Python policy
 
 For every u with |u| in ``k`` (all C(d, |u|) sets, scored exactly: one batched rollout for
 all of them and the clean case, N = ``episodes`` deterministic episodes each from the same N
@@ -24,8 +25,9 @@ d + (k − 1) · b · d sets ranked instead of C(d, k). k = 1 is always scored e
 
 Given an experiment's folder, every pair is audited so (into ``PAIR/audit-step<STEP>``, or
 ``out/PAIR``) and ``comparison.md`` (in ``EXPERIMENT/audit-step<STEP>`` or ``out``) sets the
-modes side by side per k: each pair's worst a_u, mean ± 95% interval over seeds, and
-adversarial − uniform with Welch's interval; ``comparison.png`` draws it
+modes side by side per k: each pair's worst a_u and mean a_u over the sets, mean ± 95%
+interval over seeds, and adversarial − uniform with Welch's interval; ``comparison.png``
+draws the worst
 (:func:`audit_experiment`).
 
 In Python, :func:`audit` takes any JAX ``policy_fn(params, masked_obs) -> action`` on any of
@@ -474,8 +476,9 @@ def is_experiment(path: str) -> bool:
 def audit_experiment(config: AuditConfig) -> tuple[list[AuditResult], list[str]]:
     """Audit every (seed, mode) pair of the experiment in ``config.run_dir`` at the same
     checkpoint, each into its own folder as :func:`audit_run` does (under ``out`` if given),
-    then compare the modes in ``comparison.md``: per k, each pair's worst a_u, mean ± 95%
-    t-interval over seeds per mode, and adversarial − uniform with Welch's interval. It
+    then compare the modes in ``comparison.md``: per k, each pair's worst a_u and its mean
+    a_u over the sets, mean ± 95% t-interval over seeds per mode, and adversarial − uniform
+    on both with Welch's interval. It
     answers what the paper's Figure 1 cannot: does training against one missing feature
     also protect against two?"""
     check_audit_config(config)
