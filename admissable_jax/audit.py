@@ -78,6 +78,8 @@ class AuditConfig:
                                    "finalists confirmed by score_estimator)")
     beam_width: int = setting(4, "b of search=beam: sets kept per level, and finalists per k")
     ranker: str = setting("rollout", "what ranks the candidates of search=beam: rollout | critic | horizon")
+    steps: str = setting("", "audit several checkpoints of one run: 'all' or a comma list of env steps; each into "
+                             "its folder, then robustness_over_training.md/.png (worst and mean a_u per k by step)")
     policy: str = setting("", "instead of a run: MODULE:NAME, any Python policy masked_obs_batch -> actions "
                               "(Stable-Baselines3, CleanRL, PyTorch) to audit on the Gymnasium env gym=")
     gym: str = setting("", "with policy=: the Gymnasium env id (Hopper-v5, or any other) the policy acts in")
@@ -101,6 +103,9 @@ def check_audit_config(config: AuditConfig) -> None:
             raise ValueError("a Python policy is audited by rollouts of every set (it has no critic to estimate with)")
     elif not config.run_dir:
         raise ValueError("give the run directory: python -m admissable_jax.audit RUN_DIR [k=1,2] [episodes=50]")
+    if config.steps and (config.step >= 0 or config.policy or is_experiment(config.run_dir)):
+        raise ValueError("steps= audits several checkpoints of one run (a train run or one pair of an experiment), "
+                         "without step= or policy=")
     _ks(config.k)
     if config.top < 1:
         raise ValueError(f"top must be at least 1, got {config.top}")
@@ -469,6 +474,95 @@ def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
     return result, write_audit(result, out, config.top)
 
 
+def audit_over_training(config: AuditConfig) -> tuple[list[AuditResult], list[str]]:
+    """Audit the run in ``config.run_dir`` at several checkpoints (``steps``: ``all`` or a
+    comma list of env steps), each into its own folder as :func:`audit_run` does, the
+    rollout compiled once; then ``robustness_over_training.md`` and ``.png`` (in
+    ``RUN_DIR/audit-over-training`` or ``out``): per checkpoint and k, the worst a_u and its
+    set and the mean a_u over the sets, beside the clean return. Training records a_u for
+    the sets it scores (k = 1 by default); this says when robustness to other k came."""
+    check_audit_config(config)
+    from admissable_jax.policies import checkpoint_steps, load_policy
+
+    saved = checkpoint_steps(config.run_dir)
+    try:
+        steps = saved if config.steps == "all" else sorted({int(part) for part in config.steps.split(",") if part.strip()})
+    except ValueError:
+        raise ValueError(f"steps must be 'all' or a comma list of env steps, got {config.steps!r}") from None
+    missing = sorted(set(steps) - set(saved)) or ([] if steps else ["(none)"])
+    if missing:
+        raise ValueError(f"no checkpoint at {', '.join(map(str, missing))} in {config.run_dir}; "
+                         f"saved: {', '.join(map(str, saved)) or 'none'}")
+    out = config.out or os.path.join(config.run_dir, "audit-over-training")
+    results, written, env, trainer = [], [], None, None
+    for step in steps:
+        policy = load_policy(config.run_dir, step)
+        if env is None:  # one env and one policy function for every checkpoint: the rollout compiles once
+            env, trainer = _audit_env(config, policy), policy.trainer
+        result, files = _audit_policy(dataclasses.replace(config, out=os.path.join(out, f"step{step}")), policy,
+                                      env, trainer)
+        results.append(result)
+        written += files
+    written.append(_over_training_chart(results, os.path.join(out, "robustness_over_training.png")))
+    written.append(os.path.join(out, "robustness_over_training.md"))
+    with open(written[-1], "w") as file:
+        file.write(_over_training_table(results) + "\n![worst and mean a_u per k by checkpoint]"
+                   "(robustness_over_training.png)\n")
+    return results, written
+
+
+def _over_training_table(results: list[AuditResult]) -> str:
+    """Markdown: a row per checkpoint; per k the worst a_u (its set) and the mean a_u over the sets."""
+    first = results[0]
+    ks = list(first.sets)
+    lines = [f"# Robustness over training: {first.env}, {first.source['run']}", "",
+             f"Each checkpoint audited as its folder's report says (N = {first.n_episodes} episodes per set, "
+             f"`{first.estimator}`): per k, the worst a_u ± its 95% interval with its set, and the mean a_u over the "
+             "sets (the average case; none for a searched k).", "",
+             "| env step | clean return | " + " | ".join(f"k={k}: worst a_u (set) | k={k}: mean a_u" for k in ks) + " |",
+             "|---|---|" + "---|---|" * len(ks)]
+    for result in results:
+        cells = []
+        for k in ks:
+            (worst,) = result.worst(k, 1)
+            mean = result.mean(k)
+            cells += [f"{worst.score:.1f} ± {worst.ci95:.1f} ({', '.join(worst.names)})",
+                      "—" if math.isnan(mean) else f"{mean:.1f}"]
+        lines.append(f"| {result.source['checkpoint (env step)']} | {result.clean_score:.1f} ± {result.clean_ci95:.1f} | "
+                     + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _over_training_chart(results: list[AuditResult], path: str) -> str:
+    """Per k: the worst a_u (solid, with its 95% interval) and the mean a_u (dashed) by
+    checkpoint; the clean return in black."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    steps = [result.source["checkpoint (env step)"] for result in results]
+    figure, ax = plt.subplots(figsize=(8, 4.5))
+    ax.plot(steps, [result.clean_score for result in results], "k--", marker="o", label="nothing hidden")
+    for index, k in enumerate(results[0].sets):
+        color = f"C{index}"
+        worst = [result.worst(k, 1)[0] for result in results]
+        ax.errorbar(steps, [entry.score for entry in worst], yerr=[entry.ci95 for entry in worst], color=color,
+                    marker="o", capsize=3, label=f"k = {k}: worst $a_u$")
+        means = [result.mean(k) for result in results]
+        if not any(math.isnan(mean) for mean in means):
+            ax.plot(steps, means, color=color, linestyle=":", marker=".", label=f"k = {k}: mean $a_u$ over the sets")
+    ax.set_xlabel("checkpoint (env steps)")
+    ax.set_ylabel(f"return ({results[0].n_episodes} episodes per set)")
+    ax.set_title(f"{results[0].env}: robustness over training", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    figure.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(figure)
+    return path
+
+
 def is_experiment(path: str) -> bool:
     return os.path.isfile(os.path.join(path, "experiment.yaml"))
 
@@ -601,22 +695,25 @@ def main(argv: list[str]) -> int:
                         validate=check_audit_config, positional="run_dir")
     enable_compilation_cache()
     experiment = bool(config.run_dir) and is_experiment(config.run_dir)
-    command = audit_python_policy if config.policy else audit_experiment if experiment else audit_run
+    command = (audit_python_policy if config.policy else audit_over_training if config.steps
+               else audit_experiment if experiment else audit_run)
     outcome, status = run_from_cli(command, config)
     if status:
         return status
-    results, written = outcome if experiment else ([outcome[0]], outcome[1])
+    results, written = outcome if experiment or config.steps else ([outcome[0]], outcome[1])
     for result in results:
-        pair = f"{result.source['mode']} seed {result.source['seed']}: " if experiment else ""
+        pair = (f"{result.source['mode']} seed {result.source['seed']}: " if experiment else
+                f"step {result.source['checkpoint (env step)']}: " if config.steps else "")
         for k in result.sets:
             (worst,) = result.worst(k, 1)
             average = "" if math.isnan(result.mean(k)) else f"; mean over the {len(result.sets[k])} sets {result.mean(k):.1f}"
             print(f"{pair}k={k}: worst {', '.join(worst.names)} ({list(worst.hidden)}): a_u {worst.score:.1f} ± "
                   f"{worst.ci95:.1f}, {worst.drop_percent:.1f}% below clean {result.clean_score:.1f}{average}")
-    if experiment:
+    if experiment or config.steps:
         with open(written[-1]) as file:
             print(file.read())
-        print(f"wrote each pair's report, audit.json and figures into its audit folder, and {written[-1]}")
+        each = "pair" if experiment else "checkpoint"
+        print(f"wrote each {each}'s report, audit.json and figures into its audit folder, and {written[-1]}")
     else:
         print(f"wrote {', '.join(written)}")
     return 0

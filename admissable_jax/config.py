@@ -62,6 +62,8 @@ class RunSettings:
                               "then n * utd gradient steps")
     # output
     checkpoint_every: int = setting(10, "checkpoint every this many scorings (and at the end)")
+    keep_checkpoints: int = setting(2, "the newest checkpoints kept on disk (each holds the replay buffer); more let "
+                                       "audit steps= look back over training")
     resume: bool = setting(False, "continue the run in 'out' from its last checkpoint")
     resume_step: int = setting(-1, "with resume=true: the checkpoint (env step) to continue from; -1 = the latest")
     progress: bool = setting(True, "show a progress bar")
@@ -195,7 +197,7 @@ def validate(config: TrainConfig) -> None:
     if config.missingness not in MODES:
         raise ValueError(f"missingness must be one of {', '.join(MODES)}, got {config.missingness!r}")
     positive = ("k", "score_every", "score_episodes", "total_steps", "episode_length",
-                "batch_size", "hidden_size", "hidden_layers", "buffer_size", "checkpoint_every")
+                "batch_size", "hidden_size", "hidden_layers", "buffer_size", "checkpoint_every", "keep_checkpoints")
     for name in positive:
         if getattr(config, name) < 1:
             raise ValueError(f"{name} must be >= 1, got {getattr(config, name)}")

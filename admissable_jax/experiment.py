@@ -95,7 +95,7 @@ def run_experiment(config) -> list[TrainResult]:
                                 for flags in zip(*(mode_flags(pair.missingness) for pair in pairs)))
         spread_init = jax.jit(placement.spread(trainer.init), out_shardings=placement.sharding)
         init = lambda: spread_init(seeds, adversarial, masking)
-        loop = TrainingLoop(trainer, first, runs, Checkpoints(checkpoint_dir), init, placement)
+        loop = TrainingLoop(trainer, first, runs, Checkpoints(checkpoint_dir, first.keep_checkpoints), init, placement)
         if config.budget_only:
             print(f"{len(pairs)} pairs x {first.num_envs} envs, {first.env}: {loop.compile().describe()}; "
                   f"{placement.describe()}")

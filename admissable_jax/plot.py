@@ -68,7 +68,8 @@ PAPER_WINDOW, PAPER_RECORDS = 40, 200
 # tests; ``score_envs``: the same scores, tested). Runs differing in any other key are
 # separate curves, named by it (``label_variants``).
 NOT_SETTINGS = frozenset({"env", "missingness", "seed", "out", "resume", "resume_step", "progress", "logger",
-                          "time_limit", "checkpoint_every", "total_steps", "score_envs", "physics"})
+                          "time_limit", "checkpoint_every", "keep_checkpoints", "total_steps", "score_envs",
+                          "physics"})
 LINE_STYLES = ("-", "--", ":", "-.")
 
 

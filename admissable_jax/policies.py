@@ -62,6 +62,15 @@ class TrainedPolicy:
         return np.asarray(self._act(self.actor_params, jnp.asarray(masked_obs, jnp.float32)))
 
 
+def checkpoint_steps(run_dir: str) -> list[int]:
+    """The env steps of the checkpoints ``load_policy`` can read for the run in ``run_dir``
+    (its own, or its experiment's), oldest first."""
+    own_checkpoints = os.path.join(run_dir, "checkpoints")
+    if os.path.isdir(own_checkpoints):
+        return Checkpoints.steps_in(own_checkpoints)
+    return Checkpoints.steps_in(os.path.join(os.path.dirname(os.path.abspath(run_dir)), "checkpoints"))
+
+
 def load_policy(run_dir: str, step: int | None = None) -> TrainedPolicy:
     """The deterministic policy of the run in ``run_dir`` at checkpoint ``step`` (default:
     the latest). FileNotFoundError/CheckpointError with one line when there is none. Only

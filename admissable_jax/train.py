@@ -67,7 +67,7 @@ def train_fn(config: TrainConfig) -> TrainResult:
     checkpoint_dir = os.path.join(config.out, "checkpoints")
     run = RunDirectory(config, checkpoint_dir)
     try:
-        checkpoints = Checkpoints(checkpoint_dir)
+        checkpoints = Checkpoints(checkpoint_dir, config.keep_checkpoints)
         init = jax.jit(lambda: trainer.init(config.seed, *mode_flags(config.missingness)))
         state = TrainingLoop(trainer, config, [run], checkpoints, init).run()
     finally:

@@ -171,9 +171,10 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capsys):
 def short_run(tmp_path_factory):
     """A short adversarial run whose scorings are 3-step horizon estimates."""
     out = str(tmp_path_factory.mktemp("audit") / "pm")
-    return train_fn(TrainConfig(env="point_mass", total_steps=400, score_every=200, num_envs=4, learning_starts=200,
+    return train_fn(TrainConfig(env="point_mass", total_steps=600, score_every=200, num_envs=4, learning_starts=200,
                                 episode_length=12, score_episodes=2, batch_size=32, buffer_size=1000, hidden_size=16,
-                                score_estimator="horizon", score_horizon=3, progress=False, out=out))
+                                score_estimator="horizon", score_horizon=3, checkpoint_every=1, keep_checkpoints=3,
+                                progress=False, out=out))
 
 
 def test_training_scores_with_the_chosen_estimator(short_run):
@@ -260,7 +261,30 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
         beam_report = file.read()
     assert "worst found by beam search" in beam_report and "Mean over" not in beam_report  # finalists: no average
 
+    # Over training: every checkpoint kept (keep_checkpoints=3: 200, 400, 600) audited, each as a single audit of it.
+    over = tmp_path / "over"
+    assert audit_main([short_run.run_dir, "steps=all", "k=1,2", "episodes=6", "seed=4", f"out={over}"]) == 0
+    assert sorted(os.listdir(over)) == ["robustness_over_training.md", "robustness_over_training.png", "step200",
+                                        "step400", "step600"]
+    table = (over / "robustness_over_training.md").read_text()
+    for step in (200, 400, 600):
+        alone = json.loads((over / f"step{step}" / "audit.json").read_text())
+        assert alone["source"]["checkpoint (env step)"] == step
+        direct = score_missingness(ENV, policy.trainer.policy, load_policy(short_run.run_dir, step).actor_params,
+                                   jax.random.key(4), jnp.asarray(candidate_sets(4, 2)), 6)
+        np.testing.assert_allclose([entry["score"] for entry in alone["sets"]["2"]], direct.scores, rtol=1e-5)
+        row = next(line for line in table.splitlines() if line.startswith(f"| {step} | "))
+        assert f"| {float(np.mean(direct.scores)):.1f} |" in row  # k=2's mean a_u at that checkpoint
+    assert "step 200: k=1: worst" in capsys.readouterr().out
+
     # Bad input: one line, exit status 2.
+    for args, message in [(["steps=all", "step=200"], "steps= audits several checkpoints of one run"),
+                          (["steps=300"], "no checkpoint at 300 in "), (["steps=two"], "steps must be 'all'")]:
+        try:
+            status = audit_main([short_run.run_dir, *args])
+        except SystemExit as exit_info:  # refused by the parser's validation
+            status = exit_info.code
+        assert status == 2 and capsys.readouterr().err.strip().startswith(f"error: {message}")
     capsys.readouterr()  # (what the audits above said)
     with pytest.raises(SystemExit) as refused:  # a bad key stops the parser itself
         audit_main([short_run.run_dir, "k=0"])
