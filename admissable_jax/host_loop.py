@@ -14,6 +14,8 @@ A batch of pairs runs where its :class:`~admissable_jax.placement.PairPlacement`
 from __future__ import annotations
 
 import concurrent.futures
+import os
+import shutil
 import time
 from typing import Any, Callable
 
@@ -159,6 +161,7 @@ class TrainingLoop:
                f"{self.trainer.env.physics_name} physics: {budget.describe()}")
         if self.placement:
             report(self.placement.describe())
+        self._check_disk(budget.state_bytes * (self.placement.num_devices if self.placement else 1))
         state = self.init()
         start_step = 0
         if resume_from is not None:
@@ -222,6 +225,20 @@ class TrainingLoop:
             bar.close()
             self.checkpoints.close()
         return state
+
+    def _check_disk(self, state_bytes: int) -> None:
+        """Warn at the start when the checkpoints kept (``keep_checkpoints``, each about the
+        whole state) would not fit on their disk. The run still starts: a disk that fills
+        costs the checkpoint being written, never the last intact one."""
+        kept = min(self.config.keep_checkpoints, self.config.planned_steps // self.config.score_every)
+        where = self.checkpoints.directory
+        while not os.path.exists(where):
+            where = os.path.dirname(where)
+        free = shutil.disk_usage(where).free
+        if kept * state_bytes > free:
+            report(f"warning: keeping {kept} checkpoint(s) of about {state_bytes / 2**30:.2f} GiB each needs "
+                   f"{kept * state_bytes / 2**30:.2f} GiB, and {free / 2**30:.2f} GiB are free for "
+                   f"{self.checkpoints.directory}: lower keep_checkpoints or free space")
 
     def _restore(self, like: TrainState, step: int) -> tuple[int, TrainState]:
         """Checkpoint ``step`` shaped like ``like``. With a placement the checkpoint may come

@@ -3,6 +3,7 @@ checkpoint recovery, moved directories. All on the point mass (seconds to compil
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import dataclasses
 import importlib
@@ -53,7 +54,7 @@ def _steps(run_dir: str) -> list[int]:
         return [json.loads(line)["env_steps"] for line in file]
 
 
-def test_a_run_directory_has_one_owner_and_a_stale_lock_is_taken_over(tmp_path, capsys):
+def test_a_run_directory_has_one_owner_and_a_stale_lock_is_taken_over(tmp_path, capsys, monkeypatch):
     out = tmp_path / "locked"
     out.mkdir()
     owner = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
@@ -66,11 +67,15 @@ def test_a_run_directory_has_one_owner_and_a_stale_lock_is_taken_over(tmp_path, 
         owner.kill()
         owner.wait()
     # The owner is gone: its lock is stale, and the next run takes it over and gives it back.
+    # (On a disk with 1 kB free, where its checkpoints cannot fit: it says so, and still runs.)
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: collections.namedtuple("usage", "total used free")(2, 1, 1000))
     result = train_fn(dataclasses.replace(RUN, total_steps=500, out=str(out)))
     assert _steps(result.run_dir) == [500]
     assert LOCK_NAME not in os.listdir(out)
     # With progress=false too, the run says what it compiles and how long that took.
     said = capsys.readouterr().err
+    assert re.search(r"warning: keeping 1 checkpoint\(s\) of about 0\.\d\d GiB each needs 0\.\d\d GiB, and 0\.00 GiB are "
+                     rf"free for {out / 'checkpoints'}: lower keep_checkpoints or free space", said), said
     assert "compiling the training step and the scoring round for point_mass (jax physics) on cpu..." in said
     assert re.search(r"compiling the training step and the scoring round for point_mass \(jax physics\) on cpu: "
                      r"done in \d+\.\d s", said)
