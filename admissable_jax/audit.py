@@ -482,7 +482,7 @@ def audit_over_training(config: AuditConfig) -> tuple[list[AuditResult], list[st
     set and the mean a_u over the sets, beside the clean return. Training records a_u for
     the sets it scores (k = 1 by default); this says when robustness to other k came."""
     check_audit_config(config)
-    from admissable_jax.policies import checkpoint_steps, load_policy
+    from admissable_jax.policies import checkpoint_steps
 
     saved = checkpoint_steps(config.run_dir)
     try:
@@ -494,20 +494,30 @@ def audit_over_training(config: AuditConfig) -> tuple[list[AuditResult], list[st
         raise ValueError(f"no checkpoint at {', '.join(map(str, missing))} in {config.run_dir}; "
                          f"saved: {', '.join(map(str, saved)) or 'none'}")
     out = config.out or os.path.join(config.run_dir, "audit-over-training")
-    results, written, env, trainer = [], [], None, None
-    for step in steps:
-        policy = load_policy(config.run_dir, step)
-        if env is None:  # one env and one policy function for every checkpoint: the rollout compiles once
-            env, trainer = _audit_env(config, policy), policy.trainer
-        result, files = _audit_policy(dataclasses.replace(config, out=os.path.join(out, f"step{step}")), policy,
-                                      env, trainer)
-        results.append(result)
-        written += files
+    results, written = _audit_each([(dataclasses.replace(config, out=os.path.join(out, f"step{step}")), step)
+                                    for step in steps])
     written.append(_over_training_chart(results, os.path.join(out, "robustness_over_training.png")))
     written.append(os.path.join(out, "robustness_over_training.md"))
     with open(written[-1], "w") as file:
         file.write(_over_training_table(results) + "\n![worst and mean a_u per k by checkpoint]"
                    "(robustness_over_training.png)\n")
+    return results, written
+
+
+def _audit_each(jobs: list[tuple[AuditConfig, int | None]]) -> tuple[list[AuditResult], list[str]]:
+    """Audit each (config, checkpoint step; None = the latest) of ``jobs`` into its folder,
+    all with the first one's env and policy function (an experiment's pairs, or one run's
+    checkpoints, share the env and the network shapes), so the rollout compiles once."""
+    from admissable_jax.policies import load_policy
+
+    results, written, env, trainer = [], [], None, None
+    for config, step in jobs:
+        policy = load_policy(config.run_dir, step)
+        if env is None:
+            env, trainer = _audit_env(config, policy), policy.trainer
+        result, files = _audit_policy(config, policy, env, trainer)
+        results.append(result)
+        written += files
     return results, written
 
 
@@ -580,18 +590,10 @@ def audit_experiment(config: AuditConfig) -> tuple[list[AuditResult], list[str]]
     pairs = sorted(name for name in os.listdir(root) if os.path.isfile(os.path.join(root, name, "config.yaml")))
     if not pairs:
         raise FileNotFoundError(f"{root} holds an experiment.yaml but no pair directories")
-    from admissable_jax.policies import load_policy
-
-    results, written, env, trainer = [], [], None, None
-    for name in pairs:
-        pair = dataclasses.replace(config, run_dir=os.path.join(root, name),
-                                   out=os.path.join(config.out, name) if config.out else "")
-        policy = load_policy(pair.run_dir, None if config.step < 0 else config.step)
-        if env is None:  # the pairs share one env and one network shape: their rollout compiles once
-            env, trainer = _audit_env(pair, policy), policy.trainer
-        result, files = _audit_policy(pair, policy, env, trainer)
-        results.append(result)
-        written += files
+    step = None if config.step < 0 else config.step
+    pair_out = lambda name: os.path.join(config.out, name) if config.out else ""
+    results, written = _audit_each([(dataclasses.replace(config, run_dir=os.path.join(root, name), out=pair_out(name)),
+                                     step) for name in pairs])
     out = config.out or os.path.join(root, f"audit-step{results[0].source['checkpoint (env step)']}")
     make_directory(out, "audit folder")
     written.append(_comparison_chart(results, os.path.join(out, "comparison.png")))

@@ -94,6 +94,7 @@ class TrainingLoop:
         self.trainer, self.config, self.runs, self.checkpoints = trainer, config, runs, checkpoints
         self.init, self.placement = init, placement
         self.num_runs = placement.num_pairs if placement else 1
+        self.num_devices = placement.num_devices if placement else 1
         run_chunk = lambda state: trainer.run_chunk(state, trainer.spec.iterations_per_scoring)
         score_and_update = trainer.score_and_update
         self._run_chunk = placement.spread(run_chunk) if placement else run_chunk
@@ -134,8 +135,7 @@ class TrainingLoop:
         with reporting(f"compiling the training step and the scoring round for {where}"):
             with concurrent.futures.ThreadPoolExecutor(max_workers=2) as pool:
                 self.run_chunk, self.score_and_update = pool.map(lambda program: program.compile(), lowered)
-        budget = memory_budget(abstract_state, self.run_chunk, self.score_and_update,
-                               self.placement.num_devices if self.placement else 1)
+        budget = memory_budget(abstract_state, self.run_chunk, self.score_and_update, self.num_devices)
         if budget.needed_bytes > budget.available_bytes:
             raise MemoryBudgetExceeded(
                 f"does not fit: {budget.describe()}; use fewer pairs, fewer num_envs or a smaller buffer_size"
@@ -161,7 +161,7 @@ class TrainingLoop:
                f"{self.trainer.env.physics_name} physics: {budget.describe()}")
         if self.placement:
             report(self.placement.describe())
-        self._check_disk(budget.state_bytes * (self.placement.num_devices if self.placement else 1))
+        self._check_disk(budget.state_bytes * self.num_devices)
         state = self.init()
         start_step = 0
         if resume_from is not None:
@@ -170,10 +170,8 @@ class TrainingLoop:
                 for note in run.set_aside_rows_after(start_step):
                     report(note)
         num_scorings = config.planned_steps // config.score_every
-        device = jax.devices()[0]
-        invocation = invocation_record(start_step, f"{device.platform}:{getattr(device, 'device_kind', '')}",
-                                       self.placement.num_devices if self.placement else 1,
-                                       self.trainer.env.physics_name, self.num_runs)
+        invocation = invocation_record(start_step, budget.device, self.num_devices, self.trainer.env.physics_name,
+                                       self.num_runs)
         bar = tqdm(total=config.planned_steps, initial=start_step, unit="step", disable=not config.progress,
                    dynamic_ncols=True)
         try:

@@ -62,13 +62,19 @@ class TrainedPolicy:
         return np.asarray(self._act(self.actor_params, jnp.asarray(masked_obs, jnp.float32)))
 
 
+def _checkpoint_dir(run_dir: str) -> str:
+    """Where the run in ``run_dir`` keeps its checkpoints: its own ``checkpoints/``, or, for
+    an experiment's pair, the experiment's beside it."""
+    own_checkpoints = os.path.join(run_dir, "checkpoints")
+    if os.path.isdir(own_checkpoints):
+        return own_checkpoints
+    return os.path.join(os.path.dirname(os.path.abspath(run_dir)), "checkpoints")
+
+
 def checkpoint_steps(run_dir: str) -> list[int]:
     """The env steps of the checkpoints ``load_policy`` can read for the run in ``run_dir``
     (its own, or its experiment's), oldest first."""
-    own_checkpoints = os.path.join(run_dir, "checkpoints")
-    if os.path.isdir(own_checkpoints):
-        return Checkpoints.steps_in(own_checkpoints)
-    return Checkpoints.steps_in(os.path.join(os.path.dirname(os.path.abspath(run_dir)), "checkpoints"))
+    return Checkpoints.steps_in(_checkpoint_dir(run_dir))
 
 
 def load_policy(run_dir: str, step: int | None = None) -> TrainedPolicy:
@@ -79,13 +85,12 @@ def load_policy(run_dir: str, step: int | None = None) -> TrainedPolicy:
     if not os.path.isfile(config_path):
         raise FileNotFoundError(f"{run_dir} is not a run directory (no config.yaml)")
     config = load_config(config_path, TrainConfig).resolved()
-    own_checkpoints = os.path.join(run_dir, "checkpoints")
+    checkpoint_dir = _checkpoint_dir(run_dir)
     experiment_yaml = os.path.join(os.path.dirname(os.path.abspath(run_dir)), "experiment.yaml")
-    if os.path.isdir(own_checkpoints):
+    if checkpoint_dir == os.path.join(run_dir, "checkpoints"):  # its own
         trainer = make_trainer(config)
         like = jax.eval_shape(lambda: trainer.init(config.seed, *mode_flags(config.missingness)))
         pick = None
-        checkpoint_dir = own_checkpoints
     elif os.path.isfile(experiment_yaml):
         experiment = load_config(experiment_yaml, ExperimentConfig)
         experiment.out = os.path.dirname(os.path.abspath(run_dir))
@@ -97,7 +102,6 @@ def load_policy(run_dir: str, step: int | None = None) -> TrainedPolicy:
         flags = [jnp.array(flag) for flag in zip(*(mode_flags(pair.missingness) for pair in pairs))]
         like = jax.eval_shape(lambda: jax.vmap(trainer.init)(seeds, *flags))
         pick = lambda tree: take_pair(tree, index)
-        checkpoint_dir = os.path.join(experiment.out, "checkpoints")
     else:
         raise FileNotFoundError(f"{run_dir} has no checkpoints (no checkpoints/ and no experiment.yaml above it)")
     checkpoints = Checkpoints(checkpoint_dir)
