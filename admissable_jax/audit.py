@@ -263,7 +263,7 @@ def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs
     by :func:`~admissable_jax.wrappers.score_policy` (``policy(masked_obs_batch) ->
     actions``). Episode starts follow the vector env's seed, so unlike :func:`audit` the
     sets do not share their N start states. ``feature_names`` default to our env's for
-    Hopper-v5, Walker2d-v5 and Ant-v5, else the indices. :func:`write_audit` writes the files."""
+    Hopper-v5, Walker2d-v5, Ant-v5 and HalfCheetah-v5, else the indices. :func:`write_audit` writes the files."""
     from admissable_jax.envs import canonical_env_name, observation_names
     from admissable_jax.wrappers import score_policy
 

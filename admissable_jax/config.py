@@ -24,8 +24,8 @@ class RunSettings:
     """The settings every run of an experiment shares: task, adversary, SAC, cadence."""
 
     # task and adversary (paper §3, Table of hyperparameters)
-    env: str = setting("hopper", "hopper, walker2d or ant (or Hopper-v5, Walker2d-v5, Ant-v5); point_mass: a "
-                                 "seconds-to-compile toy for smoke runs")
+    env: str = setting("hopper", "hopper, walker2d or ant, the paper's (or Hopper-v5, Walker2d-v5, Ant-v5); "
+                                 "halfcheetah (HalfCheetah-v5); point_mass: a seconds-to-compile toy for smoke runs")
     k: int = setting(1, "features hidden per episode (|u| = k)")
     include_empty_set: bool = setting(False, "also let the adversary pick 'nothing hidden'")
     score_every: int = setting(5000, "zeta: env steps (over all envs) between scorings")

@@ -20,7 +20,7 @@ from admissable_jax.envs import MjxEnv, canonical_env_name, make_env, reset_wher
 
 @dataclasses.dataclass
 class RolloutConfig:
-    env: str = dataclasses.field(default="hopper", metadata={"help": "hopper, walker2d or ant"})
+    env: str = dataclasses.field(default="hopper", metadata={"help": "hopper, walker2d, ant or halfcheetah"})
     num_envs: int = dataclasses.field(default=64, metadata={"help": "parallel environments"})
     steps: int = dataclasses.field(default=100, metadata={"help": "steps per environment"})
     seed: int = dataclasses.field(default=0, metadata={"help": "PRNG seed"})

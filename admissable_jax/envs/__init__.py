@@ -1,4 +1,5 @@
-"""MJX ports of Gymnasium's Hopper-v5, Walker2d-v5 and Ant-v5, and :func:`make_env`.
+"""MJX ports of Gymnasium's Hopper-v5, Walker2d-v5 and Ant-v5 (the paper's envs) and
+HalfCheetah-v5, and :func:`make_env`.
 
 ``point_mass`` is a pure-JAX toy with the same interface, for tests and smoke runs. Which
 physics backend steps an env (MJX's JAX implementation or MuJoCo Warp) is decided here,
@@ -19,6 +20,7 @@ with contextlib.redirect_stdout(io.StringIO()):
 from admissable_jax.envs import contact_frames  # noqa: E402
 from admissable_jax.envs.ant import Ant  # noqa: E402
 from admissable_jax.envs.base import EnvState, MjxEnv, reset_where_done  # noqa: E402
+from admissable_jax.envs.half_cheetah import HalfCheetah  # noqa: E402
 from admissable_jax.envs.options import MAX_EPISODE_STEPS, PHYSICS_CHOICES, EnvOptions, resolve_physics, warp_installed  # noqa: E402
 from admissable_jax.envs.planar_walkers import Hopper, Walker2d  # noqa: E402
 from admissable_jax.envs.point_mass import PointMass  # noqa: E402
@@ -31,7 +33,7 @@ if warp_installed():
     warp.config.log_level = max(warp.config.log_level, warp.LOG_WARNING)  # nor a line per kernel module
     contact_frames.install_warp()  # before the first Warp collision kernel is built
 
-ENV_CLASSES: dict[str, type] = {cls.name: cls for cls in (Hopper, Walker2d, Ant, PointMass)}
+ENV_CLASSES: dict[str, type] = {cls.name: cls for cls in (Hopper, Walker2d, Ant, HalfCheetah, PointMass)}
 _ALIASES = {cls.gymnasium_id.lower(): cls.name for cls in ENV_CLASSES.values() if cls.gymnasium_id}
 
 
@@ -59,7 +61,7 @@ def observation_names(name: str) -> list[str]:
 
 
 def make_env(name: str, options: EnvOptions | None = None, **option_overrides) -> MjxEnv:
-    """The env called ``name`` (``hopper``, ``walker2d``, ``ant``, a Gymnasium id, or
+    """The env called ``name`` (``hopper``, ``walker2d``, ``ant``, ``halfcheetah``, a Gymnasium id, or
     ``point_mass``), built with ``options`` (an :class:`EnvOptions`; keyword arguments
     override its fields), e.g. ``make_env("ant", physics="warp", max_batch=4096)``.
 
@@ -79,6 +81,7 @@ __all__ = [
     "Ant",
     "EnvOptions",
     "EnvState",
+    "HalfCheetah",
     "Hopper",
     "MjxEnv",
     "PointMass",

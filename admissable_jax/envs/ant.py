@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 from mujoco import mjx
 
-from admissable_jax.envs.base import MjxEnv, joint_label
+from admissable_jax.envs.base import MjxEnv, joint_label, uniform_qpos_normal_qvel_noise
 
 _MAIN_BODY = 1  # torso
 _CTRL_COST_WEIGHT = 0.5
@@ -80,8 +80,4 @@ class Ant(MjxEnv):
         return terms, info
 
     def _reset_noise(self, rng):
-        qpos_rng, qvel_rng = jax.random.split(rng)
-        scale = self.reset_noise_scale
-        qpos_noise = jax.random.uniform(qpos_rng, (self.mj_model.nq,), minval=-scale, maxval=scale)
-        qvel_noise = scale * jax.random.normal(qvel_rng, (self.mj_model.nv,))
-        return qpos_noise, qvel_noise
+        return uniform_qpos_normal_qvel_noise(rng, self.mj_model, self.reset_noise_scale)

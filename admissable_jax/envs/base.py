@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import abc
 import os
+import sys
 from typing import ClassVar
 
 import chex
@@ -28,6 +29,23 @@ from admissable_jax.envs.physics import Physics
 def gymnasium_asset_path(xml_file: str) -> str:
     """Path of a model XML shipped inside the installed gymnasium package (never copied)."""
     return os.path.join(os.path.dirname(gymnasium.__file__), "envs", "mujoco", "assets", xml_file)
+
+
+def load_gymnasium_model(xml_file: str) -> mujoco.MjModel:
+    """The compiled model of a Gymnasium XML. MuJoCo's deprecation warning for
+    ``half_cheetah.xml``'s ``settotalmass`` (Gymnasium's file, nothing a user can act on) is
+    kept out of users' output; any other compiler warning still prints."""
+    previous = mujoco.get_mju_user_warning()
+
+    def warn(message: str) -> None:
+        if "settotalmass" not in message:
+            print(f"WARNING: {message}", file=sys.stderr)
+
+    mujoco.set_mju_user_warning(warn)
+    try:
+        return mujoco.MjModel.from_xml_path(gymnasium_asset_path(xml_file))
+    finally:
+        mujoco.set_mju_user_warning(previous)
 
 
 @struct.dataclass
@@ -70,7 +88,7 @@ class MjxEnv(abc.ABC):
         """Load the XML from gymnasium and put it on the backend ``options.physics`` resolves
         to. Solver settings default to the XML's (Gymnasium parity)."""
         self.options = options or EnvOptions()
-        self.mj_model = mujoco.MjModel.from_xml_path(gymnasium_asset_path(self.xml_file))
+        self.mj_model = load_gymnasium_model(self.xml_file)
         if self.options.solver_iterations is not None:
             self.mj_model.opt.iterations = self.options.solver_iterations
         if self.options.ls_iterations is not None:
@@ -107,7 +125,7 @@ class MjxEnv(abc.ABC):
     @classmethod
     def observation_names(cls) -> list[str]:
         """A readable name per observation entry, as Gymnasium's docs describe them."""
-        model = mujoco.MjModel.from_xml_path(gymnasium_asset_path(cls.xml_file))
+        model = load_gymnasium_model(cls.xml_file)
         names = cls._observation_names(model)
         assert len(names) == cls.observation_size, (len(names), cls.observation_size)
         return names
@@ -207,6 +225,14 @@ class MjxEnv(abc.ABC):
 def joint_label(model: mujoco.MjModel, joint: int) -> str:
     """``"thigh left joint"`` for the joint named ``thigh_left_joint``."""
     return model.joint(joint).name.replace("_", " ")
+
+
+def uniform_qpos_normal_qvel_noise(rng: jax.Array, model: mujoco.MjModel, scale: float) -> tuple[jax.Array, jax.Array]:
+    """Reset noise of Ant-v5 and HalfCheetah-v5: qpos + U(-s, s), qvel + s · N(0, 1)."""
+    qpos_rng, qvel_rng = jax.random.split(rng)
+    qpos_noise = jax.random.uniform(qpos_rng, (model.nq,), minval=-scale, maxval=scale)
+    qvel_noise = scale * jax.random.normal(qvel_rng, (model.nv,))
+    return qpos_noise, qvel_noise
 
 
 def reset_where_done(env: MjxEnv, state: EnvState, rng: jax.Array) -> EnvState:

@@ -15,7 +15,7 @@ import jax
 
 PHYSICS_CHOICES = ("auto", "jax", "warp")
 WARP_GRAPH_MODES = ("WARP", "WARP_STAGED")  # MuJoCo Warp's CUDA-graph modes under JAX
-MAX_EPISODE_STEPS = 1000  # Gymnasium's TimeLimit for Hopper-v5, Walker2d-v5 and Ant-v5.
+MAX_EPISODE_STEPS = 1000  # Gymnasium's TimeLimit for all four v5 envs.
 DEFAULT_MAX_BATCH = 1024
 
 

@@ -21,6 +21,16 @@ _CTRL_COST_WEIGHT = 1e-3
 _HEALTHY_REWARD = 1.0
 
 
+def planar_observation_names(model) -> list[str]:
+    """Names of a planar body's qpos[1:], qvel entries; joints 0-2 are the torso's slide x,
+    slide z and hinge (rootx, rootz, rooty), the rest the limbs' hinges."""
+    joints = [joint_label(model, j) for j in range(3, model.njnt)]
+    positions = ["torso z", "torso angle", *(f"{joint} angle" for joint in joints)]
+    velocities = ["torso x velocity", "torso z velocity", "torso angular velocity",
+                  *(f"{joint} angular velocity" for joint in joints)]
+    return positions + velocities
+
+
 def _strictly_inside(x: jax.Array, bounds: tuple[float, float]) -> jax.Array:
     low, high = bounds
     return jnp.logical_and(low < x, x < high)
@@ -41,12 +51,7 @@ class PlanarWalker(MjxEnv):
 
     @classmethod
     def _observation_names(cls, model):
-        # Joints 0-2 are the torso's slide x, slide z and hinge (rootx, rootz, rooty).
-        joints = [joint_label(model, j) for j in range(3, model.njnt)]
-        positions = ["torso z", "torso angle", *(f"{joint} angle" for joint in joints)]
-        velocities = ["torso x velocity", "torso z velocity", "torso angular velocity",
-                      *(f"{joint} angular velocity" for joint in joints)]
-        return positions + velocities
+        return planar_observation_names(model)
 
     def _is_healthy(self, qpos: jax.Array, qvel: jax.Array) -> jax.Array:
         z, angle = qpos[1], qpos[2]
