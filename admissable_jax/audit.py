@@ -264,10 +264,11 @@ def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs
     actions``). Episode starts follow the vector env's seed, so unlike :func:`audit` the
     sets do not share their N start states. ``feature_names`` default to our env's for
     Hopper-v5, Walker2d-v5, Ant-v5 and HalfCheetah-v5, else the indices. :func:`write_audit` writes the files."""
-    from admissable_jax.envs import canonical_env_name, observation_names
+    from admissable_jax.envs import canonical_env_name, observation_names, settotalmass_warning_dropped
     from admissable_jax.wrappers import score_policy
 
-    d = _gymnasium_features(env_id, ks, **env_kwargs)
+    with settotalmass_warning_dropped():
+        d = _gymnasium_features(env_id, ks, **env_kwargs)
     blocks = [candidate_sets(d, k) for k in ks]
     if (sum(len(block) for block in blocks) + 1) * n_episodes > MAX_AUDIT_EPISODES:
         raise ValueError(f"auditing k={','.join(map(str, ks))} on {env_id} is over {MAX_AUDIT_EPISODES:,} episodes: "
@@ -279,8 +280,9 @@ def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs
             feature_names = []
         if len(feature_names) != d:  # or made with other observation arguments
             feature_names = [str(i) for i in range(d)]
-    scored = score_policy(env_id, policy, n_episodes=n_episodes, num_envs=num_envs, seed=seed,
-                          hidden_sets=np.concatenate(blocks), **env_kwargs)
+    with settotalmass_warning_dropped():
+        scored = score_policy(env_id, policy, n_episodes=n_episodes, num_envs=num_envs, seed=seed,
+                              hidden_sets=np.concatenate(blocks), **env_kwargs)
     source = {"Gymnasium env": env_id, "policy": getattr(policy, "__name__", type(policy).__name__)}
     result = _audit_result(env_id, "rollout", np.asarray(scored.returns, np.float64), ks, blocks, feature_names,
                            source, {})

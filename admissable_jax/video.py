@@ -25,7 +25,7 @@ import warnings  # noqa: E402
 import numpy as np  # noqa: E402
 
 from admissable_jax.cli import parse_args, run_from_cli, setting  # noqa: E402
-from admissable_jax.envs import observation_names  # noqa: E402
+from admissable_jax.envs import observation_names, settotalmass_warning_dropped  # noqa: E402
 from admissable_jax.errors import RunFailed, make_directory  # noqa: E402
 from admissable_jax.method import candidate_sets, describe_set  # noqa: E402
 from admissable_jax.run_directory import read_jsonl  # noqa: E402
@@ -125,8 +125,9 @@ def render_video(config: VideoConfig) -> Video:
     make_directory(os.path.dirname(os.path.abspath(out)), "video folder")
 
     sides = [(), hidden]
-    envs = [gymnasium.make(policy.trainer.env.gymnasium_id, render_mode="rgb_array", width=PANEL_WIDTH,
-                           height=PANEL_HEIGHT) for _ in sides]  # Gymnasium's own env: its 1000-step limit
+    with settotalmass_warning_dropped():
+        envs = [gymnasium.make(policy.trainer.env.gymnasium_id, render_mode="rgb_array", width=PANEL_WIDTH,
+                               height=PANEL_HEIGHT) for _ in sides]  # Gymnasium's own env: its 1000-step limit
     try:
         observations = [env.reset(seed=config.seed)[0] for env in envs]
         try:

@@ -19,7 +19,7 @@ with contextlib.redirect_stdout(io.StringIO()):
 
 from admissable_jax.envs import contact_frames  # noqa: E402
 from admissable_jax.envs.ant import Ant  # noqa: E402
-from admissable_jax.envs.base import EnvState, MjxEnv, reset_where_done  # noqa: E402
+from admissable_jax.envs.base import EnvState, MjxEnv, reset_where_done, settotalmass_warning_dropped  # noqa: E402
 from admissable_jax.envs.half_cheetah import HalfCheetah  # noqa: E402
 from admissable_jax.envs.options import MAX_EPISODE_STEPS, PHYSICS_CHOICES, EnvOptions, resolve_physics, warp_installed  # noqa: E402
 from admissable_jax.envs.planar_walkers import Hopper, Walker2d  # noqa: E402
@@ -92,4 +92,5 @@ __all__ = [
     "observation_size",
     "reset_where_done",
     "resolve_physics",
+    "settotalmass_warning_dropped",
 ]

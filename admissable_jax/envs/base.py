@@ -10,6 +10,7 @@ as Gymnasium's ``MujocoEnv.do_simulation`` does.
 from __future__ import annotations
 
 import abc
+import contextlib
 import os
 import sys
 from typing import ClassVar
@@ -31,10 +32,11 @@ def gymnasium_asset_path(xml_file: str) -> str:
     return os.path.join(os.path.dirname(gymnasium.__file__), "envs", "mujoco", "assets", xml_file)
 
 
-def load_gymnasium_model(xml_file: str) -> mujoco.MjModel:
-    """The compiled model of a Gymnasium XML. MuJoCo's deprecation warning for
-    ``half_cheetah.xml``'s ``settotalmass`` (Gymnasium's file, nothing a user can act on) is
-    kept out of users' output; any other compiler warning still prints."""
+@contextlib.contextmanager
+def settotalmass_warning_dropped():
+    """Within: MuJoCo's deprecation warning for ``half_cheetah.xml``'s ``settotalmass``
+    (Gymnasium's file, nothing a user can act on) is dropped, where MuJoCo would print it and
+    append it to ``MUJOCO_LOG.TXT`` in the working directory; other warnings print to stderr."""
     previous = mujoco.get_mju_user_warning()
 
     def warn(message: str) -> None:
@@ -43,9 +45,15 @@ def load_gymnasium_model(xml_file: str) -> mujoco.MjModel:
 
     mujoco.set_mju_user_warning(warn)
     try:
-        return mujoco.MjModel.from_xml_path(gymnasium_asset_path(xml_file))
+        yield
     finally:
         mujoco.set_mju_user_warning(previous)
+
+
+def load_gymnasium_model(xml_file: str) -> mujoco.MjModel:
+    """The compiled model of a Gymnasium XML (:func:`settotalmass_warning_dropped`)."""
+    with settotalmass_warning_dropped():
+        return mujoco.MjModel.from_xml_path(gymnasium_asset_path(xml_file))
 
 
 @struct.dataclass

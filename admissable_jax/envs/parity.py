@@ -12,7 +12,7 @@ import gymnasium
 import jax
 import numpy as np
 
-from admissable_jax.envs.base import EnvState, MjxEnv
+from admissable_jax.envs.base import EnvState, MjxEnv, settotalmass_warning_dropped
 
 
 def gymnasium_transitions(env_id: str, n: int, seed: int = 0) -> dict[str, np.ndarray]:
@@ -24,7 +24,8 @@ def gymnasium_transitions(env_id: str, n: int, seed: int = 0) -> dict[str, np.nd
     Keys: qpos, qvel, action, obs, reward, terminated, and ``info_<key>`` per info entry.
     """
     rng = np.random.default_rng(seed)
-    env = gymnasium.make(env_id)
+    with settotalmass_warning_dropped():
+        env = gymnasium.make(env_id)
     env.reset(seed=seed)
     env.action_space.seed(seed)
     sim = env.unwrapped
