@@ -244,8 +244,11 @@ def _gymnasium_features(env_id: str, ks, **env_kwargs) -> int:
     in ``ks`` does not fit it."""
     import gymnasium
 
+    from admissable_jax.envs import settotalmass_warning_dropped
+
     try:
-        probe = gymnasium.make(env_id, **env_kwargs)
+        with settotalmass_warning_dropped():
+            probe = gymnasium.make(env_id, **env_kwargs)
     except gymnasium.error.Error as error:
         raise ValueError(f"cannot make the Gymnasium env {env_id!r}: {error}") from None
     d = int(probe.observation_space.shape[0])
@@ -267,8 +270,7 @@ def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs
     from admissable_jax.envs import canonical_env_name, observation_names, settotalmass_warning_dropped
     from admissable_jax.wrappers import score_policy
 
-    with settotalmass_warning_dropped():
-        d = _gymnasium_features(env_id, ks, **env_kwargs)
+    d = _gymnasium_features(env_id, ks, **env_kwargs)
     blocks = [candidate_sets(d, k) for k in ks]
     if (sum(len(block) for block in blocks) + 1) * n_episodes > MAX_AUDIT_EPISODES:
         raise ValueError(f"auditing k={','.join(map(str, ks))} on {env_id} is over {MAX_AUDIT_EPISODES:,} episodes: "

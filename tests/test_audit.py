@@ -124,10 +124,11 @@ def test_beam_search_finds_the_known_worst_pair():
         audit(ENV, steer, gain, ks=(2,), n_episodes=2, search="beam", ranker="critic")
 
 
-def test_audit_of_any_gymnasium_policy(tmp_path, capsys):
+def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
     """audit_gymnasium on tests/test_wrappers.py's ConstantFeatures env (observes 1, 2, 3;
     earns 5 · the sum it sees): hand-computed a_u for every set of 1 and 2 features, the worst,
     the mean over the sets, and the same report as a run's audit."""
+    monkeypatch.chdir(tmp_path)  # where MuJoCo would write MUJOCO_LOG.TXT
     from test_wrappers import sum_of_visible  # registers ConstantFeatures-v0
 
     from admissable_jax.audit import audit_gymnasium, write_audit
@@ -151,20 +152,23 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capsys):
                        f"out={tmp_path / 'cli'}"]) == 0
     record = json.loads((tmp_path / "cli" / "audit.json").read_text())
     assert [entry["score"] for entry in record["sets"]["2"]] == [15.0, 10.0, 5.0]
-    assert "k=2: worst 1, 2 ([1, 2]): a_u 5.0 ± 0.0, 83.3% below clean 30.0; mean over the 3 sets 10.0" in capsys.readouterr().out
+    assert "k=2: worst 1, 2 ([1, 2]): a_u 5.0 ± 0.0, 83.3% below clean 30.0; mean over the 3 sets 10.0" in capfd.readouterr().out
     for args, message in [
         (["policy=test_wrappers:nothing", "gym=ConstantFeatures-v0"], "cannot load policy=test_wrappers:nothing: module"),
         (["policy=test_wrappers:sum_of_visible", "gym=NoSuchEnv-v0"], "cannot make the Gymnasium env 'NoSuchEnv-v0'"),
         (["policy=test_wrappers:sum_of_visible"], "a Python policy is audited with policy=MODULE:NAME and gym=ENV_ID"),
         (["policy=test_wrappers", "gym=ConstantFeatures-v0"], "policy must be MODULE:NAME"),
+        # checked on the env itself before anything is written (HalfCheetah's settotalmass
+        # deprecation, Gymnasium's file, kept out of the output and the working directory)
+        (["policy=test_wrappers:sum_of_visible", "gym=HalfCheetah-v5", "k=17"], "ks must be set sizes 1 <= k < d = 17"),
     ]:
         try:
             status = audit_main([*args, f"out={tmp_path / 'never'}"])
         except SystemExit as exit_info:  # refused by the parser's validation
             status = exit_info.code
-        error = capsys.readouterr().err.strip().splitlines()
+        error = capfd.readouterr().err.strip().splitlines()
         assert status == 2 and len(error) == 1 and error[0].startswith(f"error: {message}"), error
-    assert not (tmp_path / "never").exists()
+    assert not (tmp_path / "never").exists() and not (tmp_path / "MUJOCO_LOG.TXT").exists()
 
 
 @pytest.fixture(scope="module")
