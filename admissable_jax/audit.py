@@ -14,6 +14,11 @@ start states, as the paper scores), the audit reports a_u with its 95% confidenc
 - ``DIR/scores_k1.png``: a bar chart of a_u per hidden feature (k = 1);
 - ``DIR/pairs_k2.png``: a d × d heatmap of a_ij (k = 2).
 
+``shapley=M`` adds what each feature is worth to the policy: its Shapley value in the game
+whose coalitions are the visible features (:mod:`admissable_jax.scoring.attribution`; exact
+where the 2^d coalitions are fewer than M random feature orders would value), beside the loss
+of hiding it alone, in the same rollout; ``DIR/shapley.png`` and a section of the report.
+
 ``score_estimator=critic`` or ``horizon`` audits with the run's critic instead (cheaper;
 discounted values, see :mod:`admissable_jax.scoring`); the report says which.
 
@@ -50,6 +55,8 @@ from admissable_jax.cli import enable_compilation_cache, parse_args, reporting, 
 from admissable_jax.errors import make_directory
 from admissable_jax.method import candidate_sets, num_candidate_sets
 from admissable_jax.scoring import SCORE_ESTIMATORS
+from admissable_jax.scoring.attribution import MIN_ORDERS, ShapleyAttribution, ShapleyPlan, plan_shapley, \
+    shapley_attribution
 
 if TYPE_CHECKING:  # for the annotations only
     from admissable_jax.envs import MjxEnv
@@ -83,6 +90,8 @@ class AuditConfig:
     policy: str = setting("", "instead of a run: MODULE:NAME, any Python policy masked_obs_batch -> actions "
                               "(Stable-Baselines3, CleanRL, PyTorch) to audit on the Gymnasium env gym=")
     gym: str = setting("", "with policy=: the Gymnasium env id (Hopper-v5, or any other) the policy acts in")
+    shapley: int = setting(0, "what each feature is worth: Shapley values of the return over the visible features, "
+                              "from M random feature orders (exact where the 2^d coalitions are fewer); 0 = none")
 
 
 def _ks(text: str) -> tuple[int, ...]:
@@ -116,6 +125,8 @@ def check_audit_config(config: AuditConfig) -> None:
     if config.score_estimator not in SCORE_ESTIMATORS or config.score_horizon < 1:
         raise ValueError(f"score_estimator must be one of {', '.join(SCORE_ESTIMATORS)} and score_horizon >= 1")
     check_search(config.search, config.beam_width, config.ranker)
+    if config.shapley and config.shapley < MIN_ORDERS:
+        raise ValueError(f"shapley must be 0 (none) or at least {MIN_ORDERS} feature orders, got {config.shapley}")
 
 
 def check_search(search: str, beam_width: int, ranker: str) -> None:
@@ -152,6 +163,7 @@ class AuditResult:
     source: dict[str, Any]  # what was audited (run directory, step), for the report
     search: dict[int, dict[str, Any]] = dataclasses.field(default_factory=dict)  # by searched k: how, and ranks
     same_starts: bool = True  # every set's episode i starts from one state (False: a Gymnasium vector env's resets)
+    shapley: ShapleyAttribution | None = None  # what each feature is worth, where asked (scoring.attribution)
 
     def worst(self, k: int, top: int) -> list[SetScore]:
         return sorted(self.sets[k], key=lambda entry: entry.score)[:top]
@@ -173,13 +185,14 @@ def _ci95(returns: np.ndarray) -> float:
 def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, num_slots: int | None = None,
           feature_names: list[str] | None = None, source: dict[str, Any] | None = None, estimator: str = "rollout",
           critic_fn=None, critic_params=None, horizon: int = 0, gamma: float = 0.99, search: str = "exact",
-          beam_width: int = 4, ranker: str = "rollout") -> AuditResult:
+          beam_width: int = 4, ranker: str = "rollout", shapley_orders: int = 0) -> AuditResult:
     """Score every set of each size in ``ks`` and the clean case in one batch, N =
     ``n_episodes`` each from the same N start states, by
     :func:`~admissable_jax.scoring.score_missingness` with ``estimator`` (``critic`` and
     ``horizon`` from ``critic_fn`` and ``critic_params``; H = ``horizon``). With
     ``search="beam"`` the sets of each k > 1 are the ``beam_width`` finalists of a beam
-    search ranked by ``ranker`` instead of all C(d, k)."""
+    search ranked by ``ranker`` instead of all C(d, k). ``shapley_orders`` (M > 0) adds the
+    Shapley attribution's coalitions to the batch (module docstring)."""
     import jax
 
     from admissable_jax.scoring import beam_search_worst_sets, score_missingness
@@ -187,7 +200,8 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
     check_search(search, beam_width, ranker)
     d = env.observation_size
     searched = [k for k in ks if search == "beam" and k > 1]
-    scored_sets = sum(beam_width if k in searched else num_candidate_sets(d, k) for k in ks)
+    plan = plan_shapley(d, shapley_orders, seed) if shapley_orders else None
+    scored_sets = sum(beam_width if k in searched else num_candidate_sets(d, k) for k in ks) + _plan_size(plan)
     _check_size(env, scored_sets, n_episodes, ks, search)
     scorer = jax.jit(score_missingness, static_argnums=(0, 1, 5, 6, 7), static_argnames=(
         "score_estimator", "critic_fn", "score_horizon", "gamma"))
@@ -214,15 +228,33 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
                           "sets_ranked": int(found.num_ranked), "sets_in_all": num_candidate_sets(d, k),
                           "ranker_scores": [[np.flatnonzero(row).tolist(), float(score_)]
                                             for row, score_ in zip(finalists, ranker_scores)]}
-    returns = np.asarray(score(np.concatenate(blocks), estimator).returns, np.float64)
-    return _audit_result(env.name, estimator, returns, ks, blocks, feature_names or [str(i) for i in range(d)],
-                         source or {}, search_info)
+    return _audit_result(env.name, estimator, lambda rows: score(rows, estimator).returns, ks, blocks, plan,
+                         feature_names or [str(i) for i in range(d)], source or {}, search_info)
 
 
-def _audit_result(env_name: str, estimator: str, returns: np.ndarray, ks, blocks: list[np.ndarray],
+def _plan_size(plan: ShapleyPlan | None) -> int:
+    return 0 if plan is None else len(plan.hidden_rows)
+
+
+def _distinct_hidden_sets(blocks: list[np.ndarray], plan: ShapleyPlan | None) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct non-empty hidden sets of ``blocks`` and of ``plan`` (each valued once; the
+    empty one is the clean case every rollout adds last), and where each row of the blocks,
+    concatenated, lies among those rollout rows."""
+    rows = np.concatenate(blocks + ([plan.hidden_rows] if plan is not None else []))
+    distinct, index = np.unique(rows, axis=0, return_inverse=True)
+    empty = ~distinct.any(axis=1)
+    row_in_rollout = np.where(empty, (~empty).sum(), np.cumsum(~empty) - 1)  # the empty set: the clean row, last
+    return distinct[~empty], row_in_rollout[index.reshape(-1)][:sum(len(block) for block in blocks)]
+
+
+def _audit_result(env_name: str, estimator: str, score_rows, ks, blocks: list[np.ndarray], plan: ShapleyPlan | None,
                   names: list[str], source: dict[str, Any], search_info: dict[int, dict[str, Any]]) -> AuditResult:
-    """The audit of one rollout: ``returns`` ((sets + 1, N), the clean case last) of the
-    sets in ``blocks``, one block of 0/1 rows per k in ``ks``."""
+    """The audit of one rollout by ``score_rows`` ((r, d) 0/1 rows -> (r + 1, N) returns,
+    the clean case last) of the sets in ``blocks`` (one block of 0/1 rows per k in ``ks``)
+    and of ``plan``'s coalitions, each distinct set once."""
+    rollout_rows, block_rows = _distinct_hidden_sets(blocks, plan)
+    valued = np.asarray(score_rows(rollout_rows), np.float64)
+    returns = valued[np.append(block_rows, -1)]
     clean = returns[-1]
     clean_score = float(clean.mean())
     sets, row = {}, 0
@@ -235,8 +267,10 @@ def _audit_result(env_name: str, estimator: str, returns: np.ndarray, ks, blocks
                                     _drop(clean_score, score_), returns[row].tolist()))
             row += 1
         sets[k] = entries
+    shapley = None if plan is None else shapley_attribution(
+        plan, np.concatenate([rollout_rows, np.zeros((1, len(names)), np.float32)]), valued)
     return AuditResult(env_name, estimator, returns.shape[1], clean_score, _ci95(clean), clean.tolist(), sets,
-                       list(names), source, search_info)
+                       list(names), source, search_info, shapley=shapley)
 
 
 def _gymnasium_features(env_id: str, ks, **env_kwargs) -> int:
@@ -259,20 +293,22 @@ def _gymnasium_features(env_id: str, ks, **env_kwargs) -> int:
 
 
 def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs: int = 8, seed: int = 0,
-                    feature_names: list[str] | None = None, **env_kwargs) -> AuditResult:
+                    feature_names: list[str] | None = None, shapley_orders: int = 0, **env_kwargs) -> AuditResult:
     """:func:`audit` for any policy on any Gymnasium env (Stable-Baselines3, CleanRL, your
     own PyTorch): every set of each size in ``ks`` and the clean case, N = ``n_episodes``
     episodes each, in one rollout on ``num_envs`` copies of ``gymnasium.make_vec(env_id)``
     by :func:`~admissable_jax.wrappers.score_policy` (``policy(masked_obs_batch) ->
     actions``). Episode starts follow the vector env's seed, so unlike :func:`audit` the
     sets do not share their N start states. ``feature_names`` default to our env's for
-    Hopper-v5, Walker2d-v5, Ant-v5 and HalfCheetah-v5, else the indices. :func:`write_audit` writes the files."""
+    Hopper-v5, Walker2d-v5, Ant-v5 and HalfCheetah-v5, else the indices. ``shapley_orders``
+    as in :func:`audit`. :func:`write_audit` writes the files."""
     from admissable_jax.envs import canonical_env_name, observation_names, settotalmass_warning_dropped
     from admissable_jax.wrappers import score_policy
 
     d = _gymnasium_features(env_id, ks, **env_kwargs)
     blocks = [candidate_sets(d, k) for k in ks]
-    if (sum(len(block) for block in blocks) + 1) * n_episodes > MAX_AUDIT_EPISODES:
+    plan = plan_shapley(d, shapley_orders, seed) if shapley_orders else None
+    if (sum(len(block) for block in blocks) + _plan_size(plan) + 1) * n_episodes > MAX_AUDIT_EPISODES:
         raise ValueError(f"auditing k={','.join(map(str, ks))} on {env_id} is over {MAX_AUDIT_EPISODES:,} episodes: "
                          "lower n_episodes or drop the largest k")
     if feature_names is None:
@@ -282,12 +318,14 @@ def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs
             feature_names = []
         if len(feature_names) != d:  # or made with other observation arguments
             feature_names = [str(i) for i in range(d)]
-    with settotalmass_warning_dropped():
-        scored = score_policy(env_id, policy, n_episodes=n_episodes, num_envs=num_envs, seed=seed,
-                              hidden_sets=np.concatenate(blocks), **env_kwargs)
+
+    def score_rows(rows: np.ndarray) -> np.ndarray:
+        with settotalmass_warning_dropped():
+            return score_policy(env_id, policy, n_episodes=n_episodes, num_envs=num_envs, seed=seed, hidden_sets=rows,
+                                **env_kwargs).returns
+
     source = {"Gymnasium env": env_id, "policy": getattr(policy, "__name__", type(policy).__name__)}
-    result = _audit_result(env_id, "rollout", np.asarray(scored.returns, np.float64), ks, blocks, feature_names,
-                           source, {})
+    result = _audit_result(env_id, "rollout", score_rows, ks, blocks, plan, feature_names, source, {})
     return dataclasses.replace(result, same_starts=False)
 
 
@@ -315,6 +353,8 @@ def write_audit(result: AuditResult, out: str, top: int = 10) -> list[str]:
         written.append(_bar_chart(result, os.path.join(out, "scores_k1.png")))
     if 2 in result.sets and 2 not in result.search:  # a search scores too few pairs for a map
         written.append(_pair_heatmap(result, os.path.join(out, "pairs_k2.png")))
+    if result.shapley is not None:
+        written.append(_shapley_chart(result, os.path.join(out, "shapley.png")))
     with open(written[1], "w") as file:
         file.write(_report(result, top, [os.path.basename(path) for path in written[2:]]))
     return written
@@ -353,9 +393,67 @@ def _report(result: AuditResult, top: int, figures: list[str]) -> str:
             lines.append(f"| {rank} | {', '.join(entry.names)} | {', '.join(map(str, entry.hidden))} | "
                          f"{entry.score:.1f} ± {entry.ci95:.1f} | {entry.drop_percent:.1f}% |")
         lines.append("")
+    if result.shapley is not None:
+        lines += _shapley_section(result, result.shapley)
     lines += [f"![{name}]({name})" for name in figures]
     lines += ["", "Every number, with each episode's return: `audit.json`."]
     return "\n".join(lines) + "\n"
+
+
+def _shapley_order(attribution: ShapleyAttribution) -> list[int]:
+    """Features by Shapley value, largest first."""
+    return sorted(range(len(attribution.values)), key=lambda i: -attribution.values[i])
+
+
+def _shapley_section(result: AuditResult, attribution: ShapleyAttribution) -> list[str]:
+    """The report's table of every feature's Shapley value beside the loss of hiding it alone."""
+    worth = attribution.full - attribution.blind
+    how = (f"exact: all {attribution.coalitions:,} coalitions valued" if attribution.method == "exact" else
+           f"estimated from M = {attribution.orders} random orders of the features in antithetic pairs "
+           f"({attribution.coalitions:,} coalitions valued); the interval adds the spread over the orders' pairs to "
+           f"that over the start states")
+    lines = ["## What each feature is worth: Shapley values", "",
+             f"A coalition S of visible features is worth v(S), {'the mean return' if result.estimator == 'rollout' else 'the estimate'} "
+             f"with every other feature hidden. Feature i's Shapley value φ_i is its share of what seeing everything is "
+             f"worth, v(all) − v(none) = {attribution.full:.1f} − {attribution.blind:.1f} = {worth:.1f} (the φ_i sum "
+             f"to it); beside it, the loss of hiding it alone (clean − a_i), which is all an adversary of k = 1 sees. "
+             f"A feature whose φ_i is well above its loss alone carries what other features carry too: hidden alone "
+             f"it costs little, hidden with them it costs much. {how.capitalize()}; ± the 95% interval over the "
+             f"N = {result.n_episodes} start states (Student's t). Method: admissable_jax.scoring.attribution.", "",
+             "| rank | feature | index | φ_i ± 95% CI | share of v(all) − v(none) | loss hidden alone |",
+             "|---|---|---|---|---|---|"]
+    for rank, i in enumerate(_shapley_order(attribution), 1):
+        share = 100 * attribution.values[i] / worth if worth else float("nan")
+        lines.append(f"| {rank} | {result.feature_names[i]} | {i} | {attribution.values[i]:.1f} ± "
+                     f"{attribution.ci95[i]:.1f} | {share:.1f}% | {attribution.leave_one_out[i]:.1f} |")
+    return lines + [""]
+
+
+def _shapley_chart(result: AuditResult, path: str, most: int = 30) -> str:
+    """Horizontal bars of φ_i (95% CI), largest first, the loss of hiding each alone beside them."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    attribution = result.shapley
+    shown = _shapley_order(attribution)[:most]
+    figure, ax = plt.subplots(figsize=(7, max(3, 0.3 * len(shown) + 1)))
+    rows = np.arange(len(shown))
+    ax.barh(rows, [attribution.values[i] for i in shown], xerr=attribution.ci95[shown], capsize=2,
+            color="tab:blue", label="Shapley value φ_i (95% CI)")
+    ax.scatter([attribution.leave_one_out[i] for i in shown], rows, marker="D", color="tab:red", zorder=3,
+               label="loss when hidden alone (clean − $a_i$)")
+    ax.axvline(0, color="black", linewidth=0.8)
+    ax.set_yticks(rows, [result.feature_names[i] for i in shown], fontsize=7)
+    ax.invert_yaxis()
+    ax.set_xlabel(f"return; the φ_i sum to v(all) − v(none) = {attribution.full - attribution.blind:.0f}")
+    largest = f"the {len(shown)} largest of {len(attribution.values)}" if len(shown) < len(attribution.values) else "every feature"
+    ax.set_title(f"{result.env}: what each feature is worth ({largest}; {attribution.method})", fontsize=9)
+    ax.legend(fontsize=7)
+    figure.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(figure)
+    return path
 
 
 def _bar_chart(result: AuditResult, path: str) -> str:
@@ -427,7 +525,8 @@ def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     out = config.out or f"audit-{config.gym}-{name}"
     make_directory(out, "audit folder")
     with reporting(f"auditing {config.policy} on {config.gym} for k={config.k} ({config.episodes} episodes per set)"):
-        result = audit_gymnasium(config.gym, policy, ks, config.episodes, num_envs=config.slots or 8, seed=config.seed)
+        result = audit_gymnasium(config.gym, policy, ks, config.episodes, num_envs=config.slots or 8, seed=config.seed,
+                                 shapley_orders=config.shapley)
     return result, write_audit(result, out, config.top)
 
 
@@ -451,7 +550,9 @@ def _audit_env(config: AuditConfig, policy: TrainedPolicy) -> MjxEnv:
 
 def _slots(config: AuditConfig, policy: TrainedPolicy) -> int:
     """Episodes stepped at once: all (sets + clean) × N, at most ``slots`` (or 4096)."""
-    episodes = (sum(num_candidate_sets(policy.observation_size, k) for k in _ks(config.k)) + 1) * config.episodes
+    d = policy.observation_size
+    plan = plan_shapley(d, config.shapley, config.seed) if config.shapley else None
+    episodes = (sum(num_candidate_sets(d, k) for k in _ks(config.k)) + _plan_size(plan) + 1) * config.episodes
     return min(episodes, config.slots or 4096)
 
 
@@ -474,7 +575,8 @@ def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
                        {"run": os.path.abspath(config.run_dir), "checkpoint (env step)": policy.step,
                         "mode": train.missingness, "seed": train.seed},
                        config.score_estimator, trainer.critic_values, policy.critic_params,
-                       config.score_horizon, train.gamma, config.search, config.beam_width, config.ranker)
+                       config.score_horizon, train.gamma, config.search, config.beam_width, config.ranker,
+                       config.shapley)
     return result, write_audit(result, out, config.top)
 
 
@@ -715,6 +817,11 @@ def main(argv: list[str]) -> int:
             average = "" if math.isnan(result.mean(k)) else f"; mean over the {len(result.sets[k])} sets {result.mean(k):.1f}"
             print(f"{pair}k={k}: worst {', '.join(worst.names)} ({list(worst.hidden)}): a_u {worst.score:.1f} ± "
                   f"{worst.ci95:.1f}, {worst.drop_percent:.1f}% below clean {result.clean_score:.1f}{average}")
+        if result.shapley is not None:
+            attribution, top = result.shapley, _shapley_order(result.shapley)[0]
+            print(f"{pair}shapley: {result.feature_names[top]} ({top}) worth most: φ {attribution.values[top]:.1f} ± "
+                  f"{attribution.ci95[top]:.1f} of v(all) − v(none) {attribution.full - attribution.blind:.1f}; "
+                  f"hidden alone it costs {attribution.leave_one_out[top]:.1f} ({attribution.method})")
     if experiment or config.steps:
         with open(written[-1]) as file:
             print(file.read())

@@ -7,6 +7,7 @@ JSON and against ``score_missingness``.
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import os
@@ -21,6 +22,7 @@ from admissable_jax import TrainConfig, candidate_sets, make_env, mask_observati
 from admissable_jax.audit import audit, main as audit_main
 from admissable_jax.policies import load_policy
 from admissable_jax.scoring import beam_search_worst_sets, estimate_scores
+from admissable_jax.scoring.attribution import ShapleyPlan, plan_shapley, shapley_attribution
 
 ENV = make_env("point_mass", episode_length=12)
 SETS = jnp.asarray(candidate_sets(4, k=1))
@@ -124,6 +126,60 @@ def test_beam_search_finds_the_known_worst_pair():
         audit(ENV, steer, gain, ks=(2,), n_episodes=2, search="beam", ranker="critic")
 
 
+def max_of_visible(masked_obs: np.ndarray) -> np.ndarray:
+    """On ConstantFeatures (observes 1, 2, 3), acts with the largest value it sees: earns 5 · that."""
+    return masked_obs[:, :3].max(axis=1, keepdims=True)
+
+
+def brute_force_shapley(value, d: int) -> np.ndarray:
+    """φ_i = Σ_S |S|! (d − |S| − 1)! / d! (v(S ∪ {i}) − v(S)) over visible sets S, term by term."""
+    phi = np.zeros(d)
+    for i in range(d):
+        others = [j for j in range(d) if j != i]
+        for size in range(d):
+            for visible in itertools.combinations(others, size):
+                weight = math.factorial(size) * math.factorial(d - size - 1) / math.factorial(d)
+                phi[i] += weight * (value(set(visible) | {i}) - value(set(visible)))
+    return phi
+
+
+def test_shapley_attribution_by_hand_and_over_every_order():
+    """The max game v(S) = 5 · max of the values seen (1, 2, 3): φ by hand (the airport game's
+    dual: 5 · (1/3, 1/3 + 1/2, 1/3 + 1/2 + 1)); the permutation estimate over all d! orders is
+    the exact value; a sampled estimate is efficient order by order and covers the truth."""
+    plan = plan_shapley(3, 4)  # 2^3 = 8 coalitions <= the 4 · 2 + 2 that 4 orders would value: exact
+    assert plan.method == "exact" and len(plan.hidden_rows) == 8
+    game = np.array([1.0, 2.0, 3.0])
+    values = 5 * ((1 - plan.hidden_rows) * game).max(axis=1)  # (8,) one start state; (8, 2) two alike
+    exact = shapley_attribution(plan, plan.hidden_rows, np.stack([values, values], axis=1))
+    np.testing.assert_allclose(exact.values, [5 / 3, 25 / 6, 55 / 6])
+    assert exact.leave_one_out == [0.0, 0.0, 5.0] and (exact.full, exact.blind) == (15.0, 0.0)
+    assert exact.ci95_starts == [0.0, 0.0, 0.0] and exact.orders == 0
+
+    # A random game of 5 features with 4 start states: every order, each beside its reverse.
+    d, rng = 5, np.random.default_rng(3)
+    every_row = plan_shapley(d, 64).hidden_rows  # exact: all 32
+    returns = rng.normal(size=(32, 4))
+    row_of = {tuple(row.astype(int)): index for index, row in enumerate(every_row)}
+    by_hand = brute_force_shapley(lambda visible: returns[row_of[tuple(int(j not in visible) for j in range(d))]].mean(), d)
+    np.testing.assert_allclose(shapley_attribution(plan_shapley(d, 64), every_row, returns).values, by_hand)
+    firsts = [order for order in itertools.permutations(range(d)) if order < order[::-1]]
+    orders = np.array([row for order in firsts for row in (order, order[::-1])])
+    every_order = shapley_attribution(ShapleyPlan(d, every_row, orders), every_row, returns)
+    np.testing.assert_allclose(every_order.values, by_hand)
+
+    sampled_plan = plan_shapley(d, 6, seed=1)  # 6 · 4 + 2 = 26 < 32 coalitions: sampled
+    assert sampled_plan.method == "permutation" and sampled_plan.orders.shape == (6, d)
+    np.testing.assert_array_equal(sampled_plan.orders[1], sampled_plan.orders[0][::-1])
+    sampled = shapley_attribution(sampled_plan, every_row, returns)
+    assert sum(sampled.values) == pytest.approx(sampled.full - sampled.blind)  # every order sums to v(F) − v(∅)
+    assert np.all(np.abs(np.asarray(sampled.values) - by_hand) <= sampled.ci95) and min(sampled.ci95_orders) > 0
+    with pytest.raises(ValueError, match="no value for 1 of the plan's hidden sets"):
+        shapley_attribution(plan, plan.hidden_rows[1:], np.ones((7, 2)))
+    with pytest.raises(ValueError, match="at least 4 feature orders"):
+        plan_shapley(3, 3)
+
+
 def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
     """audit_gymnasium on tests/test_wrappers.py's ConstantFeatures env (observes 1, 2, 3;
     earns 5 · the sum it sees): hand-computed a_u for every set of 1 and 2 features, the worst,
@@ -147,6 +203,16 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
     with pytest.raises(ValueError, match="ks must be set sizes 1 <= k < d = 3"):
         audit_gymnasium("ConstantFeatures-v0", sum_of_visible, ks=(3,))
 
+    # What each feature is worth to a policy that acts on the largest value it sees: the max
+    # game's Shapley values, beside the loss of hiding each alone (0, 0, 5: only 3 is missed).
+    worth = audit_gymnasium("ConstantFeatures-v0", max_of_visible, ks=(1,), n_episodes=2, num_envs=3, shapley_orders=4)
+    np.testing.assert_allclose(worth.shapley.values, [5 / 3, 25 / 6, 55 / 6])
+    assert worth.shapley.leave_one_out == [0.0, 0.0, 5.0] and [entry.score for entry in worth.sets[1]] == [15, 15, 10]
+    written = write_audit(worth, str(tmp_path / "worth"))
+    assert os.path.basename(written[-1]) == "shapley.png"
+    report = (tmp_path / "worth" / "report.md").read_text()
+    assert "v(all) − v(none) = 15.0 − 0.0 = 15.0" in report and "| 2 | 1 | 1 | 4.2 ± 0.0 | 27.8% | 0.0 |" in report
+
     # From the command line: policy=MODULE:NAME on gym=ENV_ID, the same numbers.
     assert audit_main(["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "k=1,2", "episodes=2",
                        f"out={tmp_path / 'cli'}"]) == 0
@@ -158,6 +224,8 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
         (["policy=test_wrappers:sum_of_visible", "gym=NoSuchEnv-v0"], "cannot make the Gymnasium env 'NoSuchEnv-v0'"),
         (["policy=test_wrappers:sum_of_visible"], "a Python policy is audited with policy=MODULE:NAME and gym=ENV_ID"),
         (["policy=test_wrappers", "gym=ConstantFeatures-v0"], "policy must be MODULE:NAME"),
+        (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "shapley=3"],
+         "shapley must be 0 (none) or at least 4 feature orders, got 3"),
         # checked on the env itself before anything is written (HalfCheetah's settotalmass
         # deprecation, Gymnasium's file, kept out of the output and the working directory)
         (["policy=test_wrappers:sum_of_visible", "gym=HalfCheetah-v5", "k=17"], "ks must be set sizes 1 <= k < d = 17"),
@@ -194,13 +262,13 @@ def test_training_scores_with_the_chosen_estimator(short_run):
 
 def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path, capsys):
     out = str(tmp_path / "audit")
-    assert audit_main([short_run.run_dir, "k=1,2", "episodes=6", f"out={out}", "seed=4"]) == 0
+    assert audit_main([short_run.run_dir, "k=1,2", "episodes=6", f"out={out}", "seed=4", "shapley=6"]) == 0
     captured = capsys.readouterr()
     printed = captured.out
     # The long part (compile and rollouts) is announced, then timed, as training's compile is.
     assert re.fullmatch(r"(auditing checkpoint \d+ of point_mass for k=1,2 \(exact search, 6 episodes per set, jax "
                         r"physics on cpu; compiling included\)(\.\.\.|: done in \d+\.\d s)\n){2}", captured.err), captured.err
-    assert sorted(os.listdir(out)) == ["audit.json", "pairs_k2.png", "report.md", "scores_k1.png"]
+    assert sorted(os.listdir(out)) == ["audit.json", "pairs_k2.png", "report.md", "scores_k1.png", "shapley.png"]
     with open(os.path.join(out, "audit.json")) as file:
         record = json.load(file)
     assert [len(record["sets"][k]) for k in ("1", "2")] == [4, 6]
@@ -212,6 +280,22 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
                                    jnp.asarray(candidate_sets(4, k)), 6)
         np.testing.assert_allclose([entry["score"] for entry in record["sets"][str(k)]], direct.scores, rtol=1e-5)
         np.testing.assert_allclose(record["clean_score"], direct.clean_score, rtol=1e-5)
+    # Shapley values (d = 4: all 16 coalitions, in the same rollout): term by term from
+    # score_missingness's values of every hidden set, and leave-one-out from the k = 1 rows.
+    every_set = jnp.asarray([[float(j in hidden) for j in range(4)] for size in range(1, 5)
+                             for hidden in itertools.combinations(range(4), size)])
+    direct = score_missingness(ENV, policy.trainer.policy, policy.actor_params, jax.random.key(4), every_set, 6)
+    value_of = {frozenset(np.flatnonzero(1 - np.asarray(row)).tolist()): score for row, score in zip(every_set, direct.scores)}
+    value_of[frozenset(range(4))] = direct.clean_score
+    worth = record["shapley"]
+    assert worth["method"] == "exact" and worth["coalitions"] == 16
+    np.testing.assert_allclose(worth["values"], brute_force_shapley(lambda visible: value_of[frozenset(visible)], 4),
+                               rtol=1e-4, atol=1e-3)
+    np.testing.assert_allclose(worth["leave_one_out"], [record["clean_score"] - entry["score"] for entry in record["sets"]["1"]])
+    with open(os.path.join(out, "report.md")) as file:
+        assert f"| x | 0 | {worth['values'][0]:.1f} ± {worth['ci95_starts'][0]:.1f} | " in file.read()
+    assert re.search(r"^shapley: [\w ]+ \(\d\) worth most: φ -?\d+\.\d ± \d+\.\d of v\(all\) − v\(none\) -?\d+\.\d; hidden alone "
+                     r"it costs -?\d+\.\d \(exact\)$", printed, re.M), printed
     pair = record["sets"]["2"][0]
     assert pair["hidden"] == [0, 1] and pair["names"] == ["x", "y"]
     returns = np.asarray(pair["returns"])
