@@ -14,9 +14,9 @@ start states, as the paper scores), the audit reports a_u with its 95% confidenc
 - ``DIR/scores_k1.png``: a bar chart of a_u per hidden feature (k = 1);
 - ``DIR/pairs_k2.png``: a d × d heatmap of a_ij (k = 2).
 
-``shapley=M`` adds what each feature is worth to the policy: its Shapley value in the game
-whose coalitions are the visible features (:mod:`admissable_jax.scoring.attribution`; exact
-where the 2^d coalitions are fewer than M random feature orders would value), beside the loss
+``shapley=M`` (or ``exact``) adds what each feature is worth to the policy: its Shapley value
+in the game whose coalitions are the visible features (:mod:`admissable_jax.scoring.attribution`;
+exact where the 2^d coalitions are fewer than M random feature orders would value), beside the loss
 of hiding it alone, in the same rollout; ``DIR/shapley.png`` and a section of the report.
 
 ``score_estimator=critic`` or ``horizon`` audits with the run's critic instead (cheaper;
@@ -90,8 +90,9 @@ class AuditConfig:
     policy: str = setting("", "instead of a run: MODULE:NAME, any Python policy masked_obs_batch -> actions "
                               "(Stable-Baselines3, CleanRL, PyTorch) to audit on the Gymnasium env gym=")
     gym: str = setting("", "with policy=: the Gymnasium env id (Hopper-v5, or any other) the policy acts in")
-    shapley: int = setting(0, "what each feature is worth: Shapley values of the return over the visible features, "
-                              "from M random feature orders (exact where the 2^d coalitions are fewer); 0 = none")
+    shapley: str = setting("0", "what each feature is worth: Shapley values of the return over the visible features; "
+                                "exact (every coalition, d <= 20), or M random feature orders (exact where the 2^d "
+                                "coalitions are fewer); 0 = none")
 
 
 def _ks(text: str) -> tuple[int, ...]:
@@ -125,8 +126,20 @@ def check_audit_config(config: AuditConfig) -> None:
     if config.score_estimator not in SCORE_ESTIMATORS or config.score_horizon < 1:
         raise ValueError(f"score_estimator must be one of {', '.join(SCORE_ESTIMATORS)} and score_horizon >= 1")
     check_search(config.search, config.beam_width, config.ranker)
-    if config.shapley and config.shapley < MIN_ORDERS:
-        raise ValueError(f"shapley must be 0 (none) or at least {MIN_ORDERS} feature orders, got {config.shapley}")
+    _shapley(config.shapley)
+
+
+def _shapley(text: str) -> int | str:
+    """``shapley=``: 0 (none), ``exact``, or a number M >= 4 of feature orders."""
+    if text.strip() == "exact":
+        return "exact"
+    try:
+        orders = int(text)
+    except ValueError:
+        orders = -1
+    if orders == 0 or orders >= MIN_ORDERS:
+        return orders
+    raise ValueError(f"shapley must be 0 (none), exact, or at least {MIN_ORDERS} feature orders, got {text!r}")
 
 
 def check_search(search: str, beam_width: int, ranker: str) -> None:
@@ -185,14 +198,15 @@ def _ci95(returns: np.ndarray) -> float:
 def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, num_slots: int | None = None,
           feature_names: list[str] | None = None, source: dict[str, Any] | None = None, estimator: str = "rollout",
           critic_fn=None, critic_params=None, horizon: int = 0, gamma: float = 0.99, search: str = "exact",
-          beam_width: int = 4, ranker: str = "rollout", shapley_orders: int = 0) -> AuditResult:
+          beam_width: int = 4, ranker: str = "rollout", shapley: int | str = 0) -> AuditResult:
     """Score every set of each size in ``ks`` and the clean case in one batch, N =
     ``n_episodes`` each from the same N start states, by
     :func:`~admissable_jax.scoring.score_missingness` with ``estimator`` (``critic`` and
     ``horizon`` from ``critic_fn`` and ``critic_params``; H = ``horizon``). With
     ``search="beam"`` the sets of each k > 1 are the ``beam_width`` finalists of a beam
-    search ranked by ``ranker`` instead of all C(d, k). ``shapley_orders`` (M > 0) adds the
-    Shapley attribution's coalitions to the batch (module docstring)."""
+    search ranked by ``ranker`` instead of all C(d, k). ``shapley`` (``"exact"``, or M >= 4
+    feature orders; 0: none) adds the Shapley attribution's coalitions to the batch (module
+    docstring)."""
     import jax
 
     from admissable_jax.scoring import beam_search_worst_sets, score_missingness
@@ -200,7 +214,7 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
     check_search(search, beam_width, ranker)
     d = env.observation_size
     searched = [k for k in ks if search == "beam" and k > 1]
-    plan = plan_shapley(d, shapley_orders, seed) if shapley_orders else None
+    plan = plan_shapley(d, shapley, seed) if shapley else None
     scored_sets = sum(beam_width if k in searched else num_candidate_sets(d, k) for k in ks) + _plan_size(plan)
     _check_size(env, scored_sets, n_episodes, ks, search)
     scorer = jax.jit(score_missingness, static_argnums=(0, 1, 5, 6, 7), static_argnames=(
@@ -293,21 +307,21 @@ def _gymnasium_features(env_id: str, ks, **env_kwargs) -> int:
 
 
 def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs: int = 8, seed: int = 0,
-                    feature_names: list[str] | None = None, shapley_orders: int = 0, **env_kwargs) -> AuditResult:
+                    feature_names: list[str] | None = None, shapley: int | str = 0, **env_kwargs) -> AuditResult:
     """:func:`audit` for any policy on any Gymnasium env (Stable-Baselines3, CleanRL, your
     own PyTorch): every set of each size in ``ks`` and the clean case, N = ``n_episodes``
     episodes each, in one rollout on ``num_envs`` copies of ``gymnasium.make_vec(env_id)``
     by :func:`~admissable_jax.wrappers.score_policy` (``policy(masked_obs_batch) ->
     actions``). Episode starts follow the vector env's seed, so unlike :func:`audit` the
     sets do not share their N start states. ``feature_names`` default to our env's for
-    Hopper-v5, Walker2d-v5, Ant-v5 and HalfCheetah-v5, else the indices. ``shapley_orders``
+    Hopper-v5, Walker2d-v5, Ant-v5 and HalfCheetah-v5, else the indices. ``shapley``
     as in :func:`audit`. :func:`write_audit` writes the files."""
     from admissable_jax.envs import canonical_env_name, observation_names, settotalmass_warning_dropped
     from admissable_jax.wrappers import score_policy
 
     d = _gymnasium_features(env_id, ks, **env_kwargs)
     blocks = [candidate_sets(d, k) for k in ks]
-    plan = plan_shapley(d, shapley_orders, seed) if shapley_orders else None
+    plan = plan_shapley(d, shapley, seed) if shapley else None
     if (sum(len(block) for block in blocks) + _plan_size(plan) + 1) * n_episodes > MAX_AUDIT_EPISODES:
         raise ValueError(f"auditing k={','.join(map(str, ks))} on {env_id} is over {MAX_AUDIT_EPISODES:,} episodes: "
                          "lower n_episodes or drop the largest k")
@@ -408,18 +422,19 @@ def _shapley_order(attribution: ShapleyAttribution) -> list[int]:
 def _shapley_section(result: AuditResult, attribution: ShapleyAttribution) -> list[str]:
     """The report's table of every feature's Shapley value beside the loss of hiding it alone."""
     worth = attribution.full - attribution.blind
-    how = (f"exact: all {attribution.coalitions:,} coalitions valued" if attribution.method == "exact" else
-           f"estimated from M = {attribution.orders} random orders of the features in antithetic pairs "
-           f"({attribution.coalitions:,} coalitions valued); the interval adds the spread over the orders' pairs to "
-           f"that over the start states")
+    how = (f"Exact: all {attribution.coalitions:,} coalitions valued" if attribution.method == "exact" else
+           f"Estimated from M = {attribution.orders} random orders of the features in antithetic pairs "
+           f"({attribution.coalitions:,} coalitions valued)")
+    interval_orders = "" if attribution.method == "exact" else ", combined with that over the orders' pairs"
     lines = ["## What each feature is worth: Shapley values", "",
              f"A coalition S of visible features is worth v(S), {'the mean return' if result.estimator == 'rollout' else 'the estimate'} "
              f"with every other feature hidden. Feature i's Shapley value φ_i is its share of what seeing everything is "
              f"worth, v(all) − v(none) = {attribution.full:.1f} − {attribution.blind:.1f} = {worth:.1f} (the φ_i sum "
              f"to it); beside it, the loss of hiding it alone (clean − a_i), which is all an adversary of k = 1 sees. "
              f"A feature whose φ_i is well above its loss alone carries what other features carry too: hidden alone "
-             f"it costs little, hidden with them it costs much. {how.capitalize()}; ± the 95% interval over the "
-             f"N = {result.n_episodes} start states (Student's t). Method: admissable_jax.scoring.attribution.", "",
+             f"it costs little, hidden with them it costs much. {how}; ± the 95% interval over the N = "
+             f"{result.n_episodes} start states (Student's t){interval_orders}. Method: "
+             "admissable_jax.scoring.attribution.", "",
              "| rank | feature | index | φ_i ± 95% CI | share of v(all) − v(none) | loss hidden alone |",
              "|---|---|---|---|---|---|"]
     for rank, i in enumerate(_shapley_order(attribution), 1):
@@ -526,7 +541,7 @@ def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     make_directory(out, "audit folder")
     with reporting(f"auditing {config.policy} on {config.gym} for k={config.k} ({config.episodes} episodes per set)"):
         result = audit_gymnasium(config.gym, policy, ks, config.episodes, num_envs=config.slots or 8, seed=config.seed,
-                                 shapley_orders=config.shapley)
+                                 shapley=_shapley(config.shapley))
     return result, write_audit(result, out, config.top)
 
 
@@ -551,7 +566,8 @@ def _audit_env(config: AuditConfig, policy: TrainedPolicy) -> MjxEnv:
 def _slots(config: AuditConfig, policy: TrainedPolicy) -> int:
     """Episodes stepped at once: all (sets + clean) × N, at most ``slots`` (or 4096)."""
     d = policy.observation_size
-    plan = plan_shapley(d, config.shapley, config.seed) if config.shapley else None
+    shapley = _shapley(config.shapley)
+    plan = plan_shapley(d, shapley, config.seed) if shapley else None
     episodes = (sum(num_candidate_sets(d, k) for k in _ks(config.k)) + _plan_size(plan) + 1) * config.episodes
     return min(episodes, config.slots or 4096)
 
@@ -576,7 +592,7 @@ def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
                         "mode": train.missingness, "seed": train.seed},
                        config.score_estimator, trainer.critic_values, policy.critic_params,
                        config.score_horizon, train.gamma, config.search, config.beam_width, config.ranker,
-                       config.shapley)
+                       _shapley(config.shapley))
     return result, write_audit(result, out, config.top)
 
 

@@ -176,8 +176,10 @@ def test_shapley_attribution_by_hand_and_over_every_order():
     assert np.all(np.abs(np.asarray(sampled.values) - by_hand) <= sampled.ci95) and min(sampled.ci95_orders) > 0
     with pytest.raises(ValueError, match="no value for 1 of the plan's hidden sets"):
         shapley_attribution(plan, plan.hidden_rows[1:], np.ones((7, 2)))
-    with pytest.raises(ValueError, match="at least 4 feature orders"):
+    with pytest.raises(ValueError, match="needs exact or at least 4 feature orders"):
         plan_shapley(3, 3)
+    with pytest.raises(ValueError, match="exact Shapley values of d = 21 features value 2"):
+        plan_shapley(21, "exact")
 
 
 def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
@@ -205,7 +207,7 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
 
     # What each feature is worth to a policy that acts on the largest value it sees: the max
     # game's Shapley values, beside the loss of hiding each alone (0, 0, 5: only 3 is missed).
-    worth = audit_gymnasium("ConstantFeatures-v0", max_of_visible, ks=(1,), n_episodes=2, num_envs=3, shapley_orders=4)
+    worth = audit_gymnasium("ConstantFeatures-v0", max_of_visible, ks=(1,), n_episodes=2, num_envs=3, shapley="exact")
     np.testing.assert_allclose(worth.shapley.values, [5 / 3, 25 / 6, 55 / 6])
     assert worth.shapley.leave_one_out == [0.0, 0.0, 5.0] and [entry.score for entry in worth.sets[1]] == [15, 15, 10]
     written = write_audit(worth, str(tmp_path / "worth"))
@@ -225,7 +227,7 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
         (["policy=test_wrappers:sum_of_visible"], "a Python policy is audited with policy=MODULE:NAME and gym=ENV_ID"),
         (["policy=test_wrappers", "gym=ConstantFeatures-v0"], "policy must be MODULE:NAME"),
         (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "shapley=3"],
-         "shapley must be 0 (none) or at least 4 feature orders, got 3"),
+         "shapley must be 0 (none), exact, or at least 4 feature orders, got '3'"),
         # checked on the env itself before anything is written (HalfCheetah's settotalmass
         # deprecation, Gymnasium's file, kept out of the output and the working directory)
         (["policy=test_wrappers:sum_of_visible", "gym=HalfCheetah-v5", "k=17"], "ks must be set sizes 1 <= k < d = 17"),

@@ -33,6 +33,7 @@ import math
 import numpy as np
 
 MIN_ORDERS = 4  # two antithetic pairs: the fewest that give the permutation estimate an interval
+MAX_EXACT_FEATURES = 20  # 2^20 coalitions; beyond, only the permutation estimate
 
 
 @dataclasses.dataclass(frozen=True)
@@ -68,17 +69,21 @@ class ShapleyAttribution:
         return np.hypot(self.ci95_starts, self.ci95_orders)
 
 
-def plan_shapley(num_features: int, orders: int, seed: int = 0) -> ShapleyPlan:
+def plan_shapley(num_features: int, orders: int | str, seed: int = 0) -> ShapleyPlan:
     """The plan for ``orders`` (M ≥ 4; rounded up to even, for antithetic pairs) random
     feature orders, or the exact one where 2^d coalitions are no more than the M·(d − 1) + 2
-    the orders visit. Raises ValueError for M < 4 or d < 1."""
+    the orders visit, or where ``orders`` is ``"exact"``. Raises ValueError for M < 4, for
+    d < 1, and for "exact" beyond d = 20."""
     d = num_features
-    if orders < MIN_ORDERS or d < 1:
-        raise ValueError(f"a Shapley attribution needs at least {MIN_ORDERS} feature orders and a feature, "
-                         f"got {orders} orders and d = {d}")
-    orders += orders % 2
-    if 2**d <= orders * (d - 1) + 2:
+    if orders == "exact" and not 1 <= d <= MAX_EXACT_FEATURES:
+        raise ValueError(f"exact Shapley values of d = {d} features value 2^{d} coalitions; "
+                         f"give a number of feature orders instead")
+    if orders != "exact" and (not isinstance(orders, int) or orders < MIN_ORDERS or d < 1):
+        raise ValueError(f"a Shapley attribution needs exact or at least {MIN_ORDERS} feature orders, and a feature; "
+                         f"got {orders!r} and d = {d}")
+    if orders == "exact" or 2**d <= (orders + orders % 2) * (d - 1) + 2:
         return ShapleyPlan(d, _bits(np.arange(2**d), d), None)
+    orders += orders % 2
     rng = np.random.default_rng(seed)
     first = np.stack([rng.permutation(d) for _ in range(orders // 2)])
     order_table = np.stack([first, first[:, ::-1]], axis=1).reshape(orders, d)  # each order, then its reverse
