@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 
 import jax
 
@@ -126,6 +127,25 @@ class ExperimentConfig(RunSettings):
     devices: int = setting(0, "devices the pairs are spread over: 0 = every device (of every process under "
                               "jax.distributed), N = the first N")
     budget_only: bool = setting(False, "print the memory budget and stop")
+
+
+def pair_configs(config: ExperimentConfig) -> list[TrainConfig]:
+    """One resolved TrainConfig per (mode, seed) pair, in the batch's order (modes outer)."""
+    modes = [mode.strip() for mode in config.modes.split(",") if mode.strip()]
+    unknown = [mode for mode in modes if mode not in MODES]
+    if not modes or unknown:
+        raise ValueError(f"modes must be a comma-separated list of {', '.join(MODES)}, got {config.modes!r}")
+    if len(set(modes)) != len(modes):
+        raise ValueError(f"modes repeats a mode: {config.modes!r}")
+    if config.seeds < 1 or config.first_seed < 0:
+        raise ValueError(f"seeds must be >= 1 and first_seed >= 0, got seeds={config.seeds}, first_seed={config.first_seed}")
+    shared = {field.name: getattr(config, field.name) for field in dataclasses.fields(RunSettings)}
+    out = config.out or f"runs/fig1-{canonical_env_name(config.env)}"
+    return [
+        TrainConfig(**shared, missingness=mode, seed=seed, out=os.path.join(out, f"{mode}-s{seed}")).resolved()
+        for mode in modes
+        for seed in range(config.first_seed, config.first_seed + config.seeds)
+    ]
 
 
 def config_file_of(cls: type) -> ConfigFile:

@@ -28,35 +28,14 @@ import jax
 import numpy as np
 from omegaconf import OmegaConf
 
-from admissable_jax.adversary import MODES
 from admissable_jax.checkpointing import CheckpointError, Checkpoints
 from admissable_jax.cli import enable_compilation_cache, parse_args, run_from_cli
-from admissable_jax.config import ExperimentConfig, RunSettings, TrainConfig, config_file_of
-from admissable_jax.envs import canonical_env_name
+from admissable_jax.config import ExperimentConfig, TrainConfig, config_file_of, pair_configs
 from admissable_jax.errors import make_directory, remove_if_unused
 from admissable_jax.host_loop import TrainingLoop, make_trainer, mode_flags
 from admissable_jax.placement import PairPlacement, initialize_distributed
 from admissable_jax.run_directory import RunDirectory, load_config
 from admissable_jax.train import TrainResult
-
-def pair_configs(config) -> list[TrainConfig]:
-    """One resolved TrainConfig per (mode, seed) pair, in the batch's order (modes outer)."""
-    modes = [mode.strip() for mode in config.modes.split(",") if mode.strip()]
-    unknown = [mode for mode in modes if mode not in MODES]
-    if not modes or unknown:
-        raise ValueError(f"modes must be a comma-separated list of {', '.join(MODES)}, got {config.modes!r}")
-    if len(set(modes)) != len(modes):
-        raise ValueError(f"modes repeats a mode: {config.modes!r}")
-    if config.seeds < 1 or config.first_seed < 0:
-        raise ValueError(f"seeds must be >= 1 and first_seed >= 0, got seeds={config.seeds}, first_seed={config.first_seed}")
-    shared = {field.name: getattr(config, field.name) for field in dataclasses.fields(RunSettings)}
-    out = config.out or f"runs/fig1-{canonical_env_name(config.env)}"
-    return [
-        TrainConfig(**shared, missingness=mode, seed=seed, out=os.path.join(out, f"{mode}-s{seed}")).resolved()
-        for mode in modes
-        for seed in range(config.first_seed, config.first_seed + config.seeds)
-    ]
-
 
 def experiment_dir(pairs: list[TrainConfig]) -> str:
     return os.path.dirname(pairs[0].out)

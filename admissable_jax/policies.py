@@ -19,7 +19,7 @@ import numpy as np
 
 from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.config import TrainConfig
-from admissable_jax.experiment import ExperimentConfig, pair_configs
+from admissable_jax.config import ExperimentConfig, pair_configs
 from admissable_jax.host_loop import make_trainer, mode_flags, take_pair
 from admissable_jax.method import hidden_row
 from admissable_jax.missingness import mask_observation

@@ -47,7 +47,7 @@ import jax
 from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.cli import enable_compilation_cache, parse_args
 from admissable_jax.envs import make_env
-from admissable_jax.experiment import ExperimentConfig, pair_configs
+from admissable_jax.config import ExperimentConfig, pair_configs
 from admissable_jax.host_loop import make_trainer, mode_flags
 from admissable_jax.training import Trainer
 from common import COMMITTED_RESULTS_DIR, RESULTS_DIR, append_record, environment_record, timed

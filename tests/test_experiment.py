@@ -12,7 +12,8 @@ import pytest
 from nbclient import NotebookClient
 
 from admissable_jax import mask_observation
-from admissable_jax.experiment import ExperimentConfig, pair_configs, run_experiment
+from admissable_jax.config import ExperimentConfig, pair_configs
+from admissable_jax.experiment import run_experiment
 from admissable_jax.plot import find_runs, plot_runs
 from admissable_jax.memory import MemoryBudgetExceeded
 from admissable_jax.audit import AuditConfig, audit_experiment, audit_run
