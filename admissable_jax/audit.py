@@ -307,7 +307,8 @@ def _gymnasium_features(env_id: str, ks, **env_kwargs) -> int:
 
 
 def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs: int = 8, seed: int = 0,
-                    feature_names: list[str] | None = None, shapley: int | str = 0, **env_kwargs) -> AuditResult:
+                    feature_names: list[str] | None = None, shapley: int | str = 0, progress: bool = False,
+                    **env_kwargs) -> AuditResult:
     """:func:`audit` for any policy on any Gymnasium env (Stable-Baselines3, CleanRL, your
     own PyTorch): every set of each size in ``ks`` and the clean case, N = ``n_episodes``
     episodes each, in one rollout on ``num_envs`` copies of ``gymnasium.make_vec(env_id)``
@@ -315,7 +316,7 @@ def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs
     actions``). Episode starts follow the vector env's seed, so unlike :func:`audit` the
     sets do not share their N start states. ``feature_names`` default to our env's for
     Hopper-v5, Walker2d-v5, Ant-v5 and HalfCheetah-v5, else the indices. ``shapley``
-    as in :func:`audit`. :func:`write_audit` writes the files."""
+    as in :func:`audit`; ``progress`` draws a bar over the episodes. :func:`write_audit` writes the files."""
     from admissable_jax.envs import canonical_env_name, observation_names, settotalmass_warning_dropped
     from admissable_jax.wrappers import score_policy
 
@@ -336,7 +337,7 @@ def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs
     def score_rows(rows: np.ndarray) -> np.ndarray:
         with settotalmass_warning_dropped():
             return score_policy(env_id, policy, n_episodes=n_episodes, num_envs=num_envs, seed=seed, hidden_sets=rows,
-                                **env_kwargs).returns
+                                progress=progress, **env_kwargs).returns
 
     source = {"Gymnasium env": env_id, "policy": getattr(policy, "__name__", type(policy).__name__)}
     result = _audit_result(env_id, "rollout", score_rows, ks, blocks, plan, feature_names, source, {})
@@ -541,7 +542,7 @@ def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     make_directory(out, "audit folder")
     with reporting(f"auditing {config.policy} on {config.gym} for k={config.k} ({config.episodes} episodes per set)"):
         result = audit_gymnasium(config.gym, policy, ks, config.episodes, num_envs=config.slots or 8, seed=config.seed,
-                                 shapley=_shapley(config.shapley))
+                                 shapley=_shapley(config.shapley), progress=True)
     return result, write_audit(result, out, config.top)
 
 

@@ -19,6 +19,7 @@ from typing import Any, Callable, Iterable
 
 import gymnasium
 import numpy as np
+from tqdm.auto import tqdm
 
 from admissable_jax.method import MODES, candidate_sets, hidden_row, inverse_score_p_miss, mask_observation
 
@@ -121,7 +122,7 @@ class PolicyScores:
 def score_policy(env_id: str, policy: Callable[[np.ndarray], Any], k: int = 1, n_episodes: int = 10,
                  num_envs: int = 8, include_empty_set: bool = False, seed: int = 0,
                  vectorization_mode: str = "sync", hidden_sets: np.ndarray | None = None,
-                 **env_kwargs) -> PolicyScores:
+                 progress: bool = False, **env_kwargs) -> PolicyScores:
     """a_u for every set u of ``k`` features (paper §3): the mean undiscounted return of
     ``n_episodes`` episodes with u hidden, and the clean return, for any Python policy.
     ``hidden_sets`` ((|U|, d) 0/1 rows) scores those sets instead, in one rollout (the
@@ -132,7 +133,8 @@ def score_policy(env_id: str, policy: Callable[[np.ndarray], Any], k: int = 1, n
     ``lambda obs: model.predict(obs, deterministic=True)[0]`` (a returned tuple's first
     item is taken). The (|U| + 1)·N episodes run on ``num_envs`` copies of
     ``gymnasium.make_vec(env_id, ...)``, each slot starting the next unscored episode as its
-    own ends; episode starts follow the vector env's seed.
+    own ends; episode starts follow the vector env's seed. ``progress`` draws a bar over the
+    episodes on stderr.
     """
     if n_episodes < 1 or num_envs < 1:
         raise ValueError("n_episodes and num_envs must be >= 1")
@@ -154,6 +156,7 @@ def score_policy(env_id: str, policy: Callable[[np.ndarray], Any], k: int = 1, n
         resetting = np.zeros(num_envs, bool)  # next step is the vector env's autoreset of this slot
         obs, _ = envs.reset(seed=seed)
         loop_steps = 0
+        bar = tqdm(total=total, unit="episode", disable=not progress)
         while (episode_of_slot < total).any():
             masked = mask_observation(np.asarray(obs, np.float32), rows[np.minimum(episode_of_slot, total - 1) // n_episodes])
             actions = policy(masked)
@@ -170,6 +173,8 @@ def score_policy(env_id: str, policy: Callable[[np.ndarray], Any], k: int = 1, n
                 episode_of_slot[slot], next_episode = next_episode, next_episode + 1
             running_return[ended], running_length[ended] = 0.0, 0
             resetting = terminated | truncated
+            bar.update(int(ended.sum()))
+        bar.close()
     finally:
         envs.close()
     means = returns.mean(axis=1)

@@ -38,8 +38,9 @@ def sum_of_visible(masked_obs: np.ndarray) -> np.ndarray:
     return masked_obs[:, :3].sum(axis=1, keepdims=True)
 
 
-def test_score_policy_gives_the_papers_a_u_for_a_numpy_policy():
-    result = score_policy("ConstantFeatures-v0", sum_of_visible, k=1, n_episodes=3, num_envs=5)
+def test_score_policy_gives_the_papers_a_u_for_a_numpy_policy(capsys):
+    result = score_policy("ConstantFeatures-v0", sum_of_visible, k=1, n_episodes=3, num_envs=5, progress=True)
+    assert "12/12 " in capsys.readouterr().err  # the bar over the episodes, finished
     np.testing.assert_allclose(result.scores, [25.0, 20.0, 15.0])  # hide 1, 2 or 3 of 6
     assert result.clean_score == 30.0
     np.testing.assert_array_equal(result.lengths, 5)
