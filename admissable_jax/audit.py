@@ -215,8 +215,7 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
     d = env.observation_size
     searched = [k for k in ks if search == "beam" and k > 1]
     plan = plan_shapley(d, shapley, seed) if shapley else None
-    scored_sets = sum(beam_width if k in searched else num_candidate_sets(d, k) for k in ks) + _plan_size(plan)
-    _check_size(env, scored_sets, n_episodes, ks, search)
+    check_audit_size(env.name, d, ks, n_episodes, search, beam_width, plan)
     scorer = jax.jit(score_missingness, static_argnums=(0, 1, 5, 6, 7), static_argnames=(
         "score_estimator", "critic_fn", "score_horizon", "gamma"))
     key = jax.random.key(seed)
@@ -233,7 +232,6 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
         if k not in searched:
             blocks.append(candidate_sets(d, k))
             continue
-        _check_size(env, beam_width * d, n_episodes, ks, search)  # each level ranks b · d rows in one batch
         found = beam_search_worst_sets(lambda rows: score(rows, ranker).scores, d, k, beam_width)
         kept = np.asarray(found.found)
         finalists, ranker_scores = np.asarray(found.rows)[kept], np.asarray(found.scores)[kept]
@@ -323,9 +321,7 @@ def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs
     d = _gymnasium_features(env_id, ks, **env_kwargs)
     blocks = [candidate_sets(d, k) for k in ks]
     plan = plan_shapley(d, shapley, seed) if shapley else None
-    if (sum(len(block) for block in blocks) + _plan_size(plan) + 1) * n_episodes > MAX_AUDIT_EPISODES:
-        raise ValueError(f"auditing k={','.join(map(str, ks))} on {env_id} is over {MAX_AUDIT_EPISODES:,} episodes: "
-                         "lower n_episodes or drop the largest k")
+    check_audit_size(env_id, d, ks, n_episodes, search=None, plan=plan)
     if feature_names is None:
         try:
             feature_names = observation_names(canonical_env_name(env_id))
@@ -349,13 +345,21 @@ def _drop(clean_score: float, score: float) -> float:
     return 100.0 * (clean_score - score) / abs(clean_score) if clean_score else float("nan")
 
 
-def _check_size(env, num_sets: int, n_episodes: int, ks, search: str) -> None:
-    """Refuse a batch of more than MAX_AUDIT_EPISODES episodes, in one line."""
+def check_audit_size(env_name: str, d: int, ks, n_episodes: int, search: str | None = "exact", beam_width: int = 4,
+                     plan: ShapleyPlan | None = None) -> None:
+    """Refuse, in one line, an audit whose one rollout would step more than
+    MAX_AUDIT_EPISODES episodes: (its sets, where searched the b finalists, and the plan's
+    coalitions, + the clean case) × N; a beam search's levels rank b · d sets a batch.
+    ``search`` None: the audit cannot search (a Gymnasium policy's)."""
+    searched = [k for k in ks if search == "beam" and k > 1]
+    num_sets = sum(beam_width if k in searched else num_candidate_sets(d, k) for k in ks) + _plan_size(plan)
+    num_sets = max(num_sets, beam_width * d if searched else 0)
     if (num_sets + 1) * n_episodes > MAX_AUDIT_EPISODES:
-        offer = "lower episodes=, drop the largest k" + (" or use search=beam" if search == "exact" else
-                                                        " or lower beam_width=")
-        raise ValueError(f"auditing k={','.join(map(str, ks))} on {env.name} is {num_sets:,} sets x {n_episodes} "
-                         f"episodes in one rollout, over {MAX_AUDIT_EPISODES:,}: {offer}")
+        offers = ["lower episodes=", "drop the largest k"]
+        offers += [] if search is None else ["use search=beam" if search == "exact" else "lower beam_width="]
+        offers += [] if plan is None else ["give shapley= fewer feature orders"]
+        raise ValueError(f"auditing k={','.join(map(str, ks))} on {env_name} is {num_sets:,} sets x {n_episodes} "
+                         f"episodes in one rollout, over {MAX_AUDIT_EPISODES:,}: {', '.join(offers[:-1])} or {offers[-1]}")
 
 
 def write_audit(result: AuditResult, out: str, top: int = 10) -> list[str]:
@@ -567,10 +571,13 @@ def _audit_env(config: AuditConfig, policy: TrainedPolicy) -> MjxEnv:
 def _slots(config: AuditConfig, policy: TrainedPolicy) -> int:
     """Episodes stepped at once: all (sets + clean) × N, at most ``slots`` (or 4096)."""
     d = policy.observation_size
-    shapley = _shapley(config.shapley)
-    plan = plan_shapley(d, shapley, config.seed) if shapley else None
-    episodes = (sum(num_candidate_sets(d, k) for k in _ks(config.k)) + _plan_size(plan) + 1) * config.episodes
+    episodes = (sum(num_candidate_sets(d, k) for k in _ks(config.k)) + _plan_size(_plan(config, d)) + 1) * config.episodes
     return min(episodes, config.slots or 4096)
+
+
+def _plan(config: AuditConfig, d: int) -> ShapleyPlan | None:
+    shapley = _shapley(config.shapley)
+    return plan_shapley(d, shapley, config.seed) if shapley else None
 
 
 def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
@@ -582,8 +589,10 @@ def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
     from admissable_jax.envs import observation_names
 
     out = config.out or os.path.join(config.run_dir, f"audit-step{policy.step}")
-    make_directory(out, "audit folder")  # before the rollout, not after it
     train = policy.config
+    d = policy.observation_size
+    check_audit_size(train.env, d, _ks(config.k), config.episodes, config.search, config.beam_width, _plan(config, d))
+    make_directory(out, "audit folder")  # before the rollout, not after it
     with reporting(f"auditing checkpoint {policy.step} of {train.env} for k={config.k} ({config.search} search, "
                    f"{config.episodes} episodes per set, {env.physics_name} physics on {jax.default_backend()}; "
                    f"compiling included)"):
