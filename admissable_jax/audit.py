@@ -434,8 +434,8 @@ def _shapley_section(result: AuditResult, attribution: ShapleyAttribution) -> li
     lines = ["## What each feature is worth: Shapley values", "",
              f"A coalition S of visible features is worth v(S), {'the mean return' if result.estimator == 'rollout' else 'the estimate'} "
              f"with every other feature hidden. Feature i's Shapley value φ_i is its share of what seeing everything is "
-             f"worth, v(all) − v(none) = {attribution.full:.1f} − {attribution.blind:.1f} = {worth:.1f} (the φ_i sum "
-             f"to it); beside it, the loss of hiding it alone (clean − a_i), which is all an adversary of k = 1 sees. "
+             f"worth: v(all) = {attribution.full:.1f}, v(none) = {attribution.blind:.1f}, and the φ_i sum to "
+             f"v(all) − v(none) = {worth:.1f}. Beside it, the loss of hiding it alone (clean − a_i), which is all an adversary of k = 1 sees. "
              f"A feature whose φ_i is well above its loss alone carries what other features carry too: hidden alone "
              f"it costs little, hidden with them it costs much. {how}; ± the 95% interval over the N = "
              f"{result.n_episodes} start states (Student's t){interval_orders}. Method: "

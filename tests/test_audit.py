@@ -213,7 +213,7 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
     written = write_audit(worth, str(tmp_path / "worth"))
     assert os.path.basename(written[-1]) == "shapley.png"
     report = (tmp_path / "worth" / "report.md").read_text()
-    assert "v(all) − v(none) = 15.0 − 0.0 = 15.0" in report and "| 2 | 1 | 1 | 4.2 ± 0.0 | 27.8% | 0.0 |" in report
+    assert "v(all) = 15.0, v(none) = 0.0, and the φ_i sum to v(all) − v(none) = 15.0. Beside it" in report and "| 2 | 1 | 1 | 4.2 ± 0.0 | 27.8% | 0.0 |" in report
 
     # From the command line: policy=MODULE:NAME on gym=ENV_ID, the same numbers.
     assert audit_main(["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "k=1,2", "episodes=2",
