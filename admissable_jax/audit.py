@@ -788,7 +788,8 @@ def compare_modes(results: list[AuditResult]) -> str:
     """Markdown: per k and mode, the pairs' worst a_u, their mean a_u over the sets (the
     average case; not for a searched k) and clean return (mean ± 95% t-interval over seeds)
     and the set most often worst; then adversarial − uniform per k on the worst and the mean
-    (Welch's t: the seeds of one mode are independent of the other's)."""
+    (Welch's t: the seeds of one mode are independent of the other's); where every pair
+    was audited with ``shapley=``, each feature's Shapley value per mode."""
     from admissable_jax.plot import Difference, estimate
 
     by_mode: dict[str, list[AuditResult]] = {}
@@ -820,7 +821,27 @@ def compare_modes(results: list[AuditResult]) -> str:
                 if not np.isnan(per_mode["adversarial"][k]).any():
                     difference = Difference(f"{name}, k={k}", per_mode["adversarial"][k], per_mode["uniform"][k])
                     lines.append(f"| {k} | {name} | {difference.cells()} |")
+    if all(result.shapley is not None for result in results):
+        lines += _shapley_by_mode(by_mode, first.feature_names)
     return "\n".join(lines) + "\n"
+
+
+def _shapley_by_mode(by_mode: dict[str, list[AuditResult]], names: list[str], most: int = 20) -> list[str]:
+    """Markdown: each feature's Shapley value per mode, mean ± 95% t-interval over the
+    mode's pairs; the ``most`` features of largest mean |φ_i| over every pair, largest φ first."""
+    from admissable_jax.plot import estimate
+
+    values = {mode: np.array([result.shapley.values for result in group]) for mode, group in sorted(by_mode.items())}
+    overall = np.concatenate(list(values.values())).mean(axis=0)
+    shown = sorted(sorted(range(len(names)), key=lambda i: -abs(overall[i]))[:most], key=lambda i: -overall[i])
+    which = "every feature" if len(shown) == len(names) else f"the {len(shown)} of largest mean |φ_i| of {len(names)}"
+    lines = ["", "## What each feature is worth, per mode", "",
+             f"Each pair's Shapley values φ_i (its report's last section: the feature's share of v(all) − v(none)), "
+             f"mean ± 95% t-interval over the seeds of a mode; {which}, largest mean first.", "",
+             "| feature | index | " + " | ".join(values) + " |", "|---|---|" + "---|" * len(values)]
+    for i in shown:
+        lines.append(f"| {names[i]} | {i} | " + " | ".join(estimate(per_pair[:, i]) for per_pair in values.values()) + " |")
+    return lines
 
 
 def main(argv: list[str]) -> int:

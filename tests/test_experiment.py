@@ -14,7 +14,7 @@ from nbclient import NotebookClient
 from admissable_jax import mask_observation
 from admissable_jax.config import ExperimentConfig, pair_configs
 from admissable_jax.experiment import run_experiment
-from admissable_jax.plot import find_runs, plot_runs
+from admissable_jax.plot import estimate, find_runs, plot_runs
 from admissable_jax.memory import MemoryBudgetExceeded
 from admissable_jax.audit import AuditConfig, audit_experiment, audit_run
 from admissable_jax.audit import main as audit_main  # the command line, in this process
@@ -58,7 +58,8 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys):
     assert policy.step == 3000 and policy.config.missingness == "uniform"
     np.testing.assert_allclose(policy(obs, hidden=[1]), expected, rtol=1e-5, atol=1e-6)
     # The whole experiment audited: every pair into its own folder, then the modes compared per k.
-    results, written = audit_experiment(AuditConfig(run_dir=str(tmp_path / "straight"), k="1,2", episodes=3))
+    results, written = audit_experiment(AuditConfig(run_dir=str(tmp_path / "straight"), k="1,2", episodes=3,
+                                                    shapley="exact"))
     assert [(result.source["mode"], result.source["seed"]) for result in results] == [
         ("adversarial", 0), ("adversarial", 1), ("uniform", 0), ("uniform", 1)]
     assert written[-1] == str(tmp_path / "straight" / "audit-step3000" / "comparison.md")
@@ -78,6 +79,10 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys):
         assert f"| {k} | worst a_u | {gap:+.1f} | [" in differences
         gap = np.mean([np.mean([e.score for e in r.sets[k]]) for r in results[:2]]) - np.mean(average)
         assert f"| {k} | mean a_u | {gap:+.1f} | [" in differences
+    worth = comparison.split("## What each feature is worth, per mode")[1]  # φ_i per mode, over its pairs
+    for i, name in enumerate(["x", "y", "x velocity", "y velocity"]):
+        by_mode = [estimate(np.array([result.shapley.values[i] for result in pairs])) for pairs in (results[:2], results[2:])]
+        assert f"| {name} | {i} | {by_mode[0]} | {by_mode[1]} |" in worth
     assert audit_main([str(tmp_path / "straight"), "k=1", "episodes=2", f"out={tmp_path / 'audits'}"]) == 0
     said = capsys.readouterr().out
     assert "uniform seed 1: k=1: worst" in said and "| 1 | adversarial | 2 |" in said
