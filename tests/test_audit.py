@@ -155,6 +155,7 @@ def test_shapley_attribution_by_hand_and_over_every_order():
     np.testing.assert_allclose(exact.values, [5 / 3, 25 / 6, 55 / 6])
     assert exact.leave_one_out == [0.0, 0.0, 5.0] and (exact.full, exact.blind) == (15.0, 0.0)
     assert exact.ci95_starts == [0.0, 0.0, 0.0] and exact.orders == 0
+    assert len(exact.coalition_values) == 8 and [[2], 10.0] in exact.coalition_values  # 3 hidden: 5 · max(1, 2)
 
     # A random game of 5 features with 4 start states: every order, each beside its reverse.
     d, rng = 5, np.random.default_rng(3)

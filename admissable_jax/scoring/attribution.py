@@ -62,6 +62,7 @@ class ShapleyAttribution:
     leave_one_out: list[float]  # v(F) − v(F∖{i}): the loss of hiding feature i alone
     full: float  # v(F): the clean return
     blind: float  # v(∅): every feature hidden
+    coalition_values: list  # [[hidden features], v] of every coalition valued (mean over the N episodes)
 
     @property
     def ci95(self) -> np.ndarray:
@@ -138,7 +139,8 @@ def shapley_attribution(plan: ShapleyPlan, hidden_rows: np.ndarray, returns: np.
         method=plan.method, orders=0 if plan.orders is None else len(plan.orders), coalitions=len(plan.hidden_rows),
         values=per_episode.mean(axis=1).tolist(), ci95_starts=_t_half_width(per_episode.T).tolist(),
         ci95_orders=(np.zeros(d) if per_order is None else _t_half_width(per_order)).tolist(),
-        leave_one_out=(full.mean() - alone.mean(axis=1)).tolist(), full=float(full.mean()), blind=float(blind.mean()))
+        leave_one_out=(full.mean() - alone.mean(axis=1)).tolist(), full=float(full.mean()), blind=float(blind.mean()),
+        coalition_values=[[np.flatnonzero(row).tolist(), float(value(row[None])[0].mean())] for row in plan.hidden_rows])
 
 
 def _exact_shapley(values: np.ndarray, d: int) -> np.ndarray:
