@@ -77,7 +77,9 @@ class AuditConfig:
     step: int = setting(-1, "the checkpoint (env step) to audit; -1 = the latest")
     seed: int = setting(0, "seed of the N start states")
     top: int = setting(10, "worst sets listed per k in report.md")
-    slots: int = setting(0, "envs stepped at once (0 = every episode at once, at most 4096; with policy=: 8 Gymnasium envs)")
+    slots: int = setting(0, "envs stepped at once, each starting the next episode as its own ends (0 = as training "
+                            "scores: 32 on a CPU, every episode at once, at most 4096, on an accelerator; with "
+                            "policy=: 8 Gymnasium envs)")
     score_estimator: str = setting("rollout", "rollout (the paper's a_u) | critic | horizon: the run's critic's discounted "
                                               "value (see admissable_jax.scoring)")
     score_horizon: int = setting(100, "H of score_estimator=horizon")
@@ -431,15 +433,15 @@ def _shapley_section(result: AuditResult, attribution: ShapleyAttribution) -> li
            f"Estimated from M = {attribution.orders} random orders of the features in antithetic pairs "
            f"({attribution.coalitions:,} coalitions valued)")
     interval_orders = "" if attribution.method == "exact" else ", combined with that over the orders' pairs"
+    value = "the mean return" if result.estimator == "rollout" else f"the `{result.estimator}` estimate"
     lines = ["## What each feature is worth: Shapley values", "",
-             f"A coalition S of visible features is worth v(S), {'the mean return' if result.estimator == 'rollout' else 'the estimate'} "
-             f"with every other feature hidden. Feature i's Shapley value φ_i is its share of what seeing everything is "
-             f"worth: v(all) = {attribution.full:.1f}, v(none) = {attribution.blind:.1f}, and the φ_i sum to "
-             f"v(all) − v(none) = {worth:.1f}. Beside it, the loss of hiding it alone (clean − a_i), which is all an adversary of k = 1 sees. "
-             f"A feature whose φ_i is well above its loss alone carries what other features carry too: hidden alone "
-             f"it costs little, hidden with them it costs much. {how}; ± the 95% interval over the N = "
-             f"{result.n_episodes} start states (Student's t){interval_orders}. Method: "
-             "admissable_jax.scoring.attribution.", "",
+             f"A coalition S of visible features is worth v(S), {value} with every other feature hidden. Feature i's "
+             f"Shapley value φ_i is its share of what seeing everything is worth: v(all) = {attribution.full:.1f}, "
+             f"v(none) = {attribution.blind:.1f}, and the φ_i sum to v(all) − v(none) = {worth:.1f}. Beside it, the "
+             f"loss of hiding it alone (clean − a_i), which is all an adversary of k = 1 sees. A feature whose φ_i "
+             f"is well above its loss alone carries what other features carry too: hidden alone it costs little, "
+             f"hidden with them it costs much. {how}; ± the 95% interval over the N = {result.n_episodes} start "
+             f"states (Student's t){interval_orders}. Method: admissable_jax.scoring.attribution.", "",
              "| rank | feature | index | φ_i ± 95% CI | share of v(all) − v(none) | loss hidden alone |",
              "|---|---|---|---|---|---|"]
     for rank, i in enumerate(_shapley_order(attribution), 1):
@@ -467,8 +469,10 @@ def _shapley_chart(result: AuditResult, path: str, most: int = 30) -> str:
     ax.axvline(0, color="black", linewidth=0.8)
     ax.set_yticks(rows, [result.feature_names[i] for i in shown], fontsize=7)
     ax.invert_yaxis()
-    ax.set_xlabel(f"return; the φ_i sum to v(all) − v(none) = {attribution.full - attribution.blind:.0f}")
-    largest = f"the {len(shown)} largest of {len(attribution.values)}" if len(shown) < len(attribution.values) else "every feature"
+    measure = "return" if result.estimator == "rollout" else f"{result.estimator} estimate"
+    ax.set_xlabel(f"{measure}; the φ_i sum to v(all) − v(none) = {attribution.full - attribution.blind:.0f}")
+    d = len(attribution.values)
+    largest = f"the {len(shown)} largest of {d}" if len(shown) < d else "every feature"
     ax.set_title(f"{result.env}: what each feature is worth ({largest}; {attribution.method})", fontsize=9)
     ax.legend(fontsize=7)
     figure.savefig(path, dpi=120, bbox_inches="tight")
@@ -569,10 +573,14 @@ def _audit_env(config: AuditConfig, policy: TrainedPolicy) -> MjxEnv:
 
 
 def _slots(config: AuditConfig, policy: TrainedPolicy) -> int:
-    """Episodes stepped at once: all (sets + clean) × N, at most ``slots`` (or 4096)."""
+    """Episodes stepped at once: all (sets + clean) × N, at most ``slots``, or as many as
+    training's scoring steps (:func:`~admissable_jax.config.default_score_envs`: 32 on a CPU,
+    where a batched step's cost grows with its batch; all on an accelerator), at most 4096."""
+    from admissable_jax.config import default_score_envs
+
     d = policy.observation_size
     episodes = (sum(num_candidate_sets(d, k) for k in _ks(config.k)) + _plan_size(_plan(config, d)) + 1) * config.episodes
-    return min(episodes, config.slots or 4096)
+    return min(episodes, config.slots) if config.slots else min(default_score_envs(episodes), 4096)
 
 
 def _plan(config: AuditConfig, d: int) -> ShapleyPlan | None:

@@ -183,6 +183,20 @@ def test_shapley_attribution_by_hand_and_over_every_order():
         plan_shapley(21, "exact")
 
 
+def test_audit_steps_as_many_envs_at_once_as_training_scores():
+    """slots=0: 32 on this CPU (a batched MJX step costs its batch size there), fewer where the
+    audit has fewer episodes; slots=N: N."""
+    from types import SimpleNamespace
+
+    from admissable_jax.audit import AuditConfig, _slots
+
+    point_mass = SimpleNamespace(observation_size=4)
+    assert jax.default_backend() == "cpu"
+    assert _slots(AuditConfig(run_dir="run", k="1,2", episodes=50), point_mass) == 32  # (4 + 6 + 1) × 50 episodes
+    assert _slots(AuditConfig(run_dir="run", k="1", episodes=4), point_mass) == 20
+    assert _slots(AuditConfig(run_dir="run", k="1", episodes=50, shapley="exact", slots=100), point_mass) == 100
+
+
 def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
     """audit_gymnasium on tests/test_wrappers.py's ConstantFeatures env (observes 1, 2, 3;
     earns 5 · the sum it sees): hand-computed a_u for every set of 1 and 2 features, the worst,
