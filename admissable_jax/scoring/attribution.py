@@ -79,12 +79,12 @@ def plan_shapley(num_features: int, orders: int | str, seed: int = 0) -> Shapley
     if orders == "exact" and not 1 <= d <= MAX_EXACT_FEATURES:
         raise ValueError(f"exact Shapley values of d = {d} features value 2^{d} coalitions; "
                          f"give a number of feature orders instead")
-    if orders != "exact" and (not isinstance(orders, int) or orders < MIN_ORDERS or d < 1):
+    if orders != "exact" and (not isinstance(orders, (int, np.integer)) or orders < MIN_ORDERS or d < 1):
         raise ValueError(f"a Shapley attribution needs exact or at least {MIN_ORDERS} feature orders, and a feature; "
                          f"got {orders!r} and d = {d}")
     if orders == "exact" or 2**d <= (orders + orders % 2) * (d - 1) + 2:
         return ShapleyPlan(d, _bits(np.arange(2**d), d), None)
-    orders += orders % 2
+    orders = int(orders) + int(orders) % 2
     rng = np.random.default_rng(seed)
     first = np.stack([rng.permutation(d) for _ in range(orders // 2)])
     order_table = np.stack([first, first[:, ::-1]], axis=1).reshape(orders, d)  # each order, then its reverse
