@@ -662,15 +662,19 @@ def _audit_each(jobs: list[tuple[AuditConfig, int | None]]) -> tuple[list[AuditR
 
 
 def _over_training_table(results: list[AuditResult]) -> str:
-    """Markdown: a row per checkpoint; per k the worst a_u (its set) and the mean a_u over the sets."""
+    """Markdown: a row per checkpoint; per k the worst a_u (its set) and the mean a_u over the
+    sets; with ``shapley=``, the feature worth most then and its φ."""
     first = results[0]
     ks = list(first.sets)
+    attributed = all(result.shapley is not None for result in results)
     lines = [f"# Robustness over training: {first.env}, {first.source['run']}", "",
              f"Each checkpoint audited as its folder's report says (N = {first.n_episodes} episodes per set, "
              f"`{first.estimator}`): per k, the worst a_u ± its 95% interval with its set, and the mean a_u over the "
-             "sets (the average case; none for a searched k).", "",
-             "| env step | clean return | " + " | ".join(f"k={k}: worst a_u (set) | k={k}: mean a_u" for k in ks) + " |",
-             "|---|---|" + "---|---|" * len(ks)]
+             "sets (the average case; none for a searched k)" + ("; and the feature worth most, its Shapley value "
+                                                                "φ_i of v(all) − v(none)" if attributed else "") + ".", "",
+             "| env step | clean return | " + " | ".join(f"k={k}: worst a_u (set) | k={k}: mean a_u" for k in ks)
+             + (" | worth most: φ_i of v(all) − v(none)" if attributed else "") + " |",
+             "|---|---|" + "---|---|" * len(ks) + ("---|" if attributed else "")]
     for result in results:
         cells = []
         for k in ks:
@@ -678,6 +682,10 @@ def _over_training_table(results: list[AuditResult]) -> str:
             mean = result.mean(k)
             cells += [f"{worst.score:.1f} ± {worst.ci95:.1f} ({', '.join(worst.names)})",
                       "—" if math.isnan(mean) else f"{mean:.1f}"]
+        if attributed:
+            attribution, top = result.shapley, _shapley_order(result.shapley)[0]
+            cells.append(f"{result.feature_names[top]}: {attribution.values[top]:.1f} ± {attribution.ci95[top]:.1f} "
+                         f"of {attribution.full - attribution.blind:.1f}")
         lines.append(f"| {result.source['checkpoint (env step)']} | {result.clean_score:.1f} ± {result.clean_ci95:.1f} | "
                      + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"

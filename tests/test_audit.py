@@ -368,7 +368,7 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
 
     # Over training: every checkpoint kept (keep_checkpoints=3: 200, 400, 600) audited, each as a single audit of it.
     over = tmp_path / "over"
-    assert audit_main([short_run.run_dir, "steps=all", "k=1,2", "episodes=6", "seed=4", f"out={over}"]) == 0
+    assert audit_main([short_run.run_dir, "steps=all", "k=1,2", "episodes=6", "seed=4", f"out={over}", "shapley=6"]) == 0
     assert sorted(os.listdir(over)) == ["robustness_over_training.md", "robustness_over_training.png", "step200",
                                         "step400", "step600"]
     table = (over / "robustness_over_training.md").read_text()
@@ -380,6 +380,10 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
         np.testing.assert_allclose([entry["score"] for entry in alone["sets"]["2"]], direct.scores, rtol=1e-5)
         row = next(line for line in table.splitlines() if line.startswith(f"| {step} | "))
         assert f"| {float(np.mean(direct.scores)):.1f} |" in row  # k=2's mean a_u at that checkpoint
+        worth = alone["shapley"]
+        top = int(np.argmax(worth["values"]))  # the feature worth most at that checkpoint, and its φ
+        assert row.endswith(f"| {alone['feature_names'][top]}: {worth['values'][top]:.1f} ± {worth['ci95_starts'][top]:.1f} "
+                            f"of {worth['full'] - worth['blind']:.1f} |"), row
     assert "step 200: k=1: worst" in capsys.readouterr().out
 
     # Bad input: one line, exit status 2.
