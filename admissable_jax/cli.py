@@ -193,6 +193,39 @@ def _sigterm_as_ctrl_c():
         signal.signal(signal.SIGTERM, previous)
 
 
+@dataclasses.dataclass
+class StopRequest:
+    """Set by the first Ctrl-C or SIGTERM inside :func:`stop_at_next_boundary`."""
+
+    requested: bool = False
+
+
+@contextlib.contextmanager
+def stop_at_next_boundary(where: str):
+    """While inside, the first Ctrl-C or SIGTERM (a scheduler's stop) only sets the request
+    it yields and says on stderr that the loop stops ``where``; a second raises
+    KeyboardInterrupt at once. A loop whose jitted steps donate their state can save it only
+    between steps, so this is how it keeps the interval it was running. In the main thread
+    only (signals reach no other): elsewhere nothing is deferred."""
+    request = StopRequest()
+    if threading.current_thread() is not threading.main_thread():
+        yield request
+        return
+
+    def defer(signum, frame):
+        if request.requested:
+            raise KeyboardInterrupt
+        request.requested = True
+        report(f"{signal.Signals(signum).name}: stopping {where}; press Ctrl-C again to stop now")
+
+    previous = {number: signal.signal(number, defer) for number in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield request
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+
+
 def enable_compilation_cache() -> None:
     """Keep compiled XLA programs in ``~/.cache/admissable_jax/jax_cache`` (outside any repo)
     unless ``JAX_COMPILATION_CACHE_DIR`` says otherwise: MJX programs take a minute to build."""

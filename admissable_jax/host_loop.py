@@ -24,7 +24,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from admissable_jax.checkpointing import Checkpoints
-from admissable_jax.cli import report, reporting
+from admissable_jax.cli import report, reporting, stop_at_next_boundary
 from admissable_jax.config import TrainConfig
 from admissable_jax.envs import make_env
 from admissable_jax.errors import Interrupted, RunFailed
@@ -174,54 +174,58 @@ class TrainingLoop:
                                        self.num_runs)
         bar = tqdm(total=config.planned_steps, initial=start_step, unit="step", disable=not config.progress,
                    dynamic_ncols=True)
-        try:
-            for scoring in range(start_step // config.score_every, num_scorings):
-                interval_started = started = time.perf_counter()
-                state, chunk_metrics = self.run_chunk(state)
-                chunk_metrics = self.host_rows(chunk_metrics)
-                train_seconds = time.perf_counter() - started
-                env_steps = config.score_every * (scoring + 1)
-                self._check_finite(chunk_metrics, env_steps)
-                self._check_physics(np.any(chunk_metrics["capacity_exceeded"]), env_steps)
+        with stop_at_next_boundary("at the end of this scoring interval, with a checkpoint") as stop:
+            try:
+                for scoring in range(start_step // config.score_every, num_scorings):
+                    interval_started = started = time.perf_counter()
+                    state, chunk_metrics = self.run_chunk(state)
+                    chunk_metrics = self.host_rows(chunk_metrics)
+                    train_seconds = time.perf_counter() - started
+                    env_steps = config.score_every * (scoring + 1)
+                    self._check_finite(chunk_metrics, env_steps)
+                    self._check_physics(np.any(chunk_metrics["capacity_exceeded"]), env_steps)
 
-                started = time.perf_counter()
-                state, scores = self.score_and_update(state)
-                scores, p_miss, pool, grad_steps = self.host_rows((scores, state.p_miss, state.pool, state.grad_steps))
-                self._check_physics(np.any(scores.capacity_exceeded), env_steps)
-                score_seconds = time.perf_counter() - started
-                rows = []
-                for index, run in enumerate(self.runs):
-                    pick = lambda tree: self.select_pair(tree, index)
-                    if scoring == start_step // config.score_every:  # this command's first row: say what made it
-                        run.record_invocation(invocation)
-                    rows.append(score_row(env_steps, pick(scores), pick(p_miss),
-                                          np.asarray(self.trainer.scored_sets(pick(pool))),
-                                          self.trainer.spec.score_estimator, listed=self.trainer.pooled))
-                    run.append("scores.jsonl", rows[-1])
-                    run.append("metrics.jsonl", metrics_row(
-                        env_steps, int(pick(grad_steps)), pick(chunk_metrics),
-                        train_seconds, score_seconds, config, self.num_runs))
+                    started = time.perf_counter()
+                    state, scores = self.score_and_update(state)
+                    scores, p_miss, pool, grad_steps = self.host_rows((scores, state.p_miss, state.pool, state.grad_steps))
+                    self._check_physics(np.any(scores.capacity_exceeded), env_steps)
+                    score_seconds = time.perf_counter() - started
+                    rows = []
+                    for index, run in enumerate(self.runs):
+                        pick = lambda tree: self.select_pair(tree, index)
+                        if scoring == start_step // config.score_every:  # this command's first row: say what made it
+                            run.record_invocation(invocation)
+                        rows.append(score_row(env_steps, pick(scores), pick(p_miss),
+                                              np.asarray(self.trainer.scored_sets(pick(pool))),
+                                              self.trainer.spec.score_estimator, listed=self.trainer.pooled))
+                        run.append("scores.jsonl", rows[-1])
+                        run.append("metrics.jsonl", metrics_row(
+                            env_steps, int(pick(grad_steps)), pick(chunk_metrics),
+                            train_seconds, score_seconds, config, self.num_runs))
 
-                last = scoring == num_scorings - 1
-                now = time.perf_counter()
-                pause = self.any_process(not last and config.time_limit > 0
-                                         and now - started_run + (now - interval_started) > config.time_limit)
-                if (scoring + 1) % config.checkpoint_every == 0 or last or pause:
-                    self.checkpoints.save(env_steps, state)
-                bar.update(config.score_every)
-                if rows:
-                    bar.set_postfix(progress_postfix(rows, [run.missingness for run in self.runs]),
-                                    train_sps=f"{config.score_every * self.num_runs / train_seconds:.0f}")
-                if pause:
-                    report(f"paused at {env_steps} of {config.planned_steps} env steps: another scoring interval "
-                           f"would pass time_limit={config.time_limit:g} s; {self._kept_checkpoint()}; "
-                           f"continue with resume=true")
-                    break
-        except KeyboardInterrupt:
-            raise Interrupted(f"{self._kept_checkpoint()}; {self._how_to_continue()}") from None
-        finally:
-            bar.close()
-            self.checkpoints.close()
+                    last = scoring == num_scorings - 1
+                    now = time.perf_counter()
+                    pause = self.any_process(not last and config.time_limit > 0
+                                             and now - started_run + (now - interval_started) > config.time_limit)
+                    stopped = not last and self.any_process(stop.requested)  # Ctrl-C or SIGTERM, in any process
+                    if (scoring + 1) % config.checkpoint_every == 0 or last or pause or stopped:
+                        self.checkpoints.save(env_steps, state)
+                    bar.update(config.score_every)
+                    if rows:
+                        bar.set_postfix(progress_postfix(rows, [run.missingness for run in self.runs]),
+                                        train_sps=f"{config.score_every * self.num_runs / train_seconds:.0f}")
+                    if stopped:
+                        raise Interrupted(f"{self._kept_checkpoint()}; {self._how_to_continue()}")
+                    if pause:
+                        report(f"paused at {env_steps} of {config.planned_steps} env steps: another scoring interval "
+                               f"would pass time_limit={config.time_limit:g} s; {self._kept_checkpoint()}; "
+                               f"continue with resume=true")
+                        break
+            except KeyboardInterrupt:
+                raise Interrupted(f"{self._kept_checkpoint()}; {self._how_to_continue()}") from None
+            finally:
+                bar.close()
+                self.checkpoints.close()
         return state
 
     def _check_disk(self, state_bytes: int) -> None:

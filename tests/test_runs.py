@@ -149,10 +149,12 @@ def test_settings_that_would_train_nonsense_are_refused_before_anything_is_writt
     assert not out.exists()
 
 
-@pytest.mark.parametrize("stop, on_chunk", [("ctrl-c", 2), ("sigterm", 2), ("ctrl-c", 1)])
+@pytest.mark.parametrize("stop, on_chunk", [("ctrl-c", 2), ("sigterm", 2), ("sigterm twice", 2), ("ctrl-c", 1)])
 def test_ctrl_c_says_where_to_resume_and_exits_130(stop, on_chunk, tmp_path, monkeypatch, capsys):
     """Ctrl-C, or SIGTERM (a job scheduler's stop), during the second chunk: the run ends
-    with one line naming its last checkpoint, its lock given back. During the first, before
+    with one line naming its last checkpoint, its lock given back. A signal (SIGTERM here,
+    Ctrl-C's SIGINT alike) first lets the interval finish and keeps it as a checkpoint, though
+    none was due (checkpoint_every=10); a second stops at once. During the first chunk, before
     any checkpoint, it says there is nothing to resume, and the folder it made is gone."""
     compile_loop = TrainingLoop.compile
 
@@ -165,7 +167,8 @@ def test_ctrl_c_says_where_to_resume_and_exits_130(stop, on_chunk, tmp_path, mon
             if len(calls) == on_chunk and stop == "ctrl-c":
                 raise KeyboardInterrupt
             if len(calls) == on_chunk:
-                signal.raise_signal(signal.SIGTERM)  # the handler's KeyboardInterrupt, or the default: death
+                for _ in range(2 if stop == "sigterm twice" else 1):
+                    signal.raise_signal(signal.SIGTERM)  # the loop's handler, or the default: death
             return chunk(state)
 
         self.run_chunk = interrupted_on_second_call
@@ -173,9 +176,21 @@ def test_ctrl_c_says_where_to_resume_and_exits_130(stop, on_chunk, tmp_path, mon
 
     monkeypatch.setattr(TrainingLoop, "compile", compile_then_interrupt_second_chunk)
     out = str(tmp_path / "interrupted")
-    result, status = run_from_cli(train_fn, dataclasses.replace(RUN, out=out))
+    checkpoint_every = 1 if stop == "ctrl-c" else 10
+    result, status = run_from_cli(train_fn, dataclasses.replace(RUN, out=out, checkpoint_every=checkpoint_every))
     assert status == INTERRUPTED and result is None
-    said = capsys.readouterr().err.strip().splitlines()[-1]
+    err = capsys.readouterr().err
+    said = err.strip().splitlines()[-1]
+    if stop == "sigterm":  # said at once, then the interval finished and kept
+        assert "SIGTERM: stopping at the end of this scoring interval, with a checkpoint; press Ctrl-C again" in err
+        assert _steps(out) == [500, 1000] and os.listdir(os.path.join(out, "checkpoints")) == ["1000"]
+        assert LOCK_NAME not in os.listdir(out)
+        assert said == f"interrupted: last checkpoint (step 1000) kept in {out}/checkpoints; continue with resume=true"
+        return
+    if stop == "sigterm twice":  # at once: nothing was due yet
+        assert said == (f"interrupted: no checkpoint yet in {out}/checkpoints; nothing to resume from: "
+                        f"run the same command again to start over")
+        return
     if on_chunk == 1:
         assert said == (f"interrupted: no checkpoint yet in {out}/checkpoints; nothing to resume from: "
                         f"run the same command again to start over")
