@@ -216,7 +216,7 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
     check_search(search, beam_width, ranker)
     d = env.observation_size
     searched = [k for k in ks if search == "beam" and k > 1]
-    plan = plan_shapley(d, shapley, seed) if shapley else None
+    plan = _shapley_plan(d, shapley, seed)
     check_audit_size(env.name, d, ks, n_episodes, search, beam_width, plan)
     scorer = jax.jit(score_missingness, static_argnums=(0, 1, 5, 6, 7), static_argnames=(
         "score_estimator", "critic_fn", "score_horizon", "gamma"))
@@ -244,6 +244,11 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
                                             for row, score_ in zip(finalists, ranker_scores)]}
     return _audit_result(env.name, estimator, lambda rows: score(rows, estimator).returns, ks, blocks, plan,
                          feature_names or [str(i) for i in range(d)], source or {}, search_info)
+
+
+def _shapley_plan(d: int, shapley: int | str, seed: int) -> ShapleyPlan | None:
+    """The Shapley attribution's plan for ``shapley`` (``"exact"`` or M orders; 0: none)."""
+    return plan_shapley(d, shapley, seed) if shapley else None
 
 
 def _plan_size(plan: ShapleyPlan | None) -> int:
@@ -322,7 +327,7 @@ def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs
 
     d = _gymnasium_features(env_id, ks, **env_kwargs)
     blocks = [candidate_sets(d, k) for k in ks]
-    plan = plan_shapley(d, shapley, seed) if shapley else None
+    plan = _shapley_plan(d, shapley, seed)
     check_audit_size(env_id, d, ks, n_episodes, search=None, plan=plan)
     if feature_names is None:
         try:
@@ -584,8 +589,7 @@ def _slots(config: AuditConfig, policy: TrainedPolicy) -> int:
 
 
 def _plan(config: AuditConfig, d: int) -> ShapleyPlan | None:
-    shapley = _shapley(config.shapley)
-    return plan_shapley(d, shapley, config.seed) if shapley else None
+    return _shapley_plan(d, _shapley(config.shapley), config.seed)
 
 
 def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,

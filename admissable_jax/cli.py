@@ -177,20 +177,27 @@ def run_from_cli(function: Callable[[Any], Any], config: Any) -> tuple[Any, int]
 
 
 @contextlib.contextmanager
-def _sigterm_as_ctrl_c():
-    """While inside, SIGTERM raises KeyboardInterrupt in the main thread (signals reach no other)."""
+def _signals_handled_by(handler, numbers: tuple[signal.Signals, ...]):
+    """While inside, ``handler`` takes the signals ``numbers``, in the main thread only
+    (signals reach no other; elsewhere nothing changes); the previous handlers come back after."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    previous = {number: signal.signal(number, handler) for number in numbers}
+    try:
+        yield
+    finally:
+        for number, earlier in previous.items():
+            signal.signal(number, earlier)
+
+
+def _sigterm_as_ctrl_c():
+    """While inside, SIGTERM raises KeyboardInterrupt in the main thread."""
 
     def interrupt(signum, frame):
         raise KeyboardInterrupt
 
-    previous = signal.signal(signal.SIGTERM, interrupt)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    return _signals_handled_by(interrupt, (signal.SIGTERM,))
 
 
 @dataclasses.dataclass
@@ -208,9 +215,6 @@ def stop_at_next_boundary(where: str):
     between steps, so this is how it keeps the interval it was running. In the main thread
     only (signals reach no other): elsewhere nothing is deferred."""
     request = StopRequest()
-    if threading.current_thread() is not threading.main_thread():
-        yield request
-        return
 
     def defer(signum, frame):
         if request.requested:
@@ -218,12 +222,8 @@ def stop_at_next_boundary(where: str):
         request.requested = True
         report(f"{signal.Signals(signum).name}: stopping {where}; press Ctrl-C again to stop now")
 
-    previous = {number: signal.signal(number, defer) for number in (signal.SIGINT, signal.SIGTERM)}
-    try:
+    with _signals_handled_by(defer, (signal.SIGINT, signal.SIGTERM)):
         yield request
-    finally:
-        for number, handler in previous.items():
-            signal.signal(number, handler)
 
 
 def enable_compilation_cache() -> None:

@@ -215,14 +215,14 @@ class TrainingLoop:
                         bar.set_postfix(progress_postfix(rows, [run.missingness for run in self.runs]),
                                         train_sps=f"{config.score_every * self.num_runs / train_seconds:.0f}")
                     if stopped:
-                        raise Interrupted(f"{self._kept_checkpoint()}; {self._how_to_continue()}")
+                        raise self._interrupted()
                     if pause:
                         report(f"paused at {env_steps} of {config.planned_steps} env steps: another scoring interval "
                                f"would pass time_limit={config.time_limit:g} s; {self._kept_checkpoint()}; "
                                f"continue with resume=true")
                         break
             except KeyboardInterrupt:
-                raise Interrupted(f"{self._kept_checkpoint()}; {self._how_to_continue()}") from None
+                raise self._interrupted() from None
             finally:
                 bar.close()
                 self.checkpoints.close()
@@ -261,6 +261,10 @@ class TrainingLoop:
         kept = self.checkpoints.latest_step()
         where = f"last checkpoint (step {kept}) kept" if kept is not None else "no checkpoint yet"
         return f"{where} in {self.checkpoints.directory}"
+
+    def _interrupted(self) -> Interrupted:
+        """What a stop by Ctrl-C or SIGTERM ends the run with: where it can resume from."""
+        return Interrupted(f"{self._kept_checkpoint()}; {self._how_to_continue()}")
 
     def _how_to_continue(self) -> str:
         if self.checkpoints.latest_step() is None:
