@@ -42,6 +42,7 @@ CleanRL, PyTorch), and :func:`write_audit` writes either's files.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
@@ -50,6 +51,7 @@ import sys
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from admissable_jax.cli import enable_compilation_cache, parse_args, reporting, run_from_cli, setting
 from admissable_jax.errors import make_directory
@@ -200,7 +202,7 @@ def _ci95(returns: np.ndarray) -> float:
 def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, num_slots: int | None = None,
           feature_names: list[str] | None = None, source: dict[str, Any] | None = None, estimator: str = "rollout",
           critic_fn=None, critic_params=None, horizon: int = 0, gamma: float = 0.99, search: str = "exact",
-          beam_width: int = 4, ranker: str = "rollout", shapley: int | str = 0) -> AuditResult:
+          beam_width: int = 4, ranker: str = "rollout", shapley: int | str = 0, progress: bool = False) -> AuditResult:
     """Score every set of each size in ``ks`` and the clean case in one batch, N =
     ``n_episodes`` each from the same N start states, by
     :func:`~admissable_jax.scoring.score_missingness` with ``estimator`` (``critic`` and
@@ -208,7 +210,7 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
     ``search="beam"`` the sets of each k > 1 are the ``beam_width`` finalists of a beam
     search ranked by ``ranker`` instead of all C(d, k). ``shapley`` (``"exact"``, or M >= 4
     feature orders; 0: none) adds the Shapley attribution's coalitions to the batch (module
-    docstring)."""
+    docstring). ``progress`` draws a bar over each rollout's episodes as they finish."""
     import jax
 
     from admissable_jax.scoring import beam_search_worst_sets, score_missingness
@@ -219,12 +221,16 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
     plan = _shapley_plan(d, shapley, seed)
     check_audit_size(env.name, d, ks, n_episodes, search, beam_width, plan)
     scorer = jax.jit(score_missingness, static_argnums=(0, 1, 5, 6, 7), static_argnames=(
-        "score_estimator", "critic_fn", "score_horizon", "gamma"))
+        "score_estimator", "critic_fn", "score_horizon", "gamma", "progress"))
     key = jax.random.key(seed)
 
     def score(rows: np.ndarray, how: str):
-        scored = scorer(env, policy_fn, params, key, rows, n_episodes, None, num_slots, score_estimator=how,
-                        critic_fn=critic_fn, critic_params=critic_params, score_horizon=horizon, gamma=gamma)
+        counted = progress and how == "rollout"  # the estimates run no episodes to count
+        with _episode_bar((len(rows) + 1) * n_episodes) if counted else contextlib.nullcontext():
+            scored = scorer(env, policy_fn, params, key, rows, n_episodes, None, num_slots, score_estimator=how,
+                            critic_fn=critic_fn, critic_params=critic_params, score_horizon=horizon, gamma=gamma,
+                            progress=_advance_episode_bar if counted else None)
+            jax.effects_barrier()  # every report from inside the rollout made before the bar closes
         if bool(scored.capacity_exceeded):
             raise ValueError(f"the physics ran out of contact buffers: {env.capacity_message()}")
         return scored
@@ -244,6 +250,43 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
                                             for row, score_ in zip(finalists, ranker_scores)]}
     return _audit_result(env.name, estimator, lambda rows: score(rows, estimator).returns, ks, blocks, plan,
                          feature_names or [str(i) for i in range(d)], source or {}, search_info)
+
+
+class _EpisodeBar:
+    """A bar over a rollout's ``total`` episodes, drawn from the first report from inside the
+    rollout on (so its clock and rate leave the compile out)."""
+
+    def __init__(self, total: int):
+        self.total, self.bar = total, None
+
+    def advance(self, finished: int) -> None:
+        if self.bar is None:
+            self.bar = tqdm(total=self.total, unit="episode")
+        self.bar.update(max(0, finished - self.bar.n))
+
+
+_OPEN_EPISODE_BARS: list[_EpisodeBar] = []  # the bar the running rollout advances (innermost last)
+
+
+@contextlib.contextmanager
+def _episode_bar(total: int):
+    """While open, :func:`_advance_episode_bar` advances a bar over ``total`` episodes."""
+    bar = _EpisodeBar(total)
+    _OPEN_EPISODE_BARS.append(bar)
+    try:
+        yield
+    finally:
+        _OPEN_EPISODE_BARS.remove(bar)
+        if bar.bar is not None:
+            bar.bar.close()
+
+
+def _advance_episode_bar(finished) -> None:
+    """Called from inside the jitted rollout with the episodes finished so far. One module
+    function, not a bar's own method, so that the rollout compiles once for every audit
+    (a new callable would be a new static argument)."""
+    if _OPEN_EPISODE_BARS:
+        _OPEN_EPISODE_BARS[-1].advance(int(finished))
 
 
 def _shapley_plan(d: int, shapley: int | str, seed: int) -> ShapleyPlan | None:
@@ -614,7 +657,7 @@ def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
                         "mode": train.missingness, "seed": train.seed},
                        config.score_estimator, trainer.critic_values, policy.critic_params,
                        config.score_horizon, train.gamma, config.search, config.beam_width, config.ranker,
-                       _shapley(config.shapley))
+                       _shapley(config.shapley), progress=True)
     return result, write_audit(result, out, config.top)
 
 

@@ -282,9 +282,12 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
     assert audit_main([short_run.run_dir, "k=1,2", "episodes=6", f"out={out}", "seed=4", "shapley=6"]) == 0
     captured = capsys.readouterr()
     printed = captured.out
-    # The long part (compile and rollouts) is announced, then timed, as training's compile is.
+    # The long part (compile and rollouts) is announced, then timed, as training's compile is;
+    # between the two, a bar over the rollout's episodes: (4 + 6 sets, the 5 more of the 16
+    # coalitions, clean) × 6.
     assert re.fullmatch(r"(auditing checkpoint \d+ of point_mass for k=1,2 \(exact search, 6 episodes per set, jax "
-                        r"physics on cpu; compiling included\)(\.\.\.|: done in \d+\.\d s)\n){2}", captured.err), captured.err
+                        r"physics on cpu; compiling included\))\.\.\.\n[^\n]*\r100%[^\n]* 96/96 [^\n]*\n\1: done in "
+                        r"\d+\.\d s\n", captured.err), captured.err
     assert sorted(os.listdir(out)) == ["audit.json", "pairs_k2.png", "report.md", "scores_k1.png", "shapley.png"]
     with open(os.path.join(out, "audit.json")) as file:
         record = json.load(file)
@@ -293,8 +296,11 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
     # Every a_u is score_missingness's for the same policy, seed and N (k = 1 and k = 2).
     policy = load_policy(short_run.run_dir)
     for k in (1, 2):
+        finished = []  # what the rollout tells a bar after each step: every episode runs at once here
         direct = score_missingness(ENV, policy.trainer.policy, policy.actor_params, jax.random.key(4),
-                                   jnp.asarray(candidate_sets(4, k)), 6)
+                                   jnp.asarray(candidate_sets(4, k)), 6, progress=lambda done: finished.append(int(done)))
+        jax.effects_barrier()
+        assert finished == [int((direct.lengths <= step).sum()) for step in range(1, int(direct.loop_steps) + 1)]
         np.testing.assert_allclose([entry["score"] for entry in record["sets"][str(k)]], direct.scores, rtol=1e-5)
         np.testing.assert_allclose(record["clean_score"], direct.clean_score, rtol=1e-5)
     # Shapley values (d = 4: all 16 coalitions, in the same rollout): term by term from

@@ -11,7 +11,7 @@
 from __future__ import annotations
 
 import numbers
-from typing import Any
+from typing import Any, Callable
 
 import jax
 import numpy as np
@@ -38,16 +38,18 @@ def score_missingness(
     critic_params: Any = None,
     score_horizon: int = 100,
     gamma: float = 0.99,
+    progress: Callable[[jax.Array], None] | None = None,
 ) -> MissingnessScores:
     """Score every u in ``hidden_sets`` ((|U|, d) 0/1 rows) and the clean case, N =
     ``n_episodes`` from the same N start states, by ``score_estimator``. ``max_steps``,
     ``num_slots`` and ``steps_per_check`` concern ``rollout`` (see ``score_by_rollout``); ``critic_fn(critic_params,
     masked_obs, action) -> (2,)`` twin Q, ``score_horizon`` (H) and ``gamma`` the other two.
+    ``progress(finished)``: the ``rollout``'s episodes finished so far, told from inside it.
     Jit-able with ``env``, the functions, the sizes and the estimator's settings static."""
     _check_arguments(env, hidden_sets, n_episodes)
     if score_estimator == "rollout":
         return score_by_rollout(env, policy_fn, params, rng, hidden_sets, n_episodes, max_steps, num_slots,
-                                steps_per_check)
+                                steps_per_check, progress)
     if score_estimator not in SCORE_ESTIMATORS:
         raise ValueError(f"score_estimator must be one of {', '.join(SCORE_ESTIMATORS)}, got {score_estimator!r}")
     if critic_fn is None:

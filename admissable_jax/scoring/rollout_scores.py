@@ -69,6 +69,7 @@ def score_by_rollout(
     max_steps: int | None = None,
     num_slots: int | None = None,
     steps_per_check: int = 1,
+    progress: Callable[[jax.Array], None] | None = None,
 ) -> MissingnessScores:
     """Score every u in ``hidden_sets`` ((|U|, d) 0/1 rows) and the clean case.
 
@@ -78,8 +79,9 @@ def score_by_rollout(
     (default: all (|U| + 1) · N episodes, or the env's ``max_batch`` if that is smaller;
     fewer trades loop steps for a smaller batch, which pays where a step's cost grows with
     the batch, as on a CPU). ``steps_per_check``: steps between checks whether any episode
-    still runs (module docstring). Jit-able with ``env``, ``policy_fn``, ``n_episodes``,
-    ``max_steps``, ``num_slots`` and ``steps_per_check`` static.
+    still runs (module docstring). ``progress(finished)``: told the episodes finished after
+    each check (module docstring). Jit-able with ``env``, ``policy_fn``, ``n_episodes``,
+    ``max_steps``, ``num_slots``, ``steps_per_check`` and ``progress`` static.
     """
     if steps_per_check < 1:
         raise ValueError(f"steps_per_check must be >= 1, got {steps_per_check}")
@@ -130,8 +132,12 @@ def score_by_rollout(
 
     def body(carry):
         if steps_per_check == 1:
-            return step(carry)[0]
-        return jax.lax.scan(step, carry, None, length=steps_per_check)[0]
+            carry = step(carry)[0]
+        else:
+            carry = jax.lax.scan(step, carry, None, length=steps_per_check)[0]
+        if progress is not None:  # each finished slot moved next_episode on by one
+            jax.debug.callback(progress, carry["next_episode"] - num_slots)
+        return carry
 
     slots = jnp.arange(num_slots)
     carry = {
