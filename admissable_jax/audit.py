@@ -10,9 +10,15 @@ start states, as the paper scores), the audit reports a_u with its 95% confidenc
 (Student's t over the N returns) and the drop from the clean return in %. It writes
 
 - ``DIR/report.md``: the worst sets per k, with the env's feature names, on one page;
-- ``DIR/audit.json``: every number (every set's a_u, CI, drop, and the N returns);
+- ``DIR/audit.json``: every number (every set's a_u, CI, drop, the N returns, and its gap to the worst);
 - ``DIR/scores_k1.png``: a bar chart of a_u per hidden feature (k = 1);
 - ``DIR/pairs_k2.png``: a d × d heatmap of a_ij (k = 2).
+
+Is the worst set really the worst, or did N episodes not tell it apart? Each row also gives
+its a_u's gap above the worst with a 95% interval, paired episode by episode (every set's
+episode i starts from one state, so the gap carries no reset noise; Welch's t for a Gymnasium
+env's own resets), and the report names the sets not told apart from the worst, with about
+how many episodes per set would tell the worst from the runner-up.
 
 ``shapley=M`` (or ``exact``) adds what each feature is worth to the policy: its Shapley value
 in the game whose coalitions are the visible features (:mod:`admissable_jax.scoring.attribution`;
@@ -190,6 +196,57 @@ class AuditResult:
         the paper warns a weak spot hides. NaN where k was searched (its finalists are the
         worst found, not all the sets)."""
         return float("nan") if k in self.search else float(np.mean([entry.score for entry in self.sets[k]]))
+
+    def gaps_to_worst(self, k: int) -> list[GapToWorst]:
+        """Every set of size k, worst first (its own gap 0), with how far its a_u lies above the worst's."""
+        worst, *others = self.worst(k, len(self.sets[k]))
+        return [GapToWorst(worst, 0.0, 0.0)] + [GapToWorst.between(worst, entry, self.same_starts) for entry in others]
+
+    def episodes_to_separate(self, k: int) -> int | None:
+        """N per set at which a gap of the size seen between the worst set of size k and the
+        runner-up would be told apart 80% of the time by a two-sided test at 5% (normal
+        approximation: ((z_0.975 + z_0.8) · s / gap)², s the standard deviation of one
+        episode's difference, or √(s_worst² + s_other²) for independent episodes). None with
+        one set, or where the two sets' returns do not differ."""
+        if len(self.sets[k]) < 2:
+            return None
+        worst, runner_up = (np.asarray(entry.returns) for entry in self.worst(k, 2))
+        gap = runner_up.mean() - worst.mean()
+        spread = ((runner_up - worst).std(ddof=1) if self.same_starts
+                  else math.sqrt(worst.var(ddof=1) + runner_up.var(ddof=1)))
+        if gap <= 0 or spread == 0:
+            return None
+        return max(2, math.ceil((2.8016 * spread / gap) ** 2))  # 2.8016 = z_0.975 + z_0.8
+
+
+@dataclasses.dataclass(frozen=True)
+class GapToWorst:
+    """A set's a_u above the worst's of its size, with the 95% interval's half-width: paired
+    episode by episode where every set's episode i starts from one state (common random
+    numbers, so the gap carries no reset noise), else Welch's t over independent episodes."""
+
+    entry: SetScore
+    gap: float
+    ci95: float
+
+    @property
+    def tied(self) -> bool:
+        """Not told apart from the worst: the interval of the gap holds 0."""
+        return self.gap - self.ci95 <= 0
+
+    @classmethod
+    def between(cls, worst: SetScore, entry: SetScore, paired: bool) -> GapToWorst:
+        low, high = np.asarray(worst.returns), np.asarray(entry.returns)
+        if paired:
+            return cls(entry, float((high - low).mean()), _ci95(high - low))
+        from scipy import stats
+
+        low_var, high_var = low.var(ddof=1) / len(low), high.var(ddof=1) / len(high)
+        standard_error = math.sqrt(low_var + high_var)
+        if standard_error == 0:
+            return cls(entry, float(high.mean() - low.mean()), 0.0)
+        freedom = (low_var + high_var) ** 2 / (low_var ** 2 / (len(low) - 1) + high_var ** 2 / (len(high) - 1))
+        return cls(entry, float(high.mean() - low.mean()), float(stats.t.ppf(0.975, freedom) * standard_error))
 
 
 def _ci95(returns: np.ndarray) -> float:
@@ -416,8 +473,13 @@ def write_audit(result: AuditResult, out: str, top: int = 10) -> list[str]:
     """report.md, audit.json and the figures into ``out``; returns the paths written."""
     os.makedirs(out, exist_ok=True)
     written = [os.path.join(out, "audit.json"), os.path.join(out, "report.md")]
+    record = dataclasses.asdict(result)
+    record["gaps_to_worst"] = {k: {"paired": result.same_starts, "episodes_to_separate": result.episodes_to_separate(k),
+                                   "gaps": [{"hidden": list(gap.entry.hidden), "gap": gap.gap, "ci95": gap.ci95,
+                                             "tied": gap.tied} for gap in result.gaps_to_worst(k)[1:]]}
+                               for k in result.sets}
     with open(written[0], "w") as file:
-        json.dump(dataclasses.asdict(result), file, indent=1)
+        json.dump(record, file, indent=1)
     if 1 in result.sets:
         written.append(_bar_chart(result, os.path.join(out, "scores_k1.png")))
     if 2 in result.sets and 2 not in result.search:  # a search scores too few pairs for a map
@@ -457,16 +519,40 @@ def _report(result: AuditResult, top: int, figures: list[str]) -> str:
                       f"Mean over all {len(entries)} sets (the average case, u drawn uniformly): "
                       f"{result.mean(k):.1f}, {_drop(result.clean_score, result.mean(k)):.1f}% below clean; "
                       f"the worst: {worst[0].score:.1f}.", ""]
-        lines += ["| rank | hidden features | indices | a_u ± 95% CI | drop |", "|---|---|---|---|---|"]
-        for rank, entry in enumerate(worst, 1):
+        lines += ["| rank | hidden features | indices | a_u ± 95% CI | drop | above the worst ± 95% CI |",
+                  "|---|---|---|---|---|---|"]
+        for rank, gap in enumerate(result.gaps_to_worst(k)[:top], 1):
+            entry = gap.entry
             lines.append(f"| {rank} | {', '.join(entry.names)} | {', '.join(map(str, entry.hidden))} | "
-                         f"{entry.score:.1f} ± {entry.ci95:.1f} | {entry.drop_percent:.1f}% |")
-        lines.append("")
+                         f"{entry.score:.1f} ± {entry.ci95:.1f} | {entry.drop_percent:.1f}% | "
+                         f"{'—' if rank == 1 else f'{gap.gap:+.1f} ± {gap.ci95:.1f}'} |")
+        lines += ["", _worst_told_apart(result, k), ""]
     if result.shapley is not None:
         lines += _shapley_section(result, result.shapley)
     lines += [f"![{name}]({name})" for name in figures]
     lines += ["", "Every number, with each episode's return: `audit.json`."]
     return "\n".join(lines) + "\n"
+
+
+def _worst_told_apart(result: AuditResult, k: int) -> str:
+    """In words: is the worst set of size k told apart from the others, and if not, about
+    how many episodes would tell it from the runner-up."""
+    gaps = result.gaps_to_worst(k)
+    if len(gaps) < 2:
+        return "One set of this size: nothing to tell the worst apart from."
+    how = ("paired episode by episode, as every set's episode i starts from one state" if result.same_starts
+           else "Welch's t, as the sets' episodes start from different states")
+    tied = [gap for gap in gaps[1:] if gap.tied]
+    if not tied:
+        return (f"The worst is told apart from every other set: the runner-up, {', '.join(gaps[1].entry.names)}, lies "
+                f"{gaps[1].gap:.1f} ± {gaps[1].ci95:.1f} above it (the gap's 95% interval, {how}).")
+    named = ", ".join("{" + ", ".join(gap.entry.names) + "}" for gap in tied[:5]) + (", ..." if len(tied) > 5 else "")
+    needed = result.episodes_to_separate(k)
+    more = ("the runner-up's returns equal the worst's episode by episode" if needed is None else
+            f"about {needed:,} episodes per set would tell the worst from the runner-up at the gap and spread "
+            f"seen (80% power; `episodes=`)")
+    return (f"Not told apart from the worst (the gap's 95% interval holds 0; {how}; each set compared alone): "
+            f"{len(tied)} of the other {len(gaps) - 1} sets ({named}). {more[0].upper()}{more[1:]}.")
 
 
 def _shapley_order(attribution: ShapleyAttribution) -> list[int]:
@@ -925,8 +1011,10 @@ def main(argv: list[str]) -> int:
         for k in result.sets:
             (worst,) = result.worst(k, 1)
             average = "" if math.isnan(result.mean(k)) else f"; mean over the {len(result.sets[k])} sets {result.mean(k):.1f}"
+            tied = sum(gap.tied for gap in result.gaps_to_worst(k)[1:])
             print(f"{pair}k={k}: worst {', '.join(worst.names)} ({list(worst.hidden)}): a_u {worst.score:.1f} ± "
-                  f"{worst.ci95:.1f}, {worst.drop_percent:.1f}% below clean {result.clean_score:.1f}{average}")
+                  f"{worst.ci95:.1f}, {worst.drop_percent:.1f}% below clean {result.clean_score:.1f}{average}; "
+                  f"{f'not told apart from {tied} other set(s)' if tied else 'told apart from every other set'}")
         if result.shapley is not None:
             attribution, top = result.shapley, _shapley_order(result.shapley)[0]
             print(f"{pair}shapley: {result.feature_names[top]} ({top}) worth most: φ {attribution.values[top]:.1f} ± "

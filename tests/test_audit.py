@@ -183,6 +183,41 @@ def test_shapley_attribution_by_hand_and_over_every_order():
         plan_shapley(21, "exact")
 
 
+def test_gaps_to_the_worst_paired_and_by_welch(tmp_path):
+    """Each set's gap above the worst: paired where the sets share start states (scipy's
+    ttest_rel interval), Welch's otherwise (ttest_ind's); the sets not told apart, and the
+    episodes that would tell the runner-up apart: ((z_0.975 + z_0.8) · s / gap)²."""
+    from scipy import stats
+
+    from admissable_jax.audit import AuditResult, SetScore, write_audit
+
+    returns = {(0,): [10.0, 12.0, 14.0, 16.0], (1,): [11.0, 13.0, 14.5, 17.5], (2,): [20.0, 24.0, 18.0, 26.0]}
+    sets = [SetScore(hidden, (f"f{hidden[0]}",), float(np.mean(values)), 0.0, 0.0, values)
+            for hidden, values in returns.items()]
+    for paired, test in ((True, stats.ttest_rel), (False, lambda a, b: stats.ttest_ind(a, b, equal_var=False))):
+        result = AuditResult("toy", "rollout", 4, 30.0, 0.0, [30.0] * 4, {1: sets}, ["f0", "f1", "f2"], {},
+                             same_starts=paired)
+        gaps = result.gaps_to_worst(1)
+        assert [gap.entry.hidden for gap in gaps] == [(0,), (1,), (2,)] and (gaps[0].gap, gaps[0].ci95) == (0.0, 0.0)
+        for gap in gaps[1:]:
+            low, high = test(gap.entry.returns, returns[(0,)]).confidence_interval()
+            assert (gap.gap, gap.ci95) == pytest.approx(((low + high) / 2, (high - low) / 2))
+        assert [gap.tied for gap in gaps[1:]] == ([False, False] if paired else [True, False])
+        differences = np.subtract(returns[(1,)], returns[(0,)])
+        spread = differences.std(ddof=1) if paired else np.sqrt(np.var(returns[(0,)], ddof=1) + np.var(returns[(1,)], ddof=1))
+        assert result.episodes_to_separate(1) == math.ceil((2.8016 * spread / 1.0) ** 2)  # the gap: 14.0 - 13.0
+        write_audit(result, str(tmp_path / str(paired)))
+        report = (tmp_path / str(paired) / "report.md").read_text()
+        assert f"| 2 | f1 | 1 | 14.0 ± 0.0 | 0.0% | +{gaps[1].gap:.1f} ± {gaps[1].ci95:.1f} |" in report
+        if paired:
+            assert ("The worst is told apart from every other set: the runner-up, f1, lies 1.0 ± 0.6 above it (the "
+                    "gap's 95% interval, paired episode by episode, as every set's episode i starts from one state).") in report
+        else:
+            assert ("Not told apart from the worst (the gap's 95% interval holds 0; Welch's t, as the sets' episodes "
+                    f"start from different states; each set compared alone): 1 of the other 2 sets ({{f1}}). About "
+                    f"{result.episodes_to_separate(1)} episodes per set would tell the worst from the runner-up") in report
+
+
 def test_audit_steps_as_many_envs_at_once_as_training_scores():
     """slots=0: 32 on this CPU (a batched MJX step costs its batch size there), fewer where the
     audit has fewer episodes; slots=N: N."""
@@ -319,6 +354,19 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
         assert f"| x | 0 | {worth['values'][0]:.1f} ± {worth['ci95_starts'][0]:.1f} | " in file.read()
     assert re.search(r"^shapley: [\w ]+ \(\d\) worth most: φ -?\d+\.\d ± \d+\.\d of v\(all\) − v\(none\) -?\d+\.\d; hidden alone "
                      r"it costs -?\d+\.\d \(exact\)$", printed, re.M), printed
+    # Each set's gap above the worst of its size, paired episode by episode (the same 6 start
+    # states), and the printed line's count of the sets not told apart from the worst.
+    for k in ("1", "2"):
+        ranked = sorted(record["sets"][k], key=lambda entry: entry["score"])
+        gaps = record["gaps_to_worst"][k]
+        assert gaps["paired"] and [gap["hidden"] for gap in gaps["gaps"]] == [entry["hidden"] for entry in ranked[1:]]
+        for gap, entry in zip(gaps["gaps"], ranked[1:]):
+            difference = np.subtract(entry["returns"], ranked[0]["returns"])
+            assert (gap["gap"], gap["ci95"]) == pytest.approx((difference.mean(), 2.5706 * difference.std(ddof=1) / np.sqrt(6)), rel=1e-4)
+            assert gap["tied"] == (gap["gap"] <= gap["ci95"])
+        tied = sum(gap["tied"] for gap in gaps["gaps"])
+        assert re.search(rf"^k={k}: worst .*; " + (rf"not told apart from {tied} other set\(s\)$" if tied else
+                                                   "told apart from every other set$"), printed, re.M), printed
     pair = record["sets"]["2"][0]
     assert pair["hidden"] == [0, 1] and pair["names"] == ["x", "y"]
     returns = np.asarray(pair["returns"])
@@ -335,12 +383,15 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
         section = report.split(f"## k = {k}:")[1].split("##")[0]
         average = np.mean([entry["score"] for entry in record["sets"][k]])  # the average case, beside the worst
         assert f"Mean over all {len(worst)} sets (the average case, u drawn uniformly): {average:.1f}, " in section
-        table = re.findall(r"^\| (\d+) \| ([^|]+) \| ([^|]+) \| ([-\d.]+) ± ([\d.]+) \| ([-\d.]+)% \|$", section, re.M)
+        table = re.findall(r"^\| (\d+) \| ([^|]+) \| ([^|]+) \| ([-\d.]+) ± ([\d.]+) \| ([-\d.]+)% \| ([^|]+) \|$",
+                           section, re.M)
         assert len(table) == len(worst)
-        for (rank, names, _, score, ci, drop), entry in zip(table, worst):
+        gaps = [None] + record["gaps_to_worst"][k]["gaps"]
+        for (rank, names, _, score, ci, drop, above), entry, gap in zip(table, worst, gaps):
             assert names.strip() == ", ".join(entry["names"])
             assert (float(score), float(ci), float(drop)) == pytest.approx(
                 (entry["score"], entry["ci95"], entry["drop_percent"]), abs=0.051)
+            assert above == ("—" if gap is None else f"{gap['gap']:+.1f} ± {gap['ci95']:.1f}")
     assert f"k=1: worst {', '.join(sorted(record['sets']['1'], key=lambda e: e['score'])[0]['names'])}" in printed
 
     # The critic's estimate instead: estimate_scores's numbers for the same checkpoint.
