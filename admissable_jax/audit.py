@@ -18,7 +18,9 @@ Is the worst set really the worst, or did N episodes not tell it apart? Each row
 its a_u's gap above the worst with a 95% interval, paired episode by episode (every set's
 episode i starts from one state, so the gap carries no reset noise; Welch's t for a Gymnasium
 env's own resets), and the report names the sets not told apart from the worst, with about
-how many episodes per set would tell the worst from the runner-up.
+how many episodes per set would tell the worst from the runner-up; ``tell_apart=true`` audits
+with that many (a pilot of ``episodes`` per set chooses N, a second audit from fresh start
+states is written).
 
 ``shapley=M`` (or ``exact``) adds what each feature is worth to the policy: its Shapley value
 in the game whose coalitions are the visible features (:mod:`admissable_jax.scoring.attribution`;
@@ -50,6 +52,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import json
 import math
 import os
@@ -72,6 +75,7 @@ if TYPE_CHECKING:  # for the annotations only
     from admissable_jax.training import Trainer
 
 MAX_AUDIT_EPISODES = 200_000  # sets × N stepped in one program; beyond it, audit fewer k or episodes
+MAX_TELL_APART_EPISODES = 1000  # the most episodes per set tell_apart chooses
 SEARCHES = ("exact", "beam")
 
 
@@ -100,6 +104,9 @@ class AuditConfig:
     policy: str = setting("", "instead of a run: MODULE:NAME, any Python policy masked_obs_batch -> actions "
                               "(Stable-Baselines3, CleanRL, PyTorch) to audit on the Gymnasium env gym=")
     gym: str = setting("", "with policy=: the Gymnasium env id (Hopper-v5, or any other) the policy acts in")
+    tell_apart: bool = setting(False, "audit twice: a pilot of `episodes` per set, then, from fresh start states, as "
+                                      "many episodes per set as the pilot says tell the worst set of each k from the "
+                                      "runner-up (80% power; at most 1000)")
     shapley: str = setting("0", "what each feature is worth: Shapley values of the return over the visible features; "
                                 "exact (every coalition, d <= 20), or M random feature orders (exact where the 2^d "
                                 "coalitions are fewer); 0 = none")
@@ -121,6 +128,8 @@ def check_audit_config(config: AuditConfig) -> None:
             raise ValueError("a Python policy is audited with policy=MODULE:NAME and gym=ENV_ID, and no run directory")
         if config.score_estimator != "rollout" or config.search != "exact":
             raise ValueError("a Python policy is audited by rollouts of every set (it has no critic to estimate with)")
+        if config.tell_apart:
+            raise ValueError("tell_apart= audits a run's policy (a Gymnasium policy's sets share no start states to pair)")
     elif not config.run_dir:
         raise ValueError("give the run directory: python -m admissable_jax.audit RUN_DIR [k=1,2] [episodes=50]")
     if config.steps and (config.step >= 0 or config.policy or is_experiment(config.run_dir)):
@@ -187,6 +196,7 @@ class AuditResult:
     search: dict[int, dict[str, Any]] = dataclasses.field(default_factory=dict)  # by searched k: how, and ranks
     same_starts: bool = True  # every set's episode i starts from one state (False: a Gymnasium vector env's resets)
     shapley: ShapleyAttribution | None = None  # what each feature is worth, where asked (scoring.attribution)
+    pilot: dict[str, Any] | None = None  # with tell_apart: the pilot audit that chose N (see audit)
 
     def worst(self, k: int, top: int) -> list[SetScore]:
         return sorted(self.sets[k], key=lambda entry: entry.score)[:top]
@@ -259,7 +269,8 @@ def _ci95(returns: np.ndarray) -> float:
 def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, num_slots: int | None = None,
           feature_names: list[str] | None = None, source: dict[str, Any] | None = None, estimator: str = "rollout",
           critic_fn=None, critic_params=None, horizon: int = 0, gamma: float = 0.99, search: str = "exact",
-          beam_width: int = 4, ranker: str = "rollout", shapley: int | str = 0, progress: bool = False) -> AuditResult:
+          beam_width: int = 4, ranker: str = "rollout", shapley: int | str = 0, progress: bool = False,
+          tell_apart: bool = False) -> AuditResult:
     """Score every set of each size in ``ks`` and the clean case in one batch, N =
     ``n_episodes`` each from the same N start states, by
     :func:`~admissable_jax.scoring.score_missingness` with ``estimator`` (``critic`` and
@@ -267,7 +278,13 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
     ``search="beam"`` the sets of each k > 1 are the ``beam_width`` finalists of a beam
     search ranked by ``ranker`` instead of all C(d, k). ``shapley`` (``"exact"``, or M >= 4
     feature orders; 0: none) adds the Shapley attribution's coalitions to the batch (module
-    docstring). ``progress`` draws a bar over each rollout's episodes as they finish."""
+    docstring). ``progress`` draws a bar over each rollout's episodes as they finish.
+
+    ``tell_apart``: ``n_episodes`` is a pilot's N; the audit returned is a second one, from
+    the start states of ``seed + 1``, with as many episodes per set as the pilot says would
+    tell the worst set of each k from the runner-up (:meth:`AuditResult.episodes_to_separate`,
+    the largest over the ks; at least the pilot's, at most MAX_TELL_APART_EPISODES and what
+    one rollout may hold); its ``pilot`` says how N was chosen."""
     import jax
 
     from admissable_jax.scoring import beam_search_worst_sets, score_missingness
@@ -277,6 +294,18 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
     searched = [k for k in ks if search == "beam" and k > 1]
     plan = _shapley_plan(d, shapley, seed)
     check_audit_size(env.name, d, ks, n_episodes, search, beam_width, plan)
+    if tell_apart:
+        again = functools.partial(audit, env, policy_fn, params, ks, num_slots=num_slots, feature_names=feature_names,
+                                  source=source, estimator=estimator, critic_fn=critic_fn, critic_params=critic_params,
+                                  horizon=horizon, gamma=gamma, search=search, beam_width=beam_width, ranker=ranker,
+                                  progress=progress)
+        pilot = again(n_episodes=n_episodes, seed=seed)
+        needed = {k: pilot.episodes_to_separate(k) for k in ks}
+        most = min(MAX_TELL_APART_EPISODES, MAX_AUDIT_EPISODES // (_rollout_sets(d, ks, search, beam_width, plan) + 1))
+        chosen = min(max([n_episodes] + [n for n in needed.values() if n is not None]), max(most, n_episodes))
+        final = again(n_episodes=chosen, seed=seed + 1, shapley=shapley)
+        return dataclasses.replace(final, pilot={"episodes": n_episodes, "seed": seed, "needed": needed,
+                                                 "chosen": chosen, "most": most})
     scorer = jax.jit(score_missingness, static_argnums=(0, 1, 5, 6, 7), static_argnames=(
         "score_estimator", "critic_fn", "score_horizon", "gamma", "progress"))
     key = jax.random.key(seed)
@@ -458,15 +487,21 @@ def check_audit_size(env_name: str, d: int, ks, n_episodes: int, search: str | N
     MAX_AUDIT_EPISODES episodes: (its sets, where searched the b finalists, and the plan's
     coalitions, + the clean case) × N; a beam search's levels rank b · d sets a batch.
     ``search`` None: the audit cannot search (a Gymnasium policy's)."""
-    searched = [k for k in ks if search == "beam" and k > 1]
-    num_sets = sum(beam_width if k in searched else num_candidate_sets(d, k) for k in ks) + _plan_size(plan)
-    num_sets = max(num_sets, beam_width * d if searched else 0)
+    num_sets = _rollout_sets(d, ks, search, beam_width, plan)
     if (num_sets + 1) * n_episodes > MAX_AUDIT_EPISODES:
         offers = ["lower episodes=", "drop the largest k"]
         offers += [] if search is None else ["use search=beam" if search == "exact" else "lower beam_width="]
         offers += [] if plan is None else ["give shapley= fewer feature orders"]
         raise ValueError(f"auditing k={','.join(map(str, ks))} on {env_name} is {num_sets:,} sets x {n_episodes} "
                          f"episodes in one rollout, over {MAX_AUDIT_EPISODES:,}: {', '.join(offers[:-1])} or {offers[-1]}")
+
+
+def _rollout_sets(d: int, ks, search: str | None, beam_width: int, plan: ShapleyPlan | None) -> int:
+    """The most sets an audit's one rollout scores besides the clean case: its sets (where
+    searched, the b finalists) and the plan's coalitions; a beam search's level, b · d."""
+    searched = [k for k in ks if search == "beam" and k > 1]
+    num_sets = sum(beam_width if k in searched else num_candidate_sets(d, k) for k in ks) + _plan_size(plan)
+    return max(num_sets, beam_width * d if searched else 0)
 
 
 def write_audit(result: AuditResult, out: str, top: int = 10) -> list[str]:
@@ -505,6 +540,8 @@ def _report(result: AuditResult, top: int, figures: list[str]) -> str:
         f"interval (Student's t); the drop is relative to the clean case.", "",
         f"**Clean return (nothing hidden): {result.clean_score:.1f} ± {result.clean_ci95:.1f}**", "",
     ]
+    if result.pilot is not None:
+        lines += [_pilot_sentence(result.pilot), ""]
     for k, entries in result.sets.items():
         worst = result.worst(k, top)
         searched = result.search.get(k)
@@ -525,13 +562,31 @@ def _report(result: AuditResult, top: int, figures: list[str]) -> str:
             entry = gap.entry
             lines.append(f"| {rank} | {', '.join(entry.names)} | {', '.join(map(str, entry.hidden))} | "
                          f"{entry.score:.1f} ± {entry.ci95:.1f} | {entry.drop_percent:.1f}% | "
-                         f"{'—' if rank == 1 else f'{gap.gap:+.1f} ± {gap.ci95:.1f}'} |")
+                         f"{'—' if rank == 1 else f'+{_small(gap.gap)} ± {_small(gap.ci95)}'} |")
         lines += ["", _worst_told_apart(result, k), ""]
     if result.shapley is not None:
         lines += _shapley_section(result, result.shapley)
     lines += [f"![{name}]({name})" for name in figures]
     lines += ["", "Every number, with each episode's return: `audit.json`."]
     return "\n".join(lines) + "\n"
+
+
+def _small(value: float) -> str:
+    """One decimal, or two significant digits where one decimal would read 0.0 (a gap of
+    0.004 ± 0.001 is told apart; "0.0 ± 0.0" would not say so)."""
+    return f"{value:.1f}" if value == 0 or abs(value) >= 0.05 else f"{value:.2g}"
+
+
+def _pilot_sentence(pilot: dict[str, Any]) -> str:
+    """How ``tell_apart`` chose N, in words."""
+    needed = ", ".join(f"k = {k}: {'—' if n is None else f'{n:,}'}" for k, n in pilot["needed"].items())
+    largest = max([n for n in pilot["needed"].values() if n is not None], default=0)
+    capped = (f" The largest, {largest:,}, is more than one audit here takes: capped at {pilot['chosen']:,}."
+              if largest > pilot["chosen"] else "")
+    return (f"N = {pilot['chosen']:,} was chosen by a pilot audit of {pilot['episodes']} episodes per set (the start "
+            f"states of seed {pilot['seed']}; these are seed {pilot['seed'] + 1}'s): about this many episodes per set "
+            f"would tell the worst set of each size from the runner-up ({needed}; —: the two did not differ), and "
+            f"no fewer than the pilot's.{capped}")
 
 
 def _worst_told_apart(result: AuditResult, k: int) -> str:
@@ -545,7 +600,7 @@ def _worst_told_apart(result: AuditResult, k: int) -> str:
     tied = [gap for gap in gaps[1:] if gap.tied]
     if not tied:
         return (f"The worst is told apart from every other set: the runner-up, {', '.join(gaps[1].entry.names)}, lies "
-                f"{gaps[1].gap:.1f} ± {gaps[1].ci95:.1f} above it (the gap's 95% interval, {how}).")
+                f"{_small(gaps[1].gap)} ± {_small(gaps[1].ci95)} above it (the gap's 95% interval, {how}).")
     named = ", ".join("{" + ", ".join(gap.entry.names) + "}" for gap in tied[:5]) + (", ..." if len(tied) > 5 else "")
     needed = result.episodes_to_separate(k)
     more = ("the runner-up's returns equal the worst's episode by episode" if needed is None else
@@ -734,16 +789,17 @@ def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
     d = policy.observation_size
     check_audit_size(train.env, d, _ks(config.k), config.episodes, config.search, config.beam_width, _plan(config, d))
     make_directory(out, "audit folder")  # before the rollout, not after it
+    episodes = (f"a pilot of {config.episodes} episodes per set, then as many as tell the worst sets apart"
+                if config.tell_apart else f"{config.episodes} episodes per set")
     with reporting(f"auditing checkpoint {policy.step} of {train.env} for k={config.k} ({config.search} search, "
-                   f"{config.episodes} episodes per set, {env.physics_name} physics on {jax.default_backend()}; "
-                   f"compiling included)"):
+                   f"{episodes}, {env.physics_name} physics on {jax.default_backend()}; compiling included)"):
         result = audit(env, trainer.policy, policy.actor_params, _ks(config.k), config.episodes, config.seed,
                        _slots(config, policy), observation_names(train.env),
                        {"run": os.path.abspath(config.run_dir), "checkpoint (env step)": policy.step,
                         "mode": train.missingness, "seed": train.seed},
                        config.score_estimator, trainer.critic_values, policy.critic_params,
                        config.score_horizon, train.gamma, config.search, config.beam_width, config.ranker,
-                       _shapley(config.shapley), progress=True)
+                       _shapley(config.shapley), progress=True, tell_apart=config.tell_apart)
     return result, write_audit(result, out, config.top)
 
 
@@ -1008,6 +1064,8 @@ def main(argv: list[str]) -> int:
     for result in results:
         pair = (f"{result.source['mode']} seed {result.source['seed']}: " if experiment else
                 f"step {result.source['checkpoint (env step)']}: " if config.steps else "")
+        if result.pilot is not None:
+            print(f"{pair}N = {result.pilot['chosen']} episodes per set, chosen by a pilot of {result.pilot['episodes']}")
         for k in result.sets:
             (worst,) = result.worst(k, 1)
             average = "" if math.isnan(result.mean(k)) else f"; mean over the {len(result.sets[k])} sets {result.mean(k):.1f}"

@@ -278,6 +278,8 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
         (["policy=test_wrappers", "gym=ConstantFeatures-v0"], "policy must be MODULE:NAME"),
         (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "shapley=3"],
          "shapley must be 0 (none), exact, or at least 4 feature orders, got '3'"),
+        (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "tell_apart=true"],
+         "tell_apart= audits a run's policy (a Gymnasium policy's sets share no start states to pair)"),
         # checked on the env itself before anything is written (HalfCheetah's settotalmass
         # deprecation, Gymnasium's file, kept out of the output and the working directory)
         (["policy=test_wrappers:sum_of_visible", "gym=HalfCheetah-v5", "k=17"], "ks must be set sizes 1 <= k < d = 17"),
@@ -391,8 +393,29 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
             assert names.strip() == ", ".join(entry["names"])
             assert (float(score), float(ci), float(drop)) == pytest.approx(
                 (entry["score"], entry["ci95"], entry["drop_percent"]), abs=0.051)
-            assert above == ("—" if gap is None else f"{gap['gap']:+.1f} ± {gap['ci95']:.1f}")
+            if gap is None:
+                assert above == "—"
+            else:  # one decimal, or two significant digits below 0.05
+                shown = re.fullmatch(r"\+([\d.e-]+) ± ([\d.e-]+)", above).groups()
+                assert [float(value) for value in shown] == pytest.approx([gap["gap"], gap["ci95"]], rel=0.05, abs=0.051)
+                assert all(float(value) > 0 or gap[key] == 0 for value, key in zip(shown, ("gap", "ci95")))
     assert f"k=1: worst {', '.join(sorted(record['sets']['1'], key=lambda e: e['score'])[0]['names'])}" in printed
+
+    # tell_apart: a pilot of 4 episodes per set (seed 4's start states) says how many would tell
+    # the worst pair from the runner-up; the audit is then score_missingness's at that N from
+    # seed 5's.
+    chosen_out = tmp_path / "tell_apart"
+    assert audit_main([short_run.run_dir, "k=2", "episodes=4", f"out={chosen_out}", "seed=4", "tell_apart=true"]) == 0
+    chosen = json.loads((chosen_out / "audit.json").read_text())
+    pairs = jnp.asarray(candidate_sets(4, 2))
+    pilot = score_missingness(ENV, policy.trainer.policy, policy.actor_params, jax.random.key(4), pairs, 4)
+    worst, runner_up = np.asarray(pilot.returns)[np.argsort(pilot.scores)[:2]]
+    needed = max(2, math.ceil((2.8016 * np.std(runner_up - worst, ddof=1) / (runner_up - worst).mean()) ** 2))
+    assert chosen["pilot"] == {"episodes": 4, "seed": 4, "needed": {"2": needed}, "chosen": chosen["n_episodes"], "most": 1000}
+    assert chosen["n_episodes"] == min(max(4, needed), 1000)
+    direct = score_missingness(ENV, policy.trainer.policy, policy.actor_params, jax.random.key(5), pairs, chosen["n_episodes"])
+    np.testing.assert_allclose([entry["score"] for entry in chosen["sets"]["2"]], direct.scores, rtol=1e-5)
+    assert f"N = {chosen['n_episodes']:,} was chosen by a pilot audit of 4 episodes per set" in (chosen_out / "report.md").read_text()
 
     # The critic's estimate instead: estimate_scores's numbers for the same checkpoint.
     critic_out = str(tmp_path / "critic")
