@@ -1002,7 +1002,8 @@ def compare_modes(results: list[AuditResult]) -> str:
         by_mode.setdefault(result.source["mode"], []).append(result)
     first = results[0]
     lines = [f"# Robustness audit of an experiment: {first.env}, checkpoint {first.source['checkpoint (env step)']}", "",
-             f"Each pair audited as its own report says (N = {first.n_episodes} episodes per set, `{first.estimator}`); "
+             f"Each pair audited as its own report says (N = {_episodes_per_set(results)} episodes per set, "
+             f"`{first.estimator}`); "
              "here, per pair, the worst a_u over the sets of each size and the mean a_u over them (the average case, "
              "u drawn uniformly), then mean ± 95% t-interval over the seeds of a mode. Where a k was searched "
              "(`search=beam`), the worst found is an upper bound on the worst, and there is no mean.", "",
@@ -1029,6 +1030,12 @@ def compare_modes(results: list[AuditResult]) -> str:
     if all(result.shapley is not None for result in results):
         lines += _shapley_by_mode(by_mode, first.feature_names)
     return "\n".join(lines) + "\n"
+
+
+def _episodes_per_set(results: list[AuditResult]) -> str:
+    """N of the pairs' audits: one number, or their range where ``tell_apart`` chose each."""
+    low, high = min(result.n_episodes for result in results), max(result.n_episodes for result in results)
+    return f"{low}" if low == high else f"{low}–{high}, chosen per pair by a pilot (`tell_apart`)"
 
 
 def _shapley_by_mode(by_mode: dict[str, list[AuditResult]], names: list[str], most: int = 20) -> list[str]:

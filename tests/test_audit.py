@@ -7,6 +7,7 @@ JSON and against ``score_missingness``.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import json
 import math
@@ -186,10 +187,11 @@ def test_shapley_attribution_by_hand_and_over_every_order():
 def test_gaps_to_the_worst_paired_and_by_welch(tmp_path):
     """Each set's gap above the worst: paired where the sets share start states (scipy's
     ttest_rel interval), Welch's otherwise (ttest_ind's); the sets not told apart, and the
-    episodes that would tell the runner-up apart: ((z_0.975 + z_0.8) · s / gap)²."""
+    episodes that would tell the runner-up apart: ((z_0.975 + z_0.8) · s / gap)²; an
+    experiment's comparison of pairs audited with different N."""
     from scipy import stats
 
-    from admissable_jax.audit import AuditResult, SetScore, write_audit
+    from admissable_jax.audit import AuditResult, SetScore, compare_modes, write_audit
 
     returns = {(0,): [10.0, 12.0, 14.0, 16.0], (1,): [11.0, 13.0, 14.5, 17.5], (2,): [20.0, 24.0, 18.0, 26.0]}
     sets = [SetScore(hidden, (f"f{hidden[0]}",), float(np.mean(values)), 0.0, 0.0, values)
@@ -216,6 +218,11 @@ def test_gaps_to_the_worst_paired_and_by_welch(tmp_path):
             assert ("Not told apart from the worst (the gap's 95% interval holds 0; Welch's t, as the sets' episodes "
                     f"start from different states; each set compared alone): 1 of the other 2 sets ({{f1}}). About "
                     f"{result.episodes_to_separate(1)} episodes per set would tell the worst from the runner-up") in report
+
+    # An experiment's pairs audited with tell_apart chose their own N: comparison.md gives the range.
+    pairs = [dataclasses.replace(result, n_episodes=n, source={"mode": mode, "seed": 0, "checkpoint (env step)": 0})
+             for n, mode in ((4, "adversarial"), (6, "uniform"))]
+    assert "(N = 4–6, chosen per pair by a pilot (`tell_apart`) episodes per set, `rollout`)" in compare_modes(pairs)
 
 
 def test_audit_steps_as_many_envs_at_once_as_training_scores():
