@@ -857,7 +857,7 @@ def _over_training_table(results: list[AuditResult]) -> str:
     ks = list(first.sets)
     attributed = all(result.shapley is not None for result in results)
     lines = [f"# Robustness over training: {first.env}, {first.source['run']}", "",
-             f"Each checkpoint audited as its folder's report says (N = {first.n_episodes} episodes per set, "
+             f"Each checkpoint audited as its folder's report says ({_episodes_per_set(results)}, "
              f"`{first.estimator}`): per k, the worst a_u ± its 95% interval with its set, and the mean a_u over the "
              "sets (the average case; none for a searched k)" + ("; and the feature worth most, its Shapley value "
                                                                 "φ_i of v(all) − v(none)" if attributed else "") + ".", "",
@@ -1002,8 +1002,7 @@ def compare_modes(results: list[AuditResult]) -> str:
         by_mode.setdefault(result.source["mode"], []).append(result)
     first = results[0]
     lines = [f"# Robustness audit of an experiment: {first.env}, checkpoint {first.source['checkpoint (env step)']}", "",
-             f"Each pair audited as its own report says (N = {_episodes_per_set(results)} episodes per set, "
-             f"`{first.estimator}`); "
+             f"Each pair audited as its own report says ({_episodes_per_set(results)}, `{first.estimator}`); "
              "here, per pair, the worst a_u over the sets of each size and the mean a_u over them (the average case, "
              "u drawn uniformly), then mean ± 95% t-interval over the seeds of a mode. Where a k was searched "
              "(`search=beam`), the worst found is an upper bound on the worst, and there is no mean.", "",
@@ -1033,9 +1032,11 @@ def compare_modes(results: list[AuditResult]) -> str:
 
 
 def _episodes_per_set(results: list[AuditResult]) -> str:
-    """N of the pairs' audits: one number, or their range where ``tell_apart`` chose each."""
+    """N of several audits (an experiment's pairs, a run's checkpoints): one number, or their
+    range where ``tell_apart`` chose each."""
     low, high = min(result.n_episodes for result in results), max(result.n_episodes for result in results)
-    return f"{low}" if low == high else f"{low}–{high}, chosen per pair by a pilot (`tell_apart`)"
+    return (f"N = {low} episodes per set" if low == high else
+            f"N = {low}–{high} episodes per set, each audit's chosen by its pilot (`tell_apart`)")
 
 
 def _shapley_by_mode(by_mode: dict[str, list[AuditResult]], names: list[str], most: int = 20) -> list[str]:

@@ -222,7 +222,7 @@ def test_gaps_to_the_worst_paired_and_by_welch(tmp_path):
     # An experiment's pairs audited with tell_apart chose their own N: comparison.md gives the range.
     pairs = [dataclasses.replace(result, n_episodes=n, source={"mode": mode, "seed": 0, "checkpoint (env step)": 0})
              for n, mode in ((4, "adversarial"), (6, "uniform"))]
-    assert "(N = 4–6, chosen per pair by a pilot (`tell_apart`) episodes per set, `rollout`)" in compare_modes(pairs)
+    assert "(N = 4–6 episodes per set, each audit's chosen by its pilot (`tell_apart`), `rollout`)" in compare_modes(pairs)
 
 
 def test_audit_steps_as_many_envs_at_once_as_training_scores():
