@@ -68,6 +68,7 @@ from admissable_jax.method import candidate_sets, num_candidate_sets
 from admissable_jax.scoring import SCORE_ESTIMATORS
 from admissable_jax.scoring.attribution import MIN_ORDERS, ShapleyAttribution, ShapleyPlan, plan_shapley, \
     shapley_attribution
+from admissable_jax.scoring.worst_set import episodes_to_separate, gap_above, t_half_width
 
 if TYPE_CHECKING:  # for the annotations only
     from admissable_jax.envs import MjxEnv
@@ -213,27 +214,20 @@ class AuditResult:
         return [GapToWorst(worst, 0.0, 0.0)] + [GapToWorst.between(worst, entry, self.same_starts) for entry in others]
 
     def episodes_to_separate(self, k: int) -> int | None:
-        """N per set at which a gap of the size seen between the worst set of size k and the
-        runner-up would be told apart 80% of the time by a two-sided test at 5% (normal
-        approximation: ((z_0.975 + z_0.8) · s / gap)², s the standard deviation of one
-        episode's difference, or √(s_worst² + s_other²) for independent episodes). None with
-        one set, or where the two sets' returns do not differ."""
+        """N per set that would tell the worst set of size k from the runner-up (80% power at
+        the gap and spread seen; :func:`~admissable_jax.scoring.worst_set.episodes_to_separate`).
+        None with one set, or where the two sets' returns do not differ."""
         if len(self.sets[k]) < 2:
             return None
-        worst, runner_up = (np.asarray(entry.returns) for entry in self.worst(k, 2))
-        gap = runner_up.mean() - worst.mean()
-        spread = ((runner_up - worst).std(ddof=1) if self.same_starts
-                  else math.sqrt(worst.var(ddof=1) + runner_up.var(ddof=1)))
-        if gap <= 0 or spread == 0:
-            return None
-        return max(2, math.ceil((2.8016 * spread / gap) ** 2))  # 2.8016 = z_0.975 + z_0.8
+        worst, runner_up = self.worst(k, 2)
+        return episodes_to_separate(worst.returns, runner_up.returns, self.same_starts)
 
 
 @dataclasses.dataclass(frozen=True)
 class GapToWorst:
-    """A set's a_u above the worst's of its size, with the 95% interval's half-width: paired
-    episode by episode where every set's episode i starts from one state (common random
-    numbers, so the gap carries no reset noise), else Welch's t over independent episodes."""
+    """A set's a_u above the worst's of its size, with the 95% interval's half-width
+    (:func:`~admissable_jax.scoring.worst_set.gap_above`: paired where the sets share start
+    states, else Welch's)."""
 
     entry: SetScore
     gap: float
@@ -246,24 +240,7 @@ class GapToWorst:
 
     @classmethod
     def between(cls, worst: SetScore, entry: SetScore, paired: bool) -> GapToWorst:
-        low, high = np.asarray(worst.returns), np.asarray(entry.returns)
-        if paired:
-            return cls(entry, float((high - low).mean()), _ci95(high - low))
-        from scipy import stats
-
-        low_var, high_var = low.var(ddof=1) / len(low), high.var(ddof=1) / len(high)
-        standard_error = math.sqrt(low_var + high_var)
-        if standard_error == 0:
-            return cls(entry, float(high.mean() - low.mean()), 0.0)
-        freedom = (low_var + high_var) ** 2 / (low_var ** 2 / (len(low) - 1) + high_var ** 2 / (len(high) - 1))
-        return cls(entry, float(high.mean() - low.mean()), float(stats.t.ppf(0.975, freedom) * standard_error))
-
-
-def _ci95(returns: np.ndarray) -> float:
-    from scipy import stats
-
-    n = returns.shape[-1]
-    return float(stats.t.ppf(0.975, n - 1) * returns.std(ddof=1) / math.sqrt(n))
+        return cls(entry, *gap_above(worst.returns, entry.returns, paired))
 
 
 def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, num_slots: int | None = None,
@@ -411,13 +388,13 @@ def _audit_result(env_name: str, estimator: str, score_rows, ks, blocks: list[np
         for hidden_row in block:
             hidden = tuple(int(i) for i in np.flatnonzero(hidden_row))
             score_ = float(returns[row].mean())
-            entries.append(SetScore(hidden, tuple(names[i] for i in hidden), score_, _ci95(returns[row]),
+            entries.append(SetScore(hidden, tuple(names[i] for i in hidden), score_, t_half_width(returns[row]),
                                     _drop(clean_score, score_), returns[row].tolist()))
             row += 1
         sets[k] = entries
     shapley = None if plan is None else shapley_attribution(
         plan, np.concatenate([rollout_rows, np.zeros((1, len(names)), np.float32)]), valued)
-    return AuditResult(env_name, estimator, returns.shape[1], clean_score, _ci95(clean), clean.tolist(), sets,
+    return AuditResult(env_name, estimator, returns.shape[1], clean_score, t_half_width(clean), clean.tolist(), sets,
                        list(names), source, search_info, shapley=shapley)
 
 

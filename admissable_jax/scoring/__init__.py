@@ -8,6 +8,9 @@
     critic's discounted value, alone or after H physics steps.
 - :func:`beam_search_worst_sets` (:mod:`.set_search`): the worst sets of k features by
   beam search, where C(d, k) sets are too many to score.
+- :mod:`.worst_set`: is the worst set the worst? The gap between two sets' scores with its
+  interval (paired where they share start states) and the episodes that would resolve it.
+- :mod:`.attribution`: each feature's Shapley value in the missingness game.
 """
 
 from admissable_jax.scoring.estimators import SCORE_ESTIMATORS, score_missingness

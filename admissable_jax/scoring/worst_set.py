@@ -1,0 +1,60 @@
+"""Is the worst set the worst? The gap between two sets' scores, and the episodes that would resolve it.
+
+a_u is a mean over N episodes, so with small N the set of lowest a_u may be the worst by
+chance. Where every set's episode i starts from one state (the audit's batched rollout:
+common random numbers), the gap between two sets is best judged episode by episode: the
+paired differences carry no reset noise, and their interval is far tighter than the two
+sets' own intervals suggest. Where the sets' episodes start from different states (a
+Gymnasium vector env's own resets), Welch's t over the two samples.
+
+The episodes that would tell two sets apart: N at which a two-sided test at 5% finds a gap
+of the size seen 80% of the time (normal approximation), ((z_0.975 + z_0.8) · s / gap)², s
+the standard deviation of one episode's difference, or √(s_1² + s_2²) for independent
+episodes.
+
+NumPy and SciPy: the returns come from any scorer, one row of N per set.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+Z_SUM = 2.8016  # z_0.975 + z_0.8: a two-sided 5% test with 80% power
+
+
+def t_half_width(values: np.ndarray) -> float:
+    """Half-width of the 95% Student's t interval of the mean of ``values`` (N >= 2)."""
+    from scipy import stats
+
+    n = values.shape[-1]
+    return float(stats.t.ppf(0.975, n - 1) * values.std(ddof=1) / math.sqrt(n))
+
+
+def gap_above(low: np.ndarray, high: np.ndarray, paired: bool) -> tuple[float, float]:
+    """(mean of ``high`` − mean of ``low``, its 95% interval's half-width): paired episode by
+    episode, or Welch's t."""
+    low, high = np.asarray(low, np.float64), np.asarray(high, np.float64)
+    gap = float(high.mean() - low.mean())
+    if paired:
+        return gap, t_half_width(high - low)
+    from scipy import stats
+
+    low_var, high_var = low.var(ddof=1) / len(low), high.var(ddof=1) / len(high)
+    standard_error = math.sqrt(low_var + high_var)
+    if standard_error == 0:
+        return gap, 0.0
+    freedom = (low_var + high_var) ** 2 / (low_var ** 2 / (len(low) - 1) + high_var ** 2 / (len(high) - 1))
+    return gap, float(stats.t.ppf(0.975, freedom) * standard_error)
+
+
+def episodes_to_separate(low: np.ndarray, high: np.ndarray, paired: bool) -> int | None:
+    """Episodes per set (at least 2) that would tell ``high``'s mean from ``low``'s at the gap
+    and spread seen (module docstring); None where the gap is not positive or nothing varies."""
+    low, high = np.asarray(low, np.float64), np.asarray(high, np.float64)
+    gap = high.mean() - low.mean()
+    spread = (high - low).std(ddof=1) if paired else math.sqrt(low.var(ddof=1) + high.var(ddof=1))
+    if gap <= 0 or spread == 0:
+        return None
+    return max(2, math.ceil((Z_SUM * spread / gap) ** 2))
