@@ -129,8 +129,6 @@ def check_audit_config(config: AuditConfig) -> None:
             raise ValueError("a Python policy is audited with policy=MODULE:NAME and gym=ENV_ID, and no run directory")
         if config.score_estimator != "rollout" or config.search != "exact":
             raise ValueError("a Python policy is audited by rollouts of every set (it has no critic to estimate with)")
-        if config.tell_apart:
-            raise ValueError("tell_apart= audits a run's policy (a Gymnasium policy's sets share no start states to pair)")
     elif not config.run_dir:
         raise ValueError("give the run directory: python -m admissable_jax.audit RUN_DIR [k=1,2] [episodes=50]")
     if config.steps and (config.step >= 0 or config.policy or is_experiment(config.run_dir)):
@@ -272,17 +270,11 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
     plan = _shapley_plan(d, shapley, seed)
     check_audit_size(env.name, d, ks, n_episodes, search, beam_width, plan)
     if tell_apart:
-        again = functools.partial(audit, env, policy_fn, params, ks, num_slots=num_slots, feature_names=feature_names,
-                                  source=source, estimator=estimator, critic_fn=critic_fn, critic_params=critic_params,
-                                  horizon=horizon, gamma=gamma, search=search, beam_width=beam_width, ranker=ranker,
-                                  progress=progress)
-        pilot = again(n_episodes=n_episodes, seed=seed)
-        needed = {k: pilot.episodes_to_separate(k) for k in ks}
-        most = min(MAX_TELL_APART_EPISODES, MAX_AUDIT_EPISODES // (_rollout_sets(d, ks, search, beam_width, plan) + 1))
-        chosen = min(max([n_episodes] + [n for n in needed.values() if n is not None]), max(most, n_episodes))
-        final = again(n_episodes=chosen, seed=seed + 1, shapley=shapley)
-        return dataclasses.replace(final, pilot={"episodes": n_episodes, "seed": seed, "needed": needed,
-                                                 "chosen": chosen, "most": most})
+        return _told_apart(functools.partial(
+            audit, env, policy_fn, params, ks, num_slots=num_slots, feature_names=feature_names, source=source,
+            estimator=estimator, critic_fn=critic_fn, critic_params=critic_params, horizon=horizon, gamma=gamma,
+            search=search, beam_width=beam_width, ranker=ranker, progress=progress),
+            ks, n_episodes, seed, shapley, _rollout_sets(d, ks, search, beam_width, plan))
     scorer = jax.jit(score_missingness, static_argnums=(0, 1, 5, 6, 7), static_argnames=(
         "score_estimator", "critic_fn", "score_horizon", "gamma", "progress"))
     key = jax.random.key(seed)
@@ -313,6 +305,21 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
                                             for row, score_ in zip(finalists, ranker_scores)]}
     return _audit_result(env.name, estimator, lambda rows: score(rows, estimator).returns, ks, blocks, plan,
                          feature_names or [str(i) for i in range(d)], source or {}, search_info)
+
+
+def _told_apart(audit_with, ks, n_episodes: int, seed: int, shapley: int | str, rollout_sets: int) -> AuditResult:
+    """``tell_apart``: a pilot audit (``audit_with(n_episodes=, seed=, shapley=)``) of
+    ``n_episodes`` per set from ``seed``'s start states, without the Shapley coalitions;
+    then the audit returned, from ``seed + 1``'s, with as many episodes per set as the pilot
+    says tell the worst set of each k from the runner-up (the largest; at least the pilot's,
+    at most MAX_TELL_APART_EPISODES and what one rollout of ``rollout_sets`` sets may hold)."""
+    pilot = audit_with(n_episodes=n_episodes, seed=seed, shapley=0)
+    needed = {k: pilot.episodes_to_separate(k) for k in ks}
+    most = min(MAX_TELL_APART_EPISODES, MAX_AUDIT_EPISODES // (rollout_sets + 1))
+    chosen = min(max([n_episodes] + [n for n in needed.values() if n is not None]), max(most, n_episodes))
+    final = audit_with(n_episodes=chosen, seed=seed + 1, shapley=shapley)
+    return dataclasses.replace(final, pilot={"episodes": n_episodes, "seed": seed, "needed": needed,
+                                             "chosen": chosen, "most": most})
 
 
 class _EpisodeBar:
@@ -419,7 +426,7 @@ def _gymnasium_features(env_id: str, ks, **env_kwargs) -> int:
 
 def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs: int = 8, seed: int = 0,
                     feature_names: list[str] | None = None, shapley: int | str = 0, progress: bool = False,
-                    **env_kwargs) -> AuditResult:
+                    tell_apart: bool = False, **env_kwargs) -> AuditResult:
     """:func:`audit` for any policy on any Gymnasium env (Stable-Baselines3, CleanRL, your
     own PyTorch): every set of each size in ``ks`` and the clean case, N = ``n_episodes``
     episodes each, in one rollout on ``num_envs`` copies of ``gymnasium.make_vec(env_id)``
@@ -427,7 +434,8 @@ def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs
     actions``). Episode starts follow the vector env's seed, so unlike :func:`audit` the
     sets do not share their N start states. ``feature_names`` default to our env's for
     Hopper-v5, Walker2d-v5, Ant-v5 and HalfCheetah-v5, else the indices. ``shapley``
-    as in :func:`audit`; ``progress`` draws a bar over the episodes. :func:`write_audit` writes the files."""
+    and ``tell_apart`` as in :func:`audit` (the gaps by Welch's t); ``progress`` draws a bar over
+    the episodes. :func:`write_audit` writes the files."""
     from admissable_jax.envs import canonical_env_name, observation_names, settotalmass_warning_dropped
     from admissable_jax.wrappers import score_policy
 
@@ -435,6 +443,10 @@ def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs
     blocks = [candidate_sets(d, k) for k in ks]
     plan = _shapley_plan(d, shapley, seed)
     check_audit_size(env_id, d, ks, n_episodes, search=None, plan=plan)
+    if tell_apart:
+        return _told_apart(functools.partial(audit_gymnasium, env_id, policy, ks, num_envs=num_envs,
+                                             feature_names=feature_names, progress=progress, **env_kwargs),
+                           ks, n_episodes, seed, shapley, _rollout_sets(d, ks, None, 0, plan))
     if feature_names is None:
         try:
             feature_names = observation_names(canonical_env_name(env_id))
@@ -714,10 +726,15 @@ def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     _gymnasium_features(config.gym, ks)  # before anything is written
     out = config.out or f"audit-{config.gym}-{name}"
     make_directory(out, "audit folder")
-    with reporting(f"auditing {config.policy} on {config.gym} for k={config.k} ({config.episodes} episodes per set)"):
+    with reporting(f"auditing {config.policy} on {config.gym} for k={config.k} ({_episodes_asked(config)})"):
         result = audit_gymnasium(config.gym, policy, ks, config.episodes, num_envs=config.slots or 8, seed=config.seed,
-                                 shapley=_shapley(config.shapley), progress=True)
+                                 shapley=_shapley(config.shapley), progress=True, tell_apart=config.tell_apart)
     return result, write_audit(result, out, config.top)
+
+
+def _episodes_asked(config: AuditConfig) -> str:
+    return (f"a pilot of {config.episodes} episodes per set, then as many as tell the worst sets apart"
+            if config.tell_apart else f"{config.episodes} episodes per set")
 
 
 def audit_run(config: AuditConfig) -> tuple[AuditResult, list[str]]:
@@ -766,10 +783,9 @@ def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
     d = policy.observation_size
     check_audit_size(train.env, d, _ks(config.k), config.episodes, config.search, config.beam_width, _plan(config, d))
     make_directory(out, "audit folder")  # before the rollout, not after it
-    episodes = (f"a pilot of {config.episodes} episodes per set, then as many as tell the worst sets apart"
-                if config.tell_apart else f"{config.episodes} episodes per set")
     with reporting(f"auditing checkpoint {policy.step} of {train.env} for k={config.k} ({config.search} search, "
-                   f"{episodes}, {env.physics_name} physics on {jax.default_backend()}; compiling included)"):
+                   f"{_episodes_asked(config)}, {env.physics_name} physics on {jax.default_backend()}; "
+                   f"compiling included)"):
         result = audit(env, trainer.policy, policy.actor_params, _ks(config.k), config.episodes, config.seed,
                        _slots(config, policy), observation_names(train.env),
                        {"run": os.path.abspath(config.run_dir), "checkpoint (env step)": policy.step,

@@ -277,7 +277,15 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
                        f"out={tmp_path / 'cli'}"]) == 0
     record = json.loads((tmp_path / "cli" / "audit.json").read_text())
     assert [entry["score"] for entry in record["sets"]["2"]] == [15.0, 10.0, 5.0]
-    assert "k=2: worst 1, 2 ([1, 2]): a_u 5.0 ± 0.0, 83.3% below clean 30.0; mean over the 3 sets 10.0" in capfd.readouterr().out
+    assert ("k=2: worst 1, 2 ([1, 2]): a_u 5.0 ± 0.0, 83.3% below clean 30.0; mean over the 3 sets 10.0; told apart "
+            "from every other set") in capfd.readouterr().out
+    # tell_apart: every return here is constant, so no gap needs more episodes than the pilot's 2.
+    assert audit_main(["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "k=1,2", "episodes=2",
+                       "tell_apart=true", f"out={tmp_path / 'told'}"]) == 0
+    told = json.loads((tmp_path / "told" / "audit.json").read_text())
+    assert told["pilot"] == {"episodes": 2, "seed": 0, "needed": {"1": None, "2": None}, "chosen": 2, "most": 1000}
+    assert [entry["score"] for entry in told["sets"]["2"]] == [15.0, 10.0, 5.0] and not told["same_starts"]
+    assert "N = 2 episodes per set, chosen by a pilot of 2" in capfd.readouterr().out
     for args, message in [
         (["policy=test_wrappers:nothing", "gym=ConstantFeatures-v0"], "cannot load policy=test_wrappers:nothing: module"),
         (["policy=test_wrappers:sum_of_visible", "gym=NoSuchEnv-v0"], "cannot make the Gymnasium env 'NoSuchEnv-v0'"),
@@ -285,8 +293,6 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
         (["policy=test_wrappers", "gym=ConstantFeatures-v0"], "policy must be MODULE:NAME"),
         (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "shapley=3"],
          "shapley must be 0 (none), exact, or at least 4 feature orders, got '3'"),
-        (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "tell_apart=true"],
-         "tell_apart= audits a run's policy (a Gymnasium policy's sets share no start states to pair)"),
         # checked on the env itself before anything is written (HalfCheetah's settotalmass
         # deprecation, Gymnasium's file, kept out of the output and the working directory)
         (["policy=test_wrappers:sum_of_visible", "gym=HalfCheetah-v5", "k=17"], "ks must be set sizes 1 <= k < d = 17"),
