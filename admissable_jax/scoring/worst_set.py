@@ -2,9 +2,10 @@
 
 a_u is a mean over N episodes, so with small N the set of lowest a_u may be the worst by
 chance. Where every set's episode i starts from one state (the audit's batched rollout:
-common random numbers), the gap between two sets is best judged episode by episode: the
-paired differences carry no reset noise, and their interval is far tighter than the two
-sets' own intervals suggest. Where the sets' episodes start from different states (a
+common random numbers), the gap between two sets is judged episode by episode: the paired
+differences carry no reset noise, so their interval is tighter than two independent samples'
+wherever the sets' returns rise and fall together with the start state. Where the sets'
+episodes start from different states (a
 Gymnasium vector env's own resets), Welch's t over the two samples.
 
 The episodes that would tell two sets apart: N at which a two-sided test at 5% finds a gap
