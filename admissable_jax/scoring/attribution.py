@@ -32,6 +32,9 @@ import math
 
 import numpy as np
 
+from admissable_jax.scoring.worst_set import t_half_width
+
+
 MIN_ORDERS = 4  # two antithetic pairs: the fewest that give the permutation estimate an interval
 MAX_EXACT_FEATURES = 20  # 2^20 coalitions; beyond, only the permutation estimate
 
@@ -137,8 +140,8 @@ def shapley_attribution(plan: ShapleyPlan, hidden_rows: np.ndarray, returns: np.
     alone = value(np.eye(d, dtype=np.float32))  # (d, N)
     return ShapleyAttribution(
         method=plan.method, orders=0 if plan.orders is None else len(plan.orders), coalitions=len(plan.hidden_rows),
-        values=per_episode.mean(axis=1).tolist(), ci95_starts=_t_half_width(per_episode.T).tolist(),
-        ci95_orders=(np.zeros(d) if per_order is None else _t_half_width(per_order)).tolist(),
+        values=per_episode.mean(axis=1).tolist(), ci95_starts=t_half_width(per_episode, axis=1).tolist(),
+        ci95_orders=(np.zeros(d) if per_order is None else t_half_width(per_order, axis=0)).tolist(),
         leave_one_out=(full.mean() - alone.mean(axis=1)).tolist(), full=float(full.mean()), blind=float(blind.mean()),
         coalition_values=[[np.flatnonzero(row).tolist(), float(value(row[None])[0].mean())] for row in plan.hidden_rows])
 
@@ -157,13 +160,3 @@ def _exact_shapley(values: np.ndarray, d: int) -> np.ndarray:
 
 def _key(row: np.ndarray) -> bytes:
     return np.asarray(row).astype(bool).tobytes()
-
-
-def _t_half_width(samples: np.ndarray) -> np.ndarray:
-    """Per column of ``samples`` ((n, d)), the 95% Student's t half-width of its mean; NaN for n < 2."""
-    from scipy import stats
-
-    n = samples.shape[0]
-    if n < 2:
-        return np.full(samples.shape[1], np.nan)
-    return stats.t.ppf(0.975, n - 1) * samples.std(axis=0, ddof=1) / math.sqrt(n)

@@ -25,12 +25,18 @@ import numpy as np
 Z_SUM = 2.8016  # z_0.975 + z_0.8: a two-sided 5% test with 80% power
 
 
-def t_half_width(values: np.ndarray) -> float:
-    """Half-width of the 95% Student's t interval of the mean of ``values`` (N >= 2)."""
+def t_half_width(samples: np.ndarray, axis: int = -1) -> float | np.ndarray:
+    """Half-width of the 95% Student's t interval of the mean of ``samples`` along ``axis``
+    (a float for one sample, else an array); NaN with fewer than 2 values."""
     from scipy import stats
 
-    n = values.shape[-1]
-    return float(stats.t.ppf(0.975, n - 1) * values.std(ddof=1) / math.sqrt(n))
+    samples = np.asarray(samples, np.float64)
+    n = samples.shape[axis]
+    if n < 2:
+        width = np.full(np.delete(samples.shape, axis), np.nan)
+    else:
+        width = stats.t.ppf(0.975, n - 1) * samples.std(axis=axis, ddof=1) / math.sqrt(n)
+    return float(width) if np.ndim(width) == 0 else width
 
 
 def gap_above(low: np.ndarray, high: np.ndarray, paired: bool) -> tuple[float, float]:
