@@ -53,7 +53,7 @@ from scipy import stats  # noqa: E402
 
 from admissable_jax.cli import fail, parse_args  # noqa: E402
 from admissable_jax.config import TrainConfig  # noqa: E402
-from admissable_jax.envs import ENV_CLASSES, observation_names  # noqa: E402
+from admissable_jax.envs import ENV_SPECS, observation_names  # noqa: E402
 from admissable_jax.errors import UnusableDirectory, make_directory  # noqa: E402
 from admissable_jax.method import parse_set  # noqa: E402
 from admissable_jax.missingness import candidate_sets  # noqa: E402
@@ -316,14 +316,14 @@ def plot_envs_side_by_side(run_dirs: list[str], out_dir: str, window: int = 0) -
     runs = label_variants([load_run(path) for path in run_dirs])
     if not runs:
         raise ValueError("no runs to plot")
-    order = list(ENV_CLASSES)
+    order = list(ENV_SPECS)
     envs = sorted({run.env for run in runs}, key=lambda env: (order.index(env) if env in order else len(order), env))
     figure, axes = plt.subplots(1, len(envs), figsize=(5 * len(envs), 4), squeeze=False)
     notes = []
     for ax, env in zip(axes[0], envs):
         env_runs = [run for run in runs if run.env == env]
         draw_curves(ax, env_runs, "min_score", window)
-        ax.set_title(getattr(ENV_CLASSES.get(env), "gymnasium_id", None) or env)
+        ax.set_title(getattr(ENV_SPECS.get(env), "gymnasium_id", None) or env)
         notes.append(f"{env}: {_window_note(env_runs, window)}")
     axes[0][0].set_ylabel("adversarial performance $\\mathrm{min}_u\\, a_u$")
     figure.suptitle(f"Performance under adversarial missingness: $\\mathrm{{min}}_u\\, a_u$ at every scoring. Lines: "

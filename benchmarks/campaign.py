@@ -46,7 +46,7 @@ import jax
 
 from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.cli import enable_compilation_cache, parse_args
-from admissable_jax.envs import make_env
+from admissable_jax.envs import env_spec, make_env, resolve_physics
 from admissable_jax.config import ExperimentConfig, pair_configs
 from admissable_jax.host_loop import make_trainer, mode_flags
 from admissable_jax.training import Trainer
@@ -130,9 +130,9 @@ def speed_record(config: ExperimentConfig) -> tuple[dict, int]:
     this campaign's records or the committed ones: one of the same number of pairs, else one
     of the fewest pairs above it (an upper bound); and the experiment's number of pairs). The
     run's length does not matter (``total_steps=0``, "find the longest", is read as one
-    scoring interval)."""
-    trainer, pairs, _ = _experiment_trainer(dataclasses.replace(config, total_steps=max(1, config.total_steps)))
-    want = {"env": trainer.env.gymnasium_id, "physics": trainer.env.physics_name,
+    scoring interval). Builds no env: planning needs no physics."""
+    pairs = pair_configs(dataclasses.replace(config, total_steps=max(1, config.total_steps)))
+    want = {"env": env_spec(pairs[0].env).gymnasium_id, "physics": resolve_physics(pairs[0].physics),
             "num_envs": pairs[0].num_envs, "score_episodes": pairs[0].score_episodes,
             "episode_length": pairs[0].episode_length, "score_every": pairs[0].score_every,
             "device": getattr(config, "speed_device", "") or environment_record()["device"]}

@@ -113,6 +113,8 @@ def test_step_parity_with_gymnasium(env_case):
 def test_contact_frame_patches_are_installed_and_current():
     """Both backends' plane–capsule colliders are ours, and the upstream code they replace is
     the code they were written against: a MuJoCo upgrade that changes it fails here."""
+    from admissable_jax.envs import Hopper  # noqa: F401  (an env class's import imports the physics, which installs both)
+
     assert contact_frames.is_installed() and contact_frames.is_installed_warp()
     assert contact_frames.upstream_source_hashes() == contact_frames.PATCHED_SOURCES, (
         "MuJoCo changed the plane-capsule collider our contact_frames patch replaces: re-check "

@@ -113,6 +113,17 @@ def test_wrappers_import_no_jax():
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
+def test_what_steps_no_mujoco_env_imports_no_mjx():
+    """The entry points, configs, feature names and the point mass need no physics: they
+    import neither MJX nor MuJoCo Warp (about 5 s of a command's start on a small CPU)."""
+    code = ("import sys; from admissable_jax import audit, config, experiment, plot, train; "
+            "from admissable_jax.envs import make_env, observation_names; "
+            "config.TrainConfig(env='Ant-v5').resolved(); observation_names('ant'); make_env('point_mass'); "
+            "print(sorted(name for name in ('mujoco.mjx', 'warp') if name in sys.modules))")
+    shown = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True)
+    assert shown.stdout.strip() == "[]"
+
+
 @pytest.mark.parametrize("jaxlib, flag_set", [("0.10.2", True), ("0.11.2", False)])
 def test_cpu_compile_flag_only_for_the_jaxlib_that_knows_it(jaxlib, flag_set):
     # jaxlib 0.11 aborts at backend start on the XLA:CPU flag that 0.10 compiles faster with.

@@ -4,60 +4,48 @@ HalfCheetah-v5, and :func:`make_env`.
 ``point_mass`` is a pure-JAX toy with the same interface, for tests and smoke runs. Which
 physics backend steps an env (MJX's JAX implementation or MuJoCo Warp) is decided here,
 from :class:`EnvOptions`; nothing outside this package needs to know.
+
+Importing this package imports no MJX: names, sizes and feature names come from
+:mod:`.catalog`, and an env's class, with its physics, is imported when first asked for
+(:func:`make_env`, or an attribute such as ``envs.Hopper`` or ``envs.MjxEnv``), so that what
+never steps an MJX env (``plot``, ``--help``, bad input, the point mass) starts seconds
+sooner.
 """
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import io
+import importlib
+from typing import TYPE_CHECKING, Any
 
-# MJX prints an import failure when warp-lang is absent; physics=jax needs no Warp (and
-# physics=warp says clearly when it is missing), so keep that line out of users' output.
-with contextlib.redirect_stdout(io.StringIO()):
-    from mujoco import mjx  # noqa: F401
+from admissable_jax.envs.catalog import (
+    ENV_SPECS,
+    EnvSpec,
+    canonical_env_name,
+    env_spec,
+    observation_names,
+    observation_size,
+    settotalmass_warning_dropped,
+)
+from admissable_jax.envs.options import MAX_EPISODE_STEPS, PHYSICS_CHOICES, EnvOptions, resolve_physics
+from admissable_jax.envs.state import EnvState, reset_where_done
 
-from admissable_jax.envs import contact_frames  # noqa: E402
-from admissable_jax.envs.ant import Ant  # noqa: E402
-from admissable_jax.envs.base import EnvState, MjxEnv, reset_where_done, settotalmass_warning_dropped  # noqa: E402
-from admissable_jax.envs.half_cheetah import HalfCheetah  # noqa: E402
-from admissable_jax.envs.options import MAX_EPISODE_STEPS, PHYSICS_CHOICES, EnvOptions, resolve_physics, warp_installed  # noqa: E402
-from admissable_jax.envs.planar_walkers import Hopper, Walker2d  # noqa: E402
-from admissable_jax.envs.point_mass import PointMass  # noqa: E402
+if TYPE_CHECKING:
+    from admissable_jax.envs.base import MjxEnv
 
-contact_frames.install()
-if warp_installed():
-    import warp
-
-    warp.config.quiet = True  # no banner in users' output
-    warp.config.log_level = max(warp.config.log_level, warp.LOG_WARNING)  # nor a line per kernel module
-    contact_frames.install_warp()  # before the first Warp collision kernel is built
-
-ENV_CLASSES: dict[str, type] = {cls.name: cls for cls in (Hopper, Walker2d, Ant, HalfCheetah, PointMass)}
-_ALIASES = {cls.gymnasium_id.lower(): cls.name for cls in ENV_CLASSES.values() if cls.gymnasium_id}
+# The attributes imported on first use, and their modules.
+_LAZY = {"MjxEnv": "base", **{spec.home.split(".")[1]: spec.home.split(".")[0] for spec in ENV_SPECS.values()}}
 
 
-def canonical_env_name(name: str) -> str:
-    """``"hopper"`` for ``"hopper"``, ``"Hopper-v5"``, ``"HOPPER"``; ValueError otherwise."""
-    if not isinstance(name, str):
-        raise TypeError(f"env name must be a string, got {type(name).__name__}")
-    key = name.lower()
-    key = _ALIASES.get(key, key)
-    if key not in ENV_CLASSES:
-        valid = ", ".join([*ENV_CLASSES, *(cls.gymnasium_id for cls in ENV_CLASSES.values() if cls.gymnasium_id)])
-        raise ValueError(f"unknown env {name!r}; valid names: {valid}")
-    return key
+def __getattr__(attribute: str) -> Any:
+    if attribute not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {attribute!r}")
+    return getattr(importlib.import_module(f"{__name__}.{_LAZY[attribute]}"), attribute)
 
 
-def observation_size(name: str) -> int:
-    """d, the observation size of env ``name``, without building it."""
-    return ENV_CLASSES[canonical_env_name(name)].observation_size
-
-
-def observation_names(name: str) -> list[str]:
-    """Readable names of env ``name``'s observation entries ("torso z", "thigh joint angle",
-    "aux_1 contact force z", ...), without building the env."""
-    return ENV_CLASSES[canonical_env_name(name)].observation_names()
+def env_class(name: str) -> type:
+    """The class of env ``name`` (its module, and MJX for the MuJoCo envs, imported now)."""
+    return __getattr__(env_spec(name).home.split(".")[1])
 
 
 def make_env(name: str, options: EnvOptions | None = None, **option_overrides) -> MjxEnv:
@@ -72,14 +60,16 @@ def make_env(name: str, options: EnvOptions | None = None, **option_overrides) -
         options = EnvOptions(**option_overrides)
     elif option_overrides:
         options = dataclasses.replace(options, **option_overrides)
-    return ENV_CLASSES[canonical_env_name(name)](options)
+    return env_class(name)(options)
 
 
 __all__ = [
+    "ENV_SPECS",
     "MAX_EPISODE_STEPS",
     "PHYSICS_CHOICES",
     "Ant",
     "EnvOptions",
+    "EnvSpec",
     "EnvState",
     "HalfCheetah",
     "Hopper",
@@ -87,6 +77,8 @@ __all__ = [
     "PointMass",
     "Walker2d",
     "canonical_env_name",
+    "env_class",
+    "env_spec",
     "make_env",
     "observation_names",
     "observation_size",

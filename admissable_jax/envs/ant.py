@@ -7,11 +7,16 @@ Observation (105): qpos[2:] (13), qvel (14), and the external contact forces
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import jax
 import jax.numpy as jnp
-from mujoco import mjx
 
-from admissable_jax.envs.base import MjxEnv, joint_label, uniform_qpos_normal_qvel_noise
+from admissable_jax.envs.base import MjxEnv, uniform_qpos_normal_qvel_noise
+from admissable_jax.envs.catalog import ENV_SPECS
+
+if TYPE_CHECKING:
+    from mujoco import mjx
 
 _MAIN_BODY = 1  # torso
 _CTRL_COST_WEIGHT = 0.5
@@ -28,10 +33,7 @@ def _clipped_contact_forces(data: mjx.Data) -> jax.Array:
 class Ant(MjxEnv):
     """Ant-v5: d = 105, 8 actions, frame skip 5."""
 
-    name = "ant"
-    gymnasium_id = "Ant-v5"
-    xml_file = "ant.xml"
-    observation_size = 105
+    spec = ENV_SPECS["ant"]
     frame_skip = 5
     reset_noise_scale = 0.1
     reads_contact_forces = True
@@ -41,18 +43,6 @@ class Ant(MjxEnv):
     def _observation(self, data: mjx.Data) -> jax.Array:
         contact_forces = _clipped_contact_forces(data)[1:].ravel()
         return jnp.concatenate([data.qpos[2:], data.qvel, contact_forces])
-
-    @classmethod
-    def _observation_names(cls, model):
-        joints = [joint_label(model, j) for j in range(1, model.njnt)]  # joint 0: the torso's free joint
-        positions = ["torso z", *(f"torso orientation {c}" for c in "wxyz"), *(f"{joint} angle" for joint in joints)]
-        velocities = [*(f"torso {c} velocity" for c in "xyz"), *(f"torso angular velocity {c}" for c in "xyz"),
-                      *(f"{joint} angular velocity" for joint in joints)]
-        forces = []
-        for body in range(1, model.nbody):  # cfrc_ext: (torque, force) per body, world left out
-            name = model.body(body).name or f"{model.body(model.body_parentid[body]).name} child"
-            forces += [f"{name} contact {kind} {c}" for kind in ("torque", "force") for c in "xyz"]
-        return positions + velocities + forces
 
     def _is_healthy(self, qpos: jax.Array, qvel: jax.Array) -> jax.Array:
         finite = jnp.logical_and(jnp.all(jnp.isfinite(qpos)), jnp.all(jnp.isfinite(qvel)))

@@ -10,93 +10,37 @@ as Gymnasium's ``MujocoEnv.do_simulation`` does.
 from __future__ import annotations
 
 import abc
-import contextlib
-import os
-import sys
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import chex
-import gymnasium
 import jax
 import jax.numpy as jnp
 import mujoco
-from flax import struct
-from mujoco import mjx
 
+from admissable_jax.envs.catalog import CatalogEntry, load_gymnasium_model
 from admissable_jax.envs.options import EnvOptions
 from admissable_jax.envs.physics import Physics
+from admissable_jax.envs.state import EnvState
+
+if TYPE_CHECKING:
+    from mujoco import mjx
 
 
-def gymnasium_asset_path(xml_file: str) -> str:
-    """Path of a model XML shipped inside the installed gymnasium package (never copied)."""
-    return os.path.join(os.path.dirname(gymnasium.__file__), "envs", "mujoco", "assets", xml_file)
+class MjxEnv(CatalogEntry, abc.ABC):
+    """A Gymnasium MuJoCo v5 task on MJX. Subclasses name their catalog entry (``spec``:
+    name, Gymnasium id, XML, observation size) and fill in the task-specific hooks."""
 
-
-@contextlib.contextmanager
-def settotalmass_warning_dropped():
-    """Within: MuJoCo's deprecation warning for ``half_cheetah.xml``'s ``settotalmass``
-    (Gymnasium's file, nothing a user can act on) is dropped, where MuJoCo would print it and
-    append it to ``MUJOCO_LOG.TXT`` in the working directory; other warnings print to stderr."""
-    previous = mujoco.get_mju_user_warning()
-
-    def warn(message: str) -> None:
-        if "settotalmass" not in message:
-            print(f"WARNING: {message}", file=sys.stderr)
-
-    mujoco.set_mju_user_warning(warn)
-    try:
-        yield
-    finally:
-        mujoco.set_mju_user_warning(previous)
-
-
-def load_gymnasium_model(xml_file: str) -> mujoco.MjModel:
-    """The compiled model of a Gymnasium XML (:func:`settotalmass_warning_dropped`)."""
-    with settotalmass_warning_dropped():
-        return mujoco.MjModel.from_xml_path(gymnasium_asset_path(xml_file))
-
-
-@struct.dataclass
-class EnvState:
-    """One environment's state.
-
-    ``metrics`` holds this step's reward terms and positions (Gymnasium's ``info``);
-    ``episode_metrics`` holds the running sums of the reward terms and of the reward
-    (``"return"``) since the last reset.
-    """
-
-    data: mjx.Data
-    obs: jax.Array
-    reward: jax.Array
-    terminated: jax.Array
-    truncated: jax.Array
-    step_count: jax.Array
-    metrics: dict[str, jax.Array]
-    episode_metrics: dict[str, jax.Array]
-
-    @property
-    def done(self) -> jax.Array:
-        return jnp.logical_or(self.terminated, self.truncated)
-
-
-class MjxEnv(abc.ABC):
-    """A Gymnasium MuJoCo v5 task on MJX. Subclasses fill in the task-specific hooks."""
-
-    name: ClassVar[str]
-    gymnasium_id: ClassVar[str]
-    xml_file: ClassVar[str]
     frame_skip: ClassVar[int]
     reset_noise_scale: ClassVar[float]
     reward_terms: ClassVar[tuple[str, ...]]
     info_keys: ClassVar[tuple[str, ...]]
-    observation_size: ClassVar[int]
     reads_contact_forces: ClassVar[bool] = False
 
     def __init__(self, options: EnvOptions | None = None):
         """Load the XML from gymnasium and put it on the backend ``options.physics`` resolves
         to. Solver settings default to the XML's (Gymnasium parity)."""
         self.options = options or EnvOptions()
-        self.mj_model = load_gymnasium_model(self.xml_file)
+        self.mj_model = load_gymnasium_model(self.spec.xml_file)
         if self.options.solver_iterations is not None:
             self.mj_model.opt.iterations = self.options.solver_iterations
         if self.options.ls_iterations is not None:
@@ -129,19 +73,6 @@ class MjxEnv(abc.ABC):
             f"actions {self.action_size}, frame_skip {self.frame_skip}, dt {self.dt}, "
             f"physics {self.physics_name})"
         )
-
-    @classmethod
-    def observation_names(cls) -> list[str]:
-        """A readable name per observation entry, as Gymnasium's docs describe them."""
-        model = load_gymnasium_model(cls.xml_file)
-        names = cls._observation_names(model)
-        assert len(names) == cls.observation_size, (len(names), cls.observation_size)
-        return names
-
-    @classmethod
-    @abc.abstractmethod
-    def _observation_names(cls, model: mujoco.MjModel) -> list[str]:
-        """:meth:`observation_names` from the model's joint and body names."""
 
     # --- task hooks -------------------------------------------------------------------
     @abc.abstractmethod
@@ -230,24 +161,9 @@ class MjxEnv(abc.ABC):
         return self.physics.capacity_message()
 
 
-def joint_label(model: mujoco.MjModel, joint: int) -> str:
-    """``"thigh left joint"`` for the joint named ``thigh_left_joint``."""
-    return model.joint(joint).name.replace("_", " ")
-
-
 def uniform_qpos_normal_qvel_noise(rng: jax.Array, model: mujoco.MjModel, scale: float) -> tuple[jax.Array, jax.Array]:
     """Reset noise of Ant-v5 and HalfCheetah-v5: qpos + U(-s, s), qvel + s · N(0, 1)."""
     qpos_rng, qvel_rng = jax.random.split(rng)
     qpos_noise = jax.random.uniform(qpos_rng, (model.nq,), minval=-scale, maxval=scale)
     qvel_noise = scale * jax.random.normal(qvel_rng, (model.nv,))
     return qpos_noise, qvel_noise
-
-
-def reset_where_done(env: MjxEnv, state: EnvState, rng: jax.Array) -> EnvState:
-    """Start a new episode in ``state`` if it is done (terminated or truncated), else keep it.
-
-    Unbatched; vmap it for a batch. Both branches are computed (as under any ``where``),
-    which is what vmapped auto-reset costs anyway.
-    """
-    fresh = env.reset(rng)
-    return jax.tree.map(lambda new, old: jnp.where(state.done, new, old), fresh, state)

@@ -14,8 +14,8 @@ step from Gymnasium-visited states: qvel errors up to 0.9 on JAX, observation er
 JAX: our collider replaces MJX's in its collision table (:func:`install`). Warp: our
 ``wp.func`` replaces the name ``plane_capsule`` that MuJoCo Warp's plane–capsule collider
 calls (:func:`install_warp`); Warp generates kernel code from those names when it first
-builds the collision module, so this must run before the first Warp step (``envs`` does it
-on import). :data:`PATCHED_SOURCES` records the sha256 of the upstream code each patch
+builds the collision module, so this must run before the first Warp step (:mod:`.physics`
+does both when imported, before any env is built). :data:`PATCHED_SOURCES` records the sha256 of the upstream code each patch
 replaces; a test fails when a MuJoCo upgrade changes it, so the patch is re-checked
 (and dropped, once upstream matches C MuJoCo) rather than silently going stale.
 """

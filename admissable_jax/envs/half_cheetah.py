@@ -9,12 +9,16 @@ qpos + U(−0.1, 0.1), qvel + 0.1 · N(0, 1).
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import jax
 import jax.numpy as jnp
-from mujoco import mjx
 
 from admissable_jax.envs.base import MjxEnv, uniform_qpos_normal_qvel_noise
-from admissable_jax.envs.planar_walkers import planar_observation_names
+from admissable_jax.envs.catalog import ENV_SPECS
+
+if TYPE_CHECKING:
+    from mujoco import mjx
 
 _CTRL_COST_WEIGHT = 0.1
 
@@ -22,10 +26,7 @@ _CTRL_COST_WEIGHT = 0.1
 class HalfCheetah(MjxEnv):
     """HalfCheetah-v5: d = 17, 6 actions, frame skip 5, never terminates."""
 
-    name = "halfcheetah"
-    gymnasium_id = "HalfCheetah-v5"
-    xml_file = "half_cheetah.xml"
-    observation_size = 17
+    spec = ENV_SPECS["halfcheetah"]
     frame_skip = 5
     reset_noise_scale = 0.1
     reward_terms = ("reward_forward", "reward_ctrl")
@@ -33,10 +34,6 @@ class HalfCheetah(MjxEnv):
 
     def _observation(self, data: mjx.Data) -> jax.Array:
         return jnp.concatenate([data.qpos[1:], data.qvel])
-
-    @classmethod
-    def _observation_names(cls, model):
-        return planar_observation_names(model)
 
     def _is_healthy(self, qpos: jax.Array, qvel: jax.Array) -> jax.Array:
         return jnp.ones((), bool)  # HalfCheetah-v5 has no termination

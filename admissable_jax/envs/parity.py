@@ -12,7 +12,9 @@ import gymnasium
 import jax
 import numpy as np
 
-from admissable_jax.envs.base import EnvState, MjxEnv, settotalmass_warning_dropped
+from admissable_jax.envs.base import MjxEnv
+from admissable_jax.envs.catalog import settotalmass_warning_dropped
+from admissable_jax.envs.state import EnvState
 
 
 def gymnasium_transitions(env_id: str, n: int, seed: int = 0) -> dict[str, np.ndarray]:

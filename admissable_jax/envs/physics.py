@@ -11,8 +11,8 @@ lives here:
   count. Both counts come from MJX's own static contact and constraint tables, so neither
   can overflow while the batch stays within ``max_batch``; if one does anyway, the world's
   overflow flags say so and :meth:`Physics.capacity_exceeded` reports it.
-- C MuJoCo's plane–capsule contact frames are installed on both backends when
-  :mod:`admissable_jax.envs` is imported (:mod:`.contact_frames`), before any step.
+- C MuJoCo's plane–capsule contact frames are installed on both backends when this module
+  is imported (:mod:`.contact_frames`), before any env is built, so before any step.
 - Warp computes ``cfrc_ext`` inside its step when the model asks for it
   (``run_rne_postconstraint``); the JAX implementation calls ``mjx.rne_postconstraint``.
 - Warp data has scratch fields shared by every world of a batch (the contact buffer and
@@ -28,11 +28,24 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import mujoco
-from mujoco import mjx
-from mujoco.mjx._src import collision_driver, constraint
-from mujoco.mjx._src import forward as mjx_forward
-from mujoco.mjx._src import scan as mjx_scan
-from mujoco.mjx._src.types import IntegratorType
+
+from admissable_jax.envs.options import import_mjx, warp_installed
+
+mjx = import_mjx()
+from mujoco.mjx._src import collision_driver, constraint  # noqa: E402
+from mujoco.mjx._src import forward as mjx_forward  # noqa: E402
+from mujoco.mjx._src import scan as mjx_scan  # noqa: E402
+from mujoco.mjx._src.types import IntegratorType  # noqa: E402
+
+from admissable_jax.envs import contact_frames  # noqa: E402
+
+contact_frames.install()
+if warp_installed():
+    import warp
+
+    warp.config.quiet = True  # no banner in users' output
+    warp.config.log_level = max(warp.config.log_level, warp.LOG_WARNING)  # nor a line per kernel module
+    contact_frames.install_warp()  # before the first Warp collision kernel is built
 
 # Warp's overflow flags that mean a buffer was too small (not: solver iteration limits).
 _CAPACITY_FLAGS = {

@@ -8,27 +8,20 @@ of scale 5e-3 and frame skip 4; they differ in the XML and the health rule.
 from __future__ import annotations
 
 import math
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import jax
 import jax.numpy as jnp
-from mujoco import mjx
 
-from admissable_jax.envs.base import MjxEnv, joint_label
+from admissable_jax.envs.base import MjxEnv
+from admissable_jax.envs.catalog import ENV_SPECS
+
+if TYPE_CHECKING:
+    from mujoco import mjx
 
 _QVEL_CLIP = 10.0
 _CTRL_COST_WEIGHT = 1e-3
 _HEALTHY_REWARD = 1.0
-
-
-def planar_observation_names(model) -> list[str]:
-    """Names of a planar body's qpos[1:], qvel entries; joints 0-2 are the torso's slide x,
-    slide z and hinge (rootx, rootz, rooty), the rest the limbs' hinges."""
-    joints = [joint_label(model, j) for j in range(3, model.njnt)]
-    positions = ["torso z", "torso angle", *(f"{joint} angle" for joint in joints)]
-    velocities = ["torso x velocity", "torso z velocity", "torso angular velocity",
-                  *(f"{joint} angular velocity" for joint in joints)]
-    return positions + velocities
 
 
 def _strictly_inside(x: jax.Array, bounds: tuple[float, float]) -> jax.Array:
@@ -48,10 +41,6 @@ class PlanarWalker(MjxEnv):
 
     def _observation(self, data: mjx.Data) -> jax.Array:
         return jnp.concatenate([data.qpos[1:], jnp.clip(data.qvel, -_QVEL_CLIP, _QVEL_CLIP)])
-
-    @classmethod
-    def _observation_names(cls, model):
-        return planar_observation_names(model)
 
     def _is_healthy(self, qpos: jax.Array, qvel: jax.Array) -> jax.Array:
         z, angle = qpos[1], qpos[2]
@@ -84,10 +73,7 @@ class PlanarWalker(MjxEnv):
 class Hopper(PlanarWalker):
     """Hopper-v5: d = 11, 3 actions. Healthy also needs every qpos[2:], qvel in (-100, 100)."""
 
-    name = "hopper"
-    gymnasium_id = "Hopper-v5"
-    xml_file = "hopper.xml"
-    observation_size = 11
+    spec = ENV_SPECS["hopper"]
     healthy_z_range = (0.7, math.inf)
     healthy_angle_range = (-0.2, 0.2)
     healthy_state_range = (-100.0, 100.0)
@@ -101,9 +87,6 @@ class Hopper(PlanarWalker):
 class Walker2d(PlanarWalker):
     """Walker2d-v5 (``walker2d_v5.xml``): d = 17, 6 actions."""
 
-    name = "walker2d"
-    gymnasium_id = "Walker2d-v5"
-    xml_file = "walker2d_v5.xml"
-    observation_size = 17
+    spec = ENV_SPECS["walker2d"]
     healthy_z_range = (0.8, 2.0)
     healthy_angle_range = (-1.0, 1.0)

@@ -12,8 +12,9 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from admissable_jax.envs.base import EnvState
+from admissable_jax.envs.catalog import ENV_SPECS, CatalogEntry
 from admissable_jax.envs.options import EnvOptions
+from admissable_jax.envs.state import EnvState
 
 _DT = 0.1
 _ESCAPE_RADIUS = 3.0
@@ -25,11 +26,9 @@ class PointMassData:
     velocity: jax.Array  # (2,)
 
 
-class PointMass:
-    name = "point_mass"
-    gymnasium_id = None
+class PointMass(CatalogEntry):
+    spec = ENV_SPECS["point_mass"]
     reward_terms = ("reward_distance",)
-    observation_size = 4
     action_size = 2
 
     def __init__(self, options: EnvOptions | None = None):
@@ -39,10 +38,6 @@ class PointMass:
         self.dt = _DT
         self.action_low = -jnp.ones(2, jnp.float32)
         self.action_high = jnp.ones(2, jnp.float32)
-
-    @classmethod
-    def observation_names(cls) -> list[str]:
-        return ["x", "y", "x velocity", "y velocity"]
 
     @property
     def max_episode_steps(self) -> int:
