@@ -25,19 +25,24 @@ lives here:
 
 from __future__ import annotations
 
+import contextlib
+import io
+
 import jax
 import jax.numpy as jnp
 import mujoco
 
-from admissable_jax.envs.options import import_mjx, warp_installed
-
-mjx = import_mjx()
+# MJX prints an import failure when warp-lang is absent; physics=jax needs no Warp (and
+# physics=warp says clearly when it is missing), so keep that line out of users' output.
+with contextlib.redirect_stdout(io.StringIO()):
+    from mujoco import mjx
 from mujoco.mjx._src import collision_driver, constraint  # noqa: E402
 from mujoco.mjx._src import forward as mjx_forward  # noqa: E402
 from mujoco.mjx._src import scan as mjx_scan  # noqa: E402
 from mujoco.mjx._src.types import IntegratorType  # noqa: E402
 
 from admissable_jax.envs import contact_frames  # noqa: E402
+from admissable_jax.envs.options import warp_installed  # noqa: E402
 
 contact_frames.install()
 if warp_installed():
