@@ -1,11 +1,11 @@
 """Figures from run directories: the paper's Figure 1 and what explains it.
 
-``python -m admissable_jax.plot RUN_DIR ... [window=0] [out=DIR]`` from a shell,
+``python -m admissable_jax.plot RUN_DIR ... [window=0] [out=DIR] [formats=png,pdf]`` from a shell,
 ``plot_runs`` and ``summary_table`` from Python.
 
 ``plot_runs(run_dirs, out_dir)`` groups runs by env, missingness mode and the settings in
 which they differ (:func:`label_variants`: a run with k = 2 is never a seed of a k = 1 curve)
-and draws, as PNG and PDF:
+and draws, as PNG and PDF (``formats``: any matplotlib writes, e.g. ``png,svg``):
 
 * ``min_score.*`` — the paper's Figure 1: min_u a_u against env steps, one line per mode
   (adversarial blue, uniform red, as in the paper; none grey), the mean over seeds of the
@@ -48,6 +48,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.backend_bases import FigureCanvasBase  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy import stats  # noqa: E402
 
@@ -281,8 +282,22 @@ def _heatmap(ax, figure, steps: np.ndarray, values: np.ndarray, names: list[str]
     ax.set_ylim(-0.5, len(names) - 0.5)
 
 
-def _save(figure, out_dir: str, name: str) -> list[str]:
-    paths = [os.path.join(out_dir, f"{name}.{ext}") for ext in ("png", "pdf")]
+DEFAULT_FORMATS = ("png", "pdf")
+
+
+def check_formats(formats: tuple[str, ...]) -> tuple[str, ...]:
+    """``formats`` if matplotlib writes every one of them (and there is one); ValueError naming
+    the formats it writes otherwise."""
+    writable = FigureCanvasBase.get_supported_filetypes()
+    unknown = [name for name in formats if name not in writable]
+    if unknown or not formats:
+        raise ValueError(f"formats: {', '.join(map(repr, unknown)) or 'none given'}: give formats matplotlib writes, "
+                         f"comma separated ({', '.join(sorted(writable))})")
+    return formats
+
+
+def _save(figure, out_dir: str, name: str, formats: tuple[str, ...]) -> list[str]:
+    paths = [os.path.join(out_dir, f"{name}.{ext}") for ext in formats]
     for path in paths:
         figure.savefig(path, dpi=150, bbox_inches="tight")
     plt.close(figure)
@@ -309,10 +324,12 @@ def draw_curves(ax, runs: list[Run], attribute: str, window: int) -> None:
     ax.legend()
 
 
-def plot_envs_side_by_side(run_dirs: list[str], out_dir: str, window: int = 0) -> list[str]:
+def plot_envs_side_by_side(run_dirs: list[str], out_dir: str, window: int = 0,
+                           formats: tuple[str, ...] = DEFAULT_FORMATS) -> list[str]:
     """The paper's Figure 1 as it lays it out: min_u a_u of each env's runs in a panel of its
-    own, side by side (Hopper-v5, Walker2d-v5, Ant-v5 first), as ``figure1.png``/``.pdf`` in
-    ``out_dir``; each env smoothed by its own records (:func:`effective_window`)."""
+    own, side by side (Hopper-v5, Walker2d-v5, Ant-v5 first), as ``figure1.png``/``.pdf`` (or
+    ``formats``) in ``out_dir``; each env smoothed by its own records (:func:`effective_window`)."""
+    check_formats(formats)
     runs = label_variants([load_run(path) for path in run_dirs])
     if not runs:
         raise ValueError("no runs to plot")
@@ -330,12 +347,15 @@ def plot_envs_side_by_side(run_dirs: list[str], out_dir: str, window: int = 0) -
                     f"mean over seeds, smoothed per env ({'; '.join(notes)}); shaded: 95% t-interval over seeds",
                     fontsize=8, y=-0.02, va="top", wrap=True)
     make_directory(out_dir, "figures folder")
-    return _save(figure, out_dir, "figure1")
+    return _save(figure, out_dir, "figure1", formats)
 
 
-def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0) -> list[str]:
-    """Draw the figures for these runs into ``out_dir``; returns the files written.
-    ``window``: records in the moving average (0: the paper's, :func:`effective_window`)."""
+def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0,
+              formats: tuple[str, ...] = DEFAULT_FORMATS) -> list[str]:
+    """Draw the figures for these runs into ``out_dir``, each in every one of ``formats``;
+    returns the files written. ``window``: records in the moving average (0: the paper's,
+    :func:`effective_window`)."""
+    check_formats(formats)
     runs = label_variants([load_run(path) for path in run_dirs])
     if not runs:
         raise ValueError("no runs to plot")
@@ -365,7 +385,7 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0) -> list[str]:
         ax.set_title(f"{envs[0]}: {title}", fontsize=10)
     axes[0].set_ylabel("return")
     figure.suptitle(_figure_caption(runs, window), fontsize=9, y=-0.02, va="top")
-    written += _save(figure, out_dir, "min_score")
+    written += _save(figure, out_dir, "min_score", formats)
 
     for (_, mode, variant), mode_runs in curves.items():
         names = mode_runs[0].set_names
@@ -390,7 +410,7 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0) -> list[str]:
                 _heatmap(ax, figure, steps, values.mean(axis=0), names, label)
                 ax.set_xlabel("env steps (each column one scoring)")
                 ax.set_ylabel("feature (over the pool's sets hiding it)" if mode_runs[0].pooled else "hidden features u")
-            written += _save(figure, out_dir, f"{name}_{mode}" + (f"_{_file_name(variant)}" if variant else ""))
+            written += _save(figure, out_dir, f"{name}_{mode}" + (f"_{_file_name(variant)}" if variant else ""), formats)
 
     # Where each mode is weak at the end: a_u per hidden set, the modes' bars side by side
     # (one figure per candidate-set list: runs of another k have other sets).
@@ -400,7 +420,7 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0) -> list[str]:
     for names, group in groups.items():
         variant = group[0][0].variant
         name = "final_scores" + (f"_{_file_name(variant)}" if len(groups) > 1 and variant else "")
-        written += _save(_final_scores_figure(envs[0], list(names), group), out_dir, name)
+        written += _save(_final_scores_figure(envs[0], list(names), group), out_dir, name, formats)
     return written
 
 
@@ -575,6 +595,8 @@ class PlotConfig:
     window: int = dataclasses.field(default=0, metadata={
         "help": "moving-average window (records); 0: the paper's 40 of 200 records, a fifth of a shorter run's"})
     out: str = dataclasses.field(default="", metadata={"help": "output folder ('' = a new <first path>/figures, figures-2, ...)"})
+    formats: str = dataclasses.field(default=",".join(DEFAULT_FORMATS), metadata={
+        "help": "figure file formats, comma separated: any matplotlib writes (png, pdf, svg, eps, ...)"})
 
 
 def new_folder(path: str) -> str:
@@ -593,6 +615,7 @@ def main(argv: list[str]) -> int:
     if not paths:
         fail("give at least one run directory (or a folder of them)")
     try:
+        formats = check_formats(tuple(name.strip().lower() for name in config.formats.split(",") if name.strip()))
         runs = find_runs(paths)
         if not runs:
             raise ValueError(f"no run directories (config.yaml + scores.jsonl) under {', '.join(paths)}")
@@ -610,9 +633,9 @@ def main(argv: list[str]) -> int:
         written = []  # one env's figures in out_dir, several envs' each in out_dir/<env>
         for env, env_runs in sorted(by_env.items()):
             written += plot_runs([run.path for run in env_runs], out_dir if len(by_env) == 1 else os.path.join(out_dir, env),
-                                 config.window)
+                                 config.window, formats)
         if len(by_env) > 1:  # the paper's layout: every env's min_u a_u side by side
-            written += plot_envs_side_by_side(runs, out_dir, config.window)
+            written += plot_envs_side_by_side(runs, out_dir, config.window, formats)
         table = summary_table(runs)
         comparison = comparison_table(runs)
         provenance = trained_on(runs)

@@ -43,7 +43,7 @@ def test_smoothing_and_interval():
     np.testing.assert_allclose(mean - low, high - mean)
 
 
-def test_plot_runs_writes_every_figure(tmp_path):
+def test_plot_runs_writes_every_figure(tmp_path, capsys):
     for mode in ("adversarial", "uniform"):
         for seed in range(3):
             _fake_run(str(tmp_path / "runs"), mode, seed)
@@ -62,13 +62,20 @@ def test_plot_runs_writes_every_figure(tmp_path):
     assert height("p_miss_uniform") < 450 < height("p_miss_adversarial")
     with pytest.raises(FileNotFoundError):
         find_runs([str(tmp_path / "missing")])
-    # Runs of several envs from the command line: a figures subfolder per env, one summary.
+    # Runs of several envs from the command line: a figures subfolder per env, one summary;
+    # the figures in the formats asked for, a format matplotlib cannot write refused first.
     _fake_run(str(tmp_path / "runs" / "walker"), "uniform", 0, sets=17, env="walker2d")
-    assert main([str(tmp_path / "runs"), f"out={tmp_path / 'both'}"]) == 0
-    assert sorted(os.listdir(tmp_path / "both")) == ["figure1.pdf", "figure1.png", "hopper", "summary.md", "walker2d"]
+    with pytest.raises(SystemExit) as refused:
+        main([str(tmp_path / "runs"), f"out={tmp_path / 'never'}", "formats=png,docx"])
+    error = capsys.readouterr().err.strip()
+    assert refused.value.code == 2 and error.startswith("error: formats: 'docx': give formats matplotlib writes") \
+        and "svg" in error and "\n" not in error and not (tmp_path / "never").exists()
+    assert main([str(tmp_path / "runs"), f"out={tmp_path / 'both'}", "formats=png,SVG"]) == 0
+    assert sorted(os.listdir(tmp_path / "both")) == ["figure1.png", "figure1.svg", "hopper", "summary.md", "walker2d"]
     height, width, _ = imread(os.path.join(tmp_path, "both", "figure1.png")).shape
     assert width > 2 * height  # the paper's layout: a panel per env, side by side
-    assert os.path.isfile(tmp_path / "both" / "walker2d" / "scores_uniform.png")
+    assert sorted(os.listdir(tmp_path / "both" / "walker2d")) == [
+        f"{stem}.{ext}" for stem in ("final_scores", "min_score", "p_miss_uniform", "scores_uniform") for ext in ("png", "svg")]
     summary = (tmp_path / "both" / "summary.md").read_text()
     assert "| walker2d | uniform | 1 |" in summary and "| hopper | adversarial | 3 |" in summary
     assert "hopper: moving average over 2 records (the paper's 40 of 200, scaled to the runs' 12)" in summary
@@ -85,7 +92,7 @@ def test_runs_that_differ_in_settings_are_separate_curves(tmp_path, capsys):
         for seed in range(2):
             _fake_run(str(root / "k1"), mode, seed, physics="jax" if seed else "warp", total_steps=5000 * (seed + 1))
     _fake_run(str(root / "k2"), "adversarial", 0, sets=55, k=2)
-    assert main([str(root), f"out={tmp_path / 'figures'}"]) == 0
+    assert main([str(root), f"out={tmp_path / 'figures'}", "formats=png"]) == 0
     summary = (tmp_path / "figures" / "summary.md").read_text()
     assert [line.split(" | ")[1:3] for line in summary.splitlines() if line.startswith("| hopper | ")][:3] == [
         ["adversarial, k=1", "2"], ["adversarial, k=2", "1"], ["uniform, k=1", "2"]]
@@ -96,7 +103,7 @@ def test_runs_that_differ_in_settings_are_separate_curves(tmp_path, capsys):
         os.listdir(tmp_path / "figures"))
     assert capsys.readouterr().err == ""
     shutil.copytree(root / "k1" / "uniform-s1", root / "copy")
-    assert main([str(root), f"out={tmp_path / 'again'}"]) == 0
+    assert main([str(root), f"out={tmp_path / 'again'}", "formats=png"]) == 0
     assert (f"warning: uniform, k=1 seed 1 is in 2 runs ({root / 'copy'}, {root / 'k1' / 'uniform-s1'}); "
             "each counts as a seed") in capsys.readouterr().err
 
@@ -173,7 +180,7 @@ def test_adversarial_minus_uniform_is_welchs_t(tmp_path):
     assert rows[2][3:5] == ["[-180.9, 62.9]", "0.104"]
     assert comparison_table(paths[:2]) == ""  # one mode: nothing to compare
     # The CLI's summary.md carries it under the per-mode table.
-    assert main([str(tmp_path), f"out={tmp_path / 'figures'}"]) == 0
+    assert main([str(tmp_path), f"out={tmp_path / 'figures'}", "formats=png"]) == 0
     summary = (tmp_path / "figures" / "summary.md").read_text()
     assert "| hopper | final min_u a_u | +41.0 | [-80.9, 162.9] | 0.149 |" in summary
 
@@ -213,7 +220,7 @@ def test_plots_say_what_they_show(tmp_path, capsys):
     # The CLI writes into a new folder each time, never over earlier figures, and its
     # summary says how the figure was smoothed.
     root = str(tmp_path / "runs")
-    assert main([root]) == 0 and main([root, "window=40"]) == 0
+    assert main([root, "formats=png"]) == 0 and main([root, "window=40", "formats=png"]) == 0
     assert sorted(name for name in os.listdir(root) if name.startswith("figures")) == ["figures", "figures-2"]
     with open(os.path.join(root, "figures", "summary.md")) as file:
         assert "moving average over 1 record (the paper's 40 of 200, scaled to the runs' 7)" in file.read()

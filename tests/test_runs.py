@@ -265,7 +265,7 @@ def test_faults_of_long_runs_cost_nothing_finished(tmp_path, monkeypatch, capsys
     for name in ("scores.jsonl", "metrics.jsonl"):
         with open(os.path.join(paused_dir, name), "a") as file:
             file.write('{"env_steps": 1000, "min_score": 12.')
-    assert plot_main([paused_dir, f"out={tmp_path / 'figs'}"]) == 0
+    assert plot_main([paused_dir, f"out={tmp_path / 'figs'}", "formats=png"]) == 0
     with pytest.raises(SystemExit) as refused:
         plot_main([paused_dir, "out=/dev/null/x"])
     assert refused.value.code == 2

@@ -278,7 +278,7 @@ def test_candidate_pool_for_k2_search_draws_and_records(tmp_path):
     run = load_run(config.out)
     assert run.scores.shape == (3, 4) and np.allclose(run.p_miss.sum(axis=1), 2.0)  # each pair counts for 2 features
     assert np.isnan(run.mean_score).all()
-    assert any("scores_adversarial.png" in path for path in plot_runs([config.out], str(tmp_path / "figures")))
+    assert any("scores_adversarial.png" in path for path in plot_runs([config.out], str(tmp_path / "figures"), formats=("png",)))
     assert summary_table([config.out]).splitlines()[-1].split(" | ")[-2] == "—"  # no final mean_u a_u
 
 
