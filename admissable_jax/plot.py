@@ -296,6 +296,11 @@ def check_formats(formats: tuple[str, ...]) -> tuple[str, ...]:
     return formats
 
 
+def parse_formats(text: str) -> tuple[str, ...]:
+    """``"png,SVG"`` -> ``("png", "svg")`` (each once), checked (:func:`check_formats`)."""
+    return check_formats(tuple(dict.fromkeys(name.strip().lower() for name in text.split(",") if name.strip())))
+
+
 def _save(figure, out_dir: str, name: str, formats: tuple[str, ...]) -> list[str]:
     paths = [os.path.join(out_dir, f"{name}.{ext}") for ext in formats]
     for path in paths:
@@ -615,7 +620,7 @@ def main(argv: list[str]) -> int:
     if not paths:
         fail("give at least one run directory (or a folder of them)")
     try:
-        formats = check_formats(tuple(name.strip().lower() for name in config.formats.split(",") if name.strip()))
+        formats = parse_formats(config.formats)
         runs = find_runs(paths)
         if not runs:
             raise ValueError(f"no run directories (config.yaml + scores.jsonl) under {', '.join(paths)}")

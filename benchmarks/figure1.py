@@ -2,7 +2,7 @@
 
     python benchmarks/figure1.py hopper=benchmarks/results/fig1-hopper-1m \\
         walker2d=benchmarks/results/fig1-walker2d-1m ant=benchmarks/results/fig1-ant [window=0] \\
-        [out=benchmarks/results/FIGURE1.md]
+        [out=benchmarks/results/FIGURE1.md] [formats=png,pdf]
 
 Each ``ENV=DIR`` is an experiment's folder (its ``<mode>-s<seed>/`` run directories with
 ``config.yaml`` and ``scores.jsonl``, as ``gpu_campaign.sh`` brings them back). Per env it
@@ -34,7 +34,7 @@ from admissable_jax.cli import fail, parse_args
 from admissable_jax.errors import UnusableDirectory
 from admissable_jax.plot import (
     Difference, Run, comparison_table, differing_settings, find_runs, load_run, mean_and_interval, mode_differences,
-    new_folder, plot_envs_side_by_side, plot_runs, summary_table, trained_on,
+    new_folder, parse_formats, plot_envs_side_by_side, plot_runs, summary_table, trained_on,
 )
 from admissable_jax.provenance import source_commit
 from admissable_jax.run_directory import load_config_yaml
@@ -55,6 +55,8 @@ class Figure1Config:
     window: int = dataclasses.field(default=0, metadata={
         "help": "the figures' moving-average window (records); 0: the paper's 40 of 200, scaled to the runs"})
     out: str = dataclasses.field(default="benchmarks/results/FIGURE1.md", metadata={"help": "the file to write"})
+    formats: str = dataclasses.field(default="png,pdf", metadata={
+        "help": "figure file formats, comma separated (PNG always: the file shows the PNGs)"})
 
 
 def _settings(run_dirs: list[str]) -> str:
@@ -131,7 +133,8 @@ def _cost_line(run_dirs: list[str]) -> str:
     return line
 
 
-def env_section(env: str, folder: str, window: int, out_file: str) -> tuple[str, list[str]]:
+def env_section(env: str, folder: str, window: int, out_file: str,
+                formats: tuple[str, ...] = ("png", "pdf")) -> tuple[str, list[str]]:
     """(the env's Markdown section, one summary row per Difference for the top table)."""
     run_dirs = find_runs([folder])
     if not run_dirs:
@@ -146,7 +149,7 @@ def env_section(env: str, folder: str, window: int, out_file: str) -> tuple[str,
                          "setting per env (plot draws each setting as its own curve)")
     steps = min(int(run.env_steps[-1]) for run in runs)
     figures = new_folder(os.path.join(folder, "figures"))
-    plot_runs(run_dirs, figures, window)
+    plot_runs(run_dirs, figures, window, formats)
     differences = mode_differences(run_dirs).get(env, [])
     partial = "" if steps >= PAPER_STEPS else ", not the paper's 1M"
     figure = os.path.relpath(os.path.join(figures, "min_score.png"), os.path.dirname(os.path.abspath(out_file)))
@@ -174,13 +177,14 @@ def main(argv: list[str]) -> int:
     sections, rows = [], []
     out_folder = os.path.dirname(os.path.abspath(config.out))
     try:
+        formats = parse_formats(f"png,{config.formats}")
         for env, folder in folders.items():
-            section, env_rows = env_section(env, folder, config.window, config.out)
+            section, env_rows = env_section(env, folder, config.window, config.out, formats)
             sections.append(section)
             rows += env_rows
         # The paper's layout, beside FIGURE1.md: every env's min_u a_u in a panel of its own.
         plot_envs_side_by_side([path for folder in folders.values() for path in find_runs([folder])], out_folder,
-                               config.window)
+                               config.window, formats)
     except (ValueError, FileNotFoundError, KeyError, UnusableDirectory) as error:
         fail(str(error))
     command = " ".join(["python", "benchmarks/figure1.py", *argv])

@@ -46,7 +46,7 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys):
     for name in ("adversarial-s0", "uniform-s0"):
         (root / name / "invocations.jsonl").write_text(json.dumps(record) + "\n")
     out = tmp_path / "FIGURE1.md"
-    assert _figure1(f"hopper={root}", "window=2", f"out={out}") == 0
+    assert _figure1(f"hopper={root}", "window=2", f"out={out}", "formats=svg") == 0
     text = out.read_text()
     assert ("Trained on (the runs' `invocations.jsonl`): gpu:NVIDIA H200 × 1, warp physics, jax 0.10.2, mujoco 3.5.0, "
             "warp-lang 1.19.0, commit abc1234 (2 of 2 records).") in text
@@ -60,19 +60,20 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys):
             "SAC at 1M, 2,326 ± 1,130 (v3 envs): clearly below SB3's (our 95% interval lies under its mean − 1 sd).") in text
     assert "(6 runs, 20,000 env steps each, not the paper's 1M)" in text
     assert "![min_u a_u, mean_u a_u and clean return](hopper/figures/min_score.png)" in text
-    assert (root / "figures" / "min_score.png").exists()
     assert "![every env's min_u a_u, as the paper's Figure 1 lays it out](figure1.png)" in text
-    assert (tmp_path / "figure1.png").exists()
+    # The formats asked for, and PNG always (the file shows the PNGs).
+    assert sorted(path.name for path in tmp_path.glob("figure1.*")) == ["figure1.png", "figure1.svg"]
+    assert {path.suffix for path in (root / "figures").iterdir()} == {".png", ".svg"}
 
     within, young = tmp_path / "within", tmp_path / "young"
     for seed, clean in enumerate((1000, 1100)):
         _run_with_minimums(str(within), "none", seed, [1, 2, 3, 4], clean, score_every=250_000)
         _run_with_minimums(str(young), "none", seed, [1, 2, 3, 4], clean)
-    assert _figure1(f"hopper={within}", f"out={out}") == 0
+    assert _figure1(f"hopper={within}", f"out={out}", "formats=png") == 0
     assert "Trained on: not recorded (runs written before `invocations.jsonl`)." in out.read_text()
     assert ("final clean return 1050.0 [414.7, 1685.3] against the SB3 RL-Zoo SAC at 1M, 2,326 ± 1,130 (v3 envs): "
             "within SB3's spread (our 95% interval reaches its mean ± 1 sd).") in out.read_text()
-    assert _figure1(f"hopper={young}", f"out={out}") == 0
+    assert _figure1(f"hopper={young}", f"out={out}", "formats=png") == 0
     assert "(v3 envs): not comparable yet (at 20,000 env steps, not the reference's 1M)." in out.read_text()
 
     # A folder given for the wrong env (the command itself, as a user runs it), or none at

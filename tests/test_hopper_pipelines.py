@@ -172,7 +172,7 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     # Step 5 on what came back: FIGURE1.md from the unpacked runs, computed, never typed in.
     with tarfile.open(os.path.join(directory, "out", "campaign-hopper.tar.gz")) as tar:
         tar.extractall(tmp_path / "back", filter="data")
-    assert _figure1(f"hopper={tmp_path / 'back' / 'hopper'}", "window=2", f"out={tmp_path / 'FIGURE1.md'}") == 0
+    assert _figure1(f"hopper={tmp_path / 'back' / 'hopper'}", "window=2", f"out={tmp_path / 'FIGURE1.md'}", "formats=png") == 0
     text = (tmp_path / "FIGURE1.md").read_text()
     assert "(3 runs, 80 env steps each, not the paper's 1M)" in text
     assert "AUC min_u a_u: adversarial − uniform = " in text and "(one seed in a mode: no test)" in text
