@@ -303,9 +303,13 @@ def parse_formats(text: str) -> tuple[str, ...]:
 
 def _save(figure, out_dir: str, name: str, formats: tuple[str, ...]) -> list[str]:
     paths = [os.path.join(out_dir, f"{name}.{ext}") for ext in formats]
-    for path in paths:
-        figure.savefig(path, dpi=150, bbox_inches="tight")
-    plt.close(figure)
+    try:
+        for path in paths:
+            figure.savefig(path, dpi=150, bbox_inches="tight")
+    except (RuntimeError, OSError) as error:  # pgf without LaTeX, a full disk: one line, figures so far kept
+        raise ValueError(f"cannot write {path}: {str(error).splitlines()[0]}") from error
+    finally:
+        plt.close(figure)
     return paths
 
 

@@ -185,7 +185,7 @@ def test_adversarial_minus_uniform_is_welchs_t(tmp_path):
     assert "| hopper | final min_u a_u | +41.0 | [-80.9, 162.9] | 0.149 |" in summary
 
 
-def test_plots_say_what_they_show(tmp_path, capsys):
+def test_plots_say_what_they_show(tmp_path, capsys, monkeypatch):
     """Window, cell positions, feature names, seed counts and the output folder."""
     paths = [_fake_run(str(tmp_path / "runs"), "adversarial", seed, records=7) for seed in range(2)]
     runs = [load_run(path) for path in paths]
@@ -231,6 +231,19 @@ def test_plots_say_what_they_show(tmp_path, capsys):
     assert exit_info.value.code == 2
     assert capsys.readouterr().err.strip().splitlines()[-1] == ("error: window must be an int >= 0 (0: the paper's "
                                                                  "40 of 200 records, scaled to the runs), got -1")
+    # A figure that cannot be written (pgf without LaTeX, a full disk): one line, exit 2.
+    from matplotlib.figure import Figure
+
+    def no_latex(*args, **kwargs):
+        raise RuntimeError("'xelatex' not found; install it\nor change rcParams")
+
+    monkeypatch.setattr(Figure, "savefig", no_latex)
+    with pytest.raises(SystemExit) as exit_info:
+        main([root, f"out={tmp_path / 'pgf'}", "formats=pgf"])
+    assert exit_info.value.code == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        f"error: cannot write {tmp_path / 'pgf' / 'min_score.pgf'}: 'xelatex' not found; install it")
+    monkeypatch.undo()
     # Rows that do not hold one score per candidate set: one line naming the file, exit 2.
     narrow = _fake_run(str(tmp_path / "narrow"), "uniform", 0, records=2, sets=3)
     with pytest.raises(SystemExit) as exit_info:
