@@ -68,7 +68,7 @@ from admissable_jax.method import candidate_sets, num_candidate_sets
 from admissable_jax.scoring import SCORE_ESTIMATORS
 from admissable_jax.scoring.attribution import MIN_ORDERS, ShapleyAttribution, ShapleyPlan, plan_shapley, \
     shapley_attribution
-from admissable_jax.scoring.worst_set import episodes_to_separate, gap_above, t_half_width
+from admissable_jax.scoring.worst_set import gap_above, samples_to_separate, t_half_width
 
 if TYPE_CHECKING:  # for the annotations only
     from admissable_jax.envs import MjxEnv
@@ -213,12 +213,12 @@ class AuditResult:
 
     def episodes_to_separate(self, k: int) -> int | None:
         """N per set that would tell the worst set of size k from the runner-up (80% power at
-        the gap and spread seen; :func:`~admissable_jax.scoring.worst_set.episodes_to_separate`).
+        the gap and spread seen; :func:`~admissable_jax.scoring.worst_set.samples_to_separate`).
         None with one set, or where the two sets' returns do not differ."""
         if len(self.sets[k]) < 2:
             return None
         worst, runner_up = self.worst(k, 2)
-        return episodes_to_separate(worst.returns, runner_up.returns, self.same_starts)
+        return samples_to_separate(worst.returns, runner_up.returns, self.same_starts)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -60,6 +60,7 @@ from admissable_jax.method import parse_set  # noqa: E402
 from admissable_jax.missingness import candidate_sets  # noqa: E402
 from admissable_jax.provenance import INVOCATIONS  # noqa: E402
 from admissable_jax.run_directory import TornLine, load_config_yaml, read_jsonl  # noqa: E402
+from admissable_jax.scoring.worst_set import samples_to_separate  # noqa: E402
 
 MODE_COLORS = {"adversarial": "tab:blue", "uniform": "tab:red", "none": "tab:gray"}
 # Figure 1's smoothing: "a moving average over 40 records" of a 1M-step run scored every ζ = 5000.
@@ -538,6 +539,17 @@ class Difference:
             return "uniform higher"
         return "not distinguishable (95% interval holds 0)"
 
+    def seeds_to_separate(self) -> int | None:
+        """Where these seeds cannot tell the modes apart (the 95% interval holds 0), the seeds
+        per mode that would at the difference and spread seen (80% power, two-sided 5% t-test;
+        :func:`~admissable_jax.scoring.worst_set.samples_to_separate`); else None, as with
+        fewer than 2 seeds in a mode or modes that neither differ nor vary."""
+        interval = self.interval()
+        if interval is None or not interval[0] <= 0 <= interval[1]:
+            return None
+        low, high = sorted((self.uniform, self.adversarial), key=np.mean)
+        return samples_to_separate(low, high, paired=False)
+
     def cells(self) -> str:
         """A markdown table's cells: difference | 95% interval | p | reading."""
         interval = self.interval()
@@ -580,6 +592,17 @@ def comparison_table(run_dirs: list[str]) -> str:
         for difference in rows:
             lines.append(f"| {env} | {difference.metric} | {difference.cells()} |")
     return "\n".join(lines) + "\n"
+
+
+def seeds_note(run_dirs: list[str]) -> str:
+    """A sentence under the comparison: for each difference the seeds cannot tell from 0, the
+    seeds per mode that would (:meth:`Difference.seeds_to_separate`); '' where there is none."""
+    needed = [f"{env} {difference.metric}: {seeds}" for env, rows in mode_differences(run_dirs).items()
+              for difference in rows if (seeds := difference.seeds_to_separate()) is not None]
+    if not needed:
+        return ""
+    return ("Seeds per mode that would tell adversarial from uniform apart where these cannot (80% power at the "
+            f"difference and spread seen, two-sided 5% t-test): {'; '.join(needed)}.\n")
 
 
 def trained_on(run_dirs: list[str]) -> str:
@@ -647,6 +670,7 @@ def main(argv: list[str]) -> int:
             written += plot_envs_side_by_side(runs, out_dir, config.window, formats)
         table = summary_table(runs)
         comparison = comparison_table(runs)
+        seeds = seeds_note(runs)
         provenance = trained_on(runs)
     except (ValueError, FileNotFoundError, KeyError, UnusableDirectory) as error:
         fail(str(error))
@@ -655,7 +679,7 @@ def main(argv: list[str]) -> int:
               f"\n{provenance}\n")
     if comparison:
         table += ("\nAdversarial − uniform, per env (over the records both modes share; seeds independent, "
-                  "so Welch's t):\n\n" + comparison)
+                  "so Welch's t):\n\n" + comparison + (f"\n{seeds}" if seeds else ""))
     with open(os.path.join(out_dir, "summary.md"), "w") as file:
         file.write(table)
     print(table)

@@ -24,6 +24,7 @@ from admissable_jax.audit import audit, main as audit_main
 from admissable_jax.policies import load_policy
 from admissable_jax.scoring import beam_search_worst_sets, estimate_scores
 from admissable_jax.scoring.attribution import ShapleyPlan, plan_shapley, shapley_attribution
+from admissable_jax.scoring.worst_set import samples_to_separate
 
 ENV = make_env("point_mass", episode_length=12)
 SETS = jnp.asarray(candidate_sets(4, k=1))
@@ -187,7 +188,7 @@ def test_shapley_attribution_by_hand_and_over_every_order():
 def test_gaps_to_the_worst_paired_and_by_welch(tmp_path):
     """Each set's gap above the worst: paired where the sets share start states (scipy's
     ttest_rel interval), Welch's otherwise (ttest_ind's); the sets not told apart, and the
-    episodes that would tell the runner-up apart: ((z_0.975 + z_0.8) · s / gap)²; an
+    episodes that would tell the runner-up apart: the least n with n ≥ ((t_0.975 + t_0.8) · s / gap)²; an
     experiment's comparison of pairs audited with different N."""
     from scipy import stats
 
@@ -205,9 +206,11 @@ def test_gaps_to_the_worst_paired_and_by_welch(tmp_path):
             low, high = test(gap.entry.returns, returns[(0,)]).confidence_interval()
             assert (gap.gap, gap.ci95) == pytest.approx(((low + high) / 2, (high - low) / 2))
         assert [gap.tied for gap in gaps[1:]] == ([False, False] if paired else [True, False])
-        differences = np.subtract(returns[(1,)], returns[(0,)])
-        spread = differences.std(ddof=1) if paired else np.sqrt(np.var(returns[(0,)], ddof=1) + np.var(returns[(1,)], ddof=1))
-        assert result.episodes_to_separate(1) == math.ceil((2.8016 * spread / 1.0) ** 2)  # the gap: 14.0 - 13.0
+        # The gap 14.0 − 13.0 = 1. Paired: the differences 1, 1, 0.5, 1.5 have s² = 1/6; n = 3 gives
+        # (t_0.975 + t_0.8 at 2 df)² s² = (4.303 + 1.061)² / 6 = 4.8 > 3, n = 4 gives (3.182 +
+        # 0.978)² / 6 = 2.9 <= 4 (the normal approximation said 2). Welch: s² = 6.667 + 7.5 =
+        # 14.17; n = 112 gives (1.9707 + 0.8434)² · 14.17 = 112.2 (at about 221 df), n = 113 about the same, <= 113.
+        assert result.episodes_to_separate(1) == (4 if paired else 113)
         write_audit(result, str(tmp_path / str(paired)))
         report = (tmp_path / str(paired) / "report.md").read_text()
         assert f"| 2 | f1 | 1 | 14.0 ± 0.0 | 0.0% | +{gaps[1].gap:.1f} ± {gaps[1].ci95:.1f} |" in report
@@ -423,7 +426,7 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
     pairs = jnp.asarray(candidate_sets(4, 2))
     pilot = score_missingness(ENV, policy.trainer.policy, policy.actor_params, jax.random.key(4), pairs, 4)
     worst, runner_up = np.asarray(pilot.returns)[np.argsort(pilot.scores)[:2]]
-    needed = max(2, math.ceil((2.8016 * np.std(runner_up - worst, ddof=1) / (runner_up - worst).mean()) ** 2))
+    needed = samples_to_separate(worst, runner_up, paired=True)
     assert chosen["pilot"] == {"episodes": 4, "seed": 4, "needed": {"2": needed}, "chosen": chosen["n_episodes"], "most": 1000}
     assert chosen["n_episodes"] == min(max(4, needed), 1000)
     direct = score_missingness(ENV, policy.trainer.policy, policy.actor_params, jax.random.key(5), pairs, chosen["n_episodes"])

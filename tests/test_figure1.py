@@ -55,7 +55,8 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys):
             "1M env steps projected at 900 s (15.0 min): the remaining 196 scorings") in text
     assert "| hopper | 20,000 | final min_u a_u | +41.0 | not distinguishable (95% interval holds 0) |" in text
     assert ("- final min_u a_u: adversarial − uniform = +41.0 [-80.9, 162.9], p = 0.149: the seeds cannot tell "
-            "the modes apart (the 95% interval holds 0).") in text
+            "the modes apart (the 95% interval holds 0); about 4 seeds per mode would (80% power at the difference "
+            "and spread seen).") in text
     assert ("Clean SAC (mode `none`, 2 seeds): final clean return 550.0 [-85.3, 1185.3] against the SB3 RL-Zoo "
             "SAC at 1M, 2,326 ± 1,130 (v3 envs): clearly below SB3's (our 95% interval lies under its mean − 1 sd).") in text
     assert "(6 runs, 20,000 env steps each, not the paper's 1M)" in text
