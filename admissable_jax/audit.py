@@ -986,9 +986,10 @@ def compare_modes(results: list[AuditResult]) -> str:
     """Markdown: per k and mode, the pairs' worst a_u, their mean a_u over the sets (the
     average case; not for a searched k) and clean return (mean ± 95% t-interval over seeds)
     and the set most often worst; then adversarial − uniform per k on the worst and the mean
-    (Welch's t: the seeds of one mode are independent of the other's); where every pair
+    (Welch's t: the seeds of one mode are independent of the other's), with the seeds per mode
+    that would tell apart what these cannot (:func:`~admissable_jax.plot.seeds_sentence`); where every pair
     was audited with ``shapley=``, each feature's Shapley value per mode."""
-    from admissable_jax.plot import Difference, estimate
+    from admissable_jax.plot import Difference, estimate, seeds_sentence
 
     by_mode: dict[str, list[AuditResult]] = {}
     for result in results:
@@ -1014,11 +1015,13 @@ def compare_modes(results: list[AuditResult]) -> str:
     if {"adversarial", "uniform"} <= set(by_mode):
         lines += ["", "| k | measure | adversarial − uniform | 95% interval (Welch) | p (two-sided) | reading |",
                   "|---|---|---|---|---|---|"]
-        for k in first.sets:
-            for name, per_mode in measures.items():
-                if not np.isnan(per_mode["adversarial"][k]).any():
-                    difference = Difference(f"{name}, k={k}", per_mode["adversarial"][k], per_mode["uniform"][k])
-                    lines.append(f"| {k} | {name} | {difference.cells()} |")
+        compared = [(k, name, Difference(f"k={k} {name}", per_mode["adversarial"][k], per_mode["uniform"][k]))
+                    for k in first.sets for name, per_mode in measures.items()
+                    if not np.isnan(per_mode["adversarial"][k]).any()]
+        lines += [f"| {k} | {name} | {difference.cells()} |" for k, name, difference in compared]
+        sentence = seeds_sentence([(difference.metric, difference) for _, _, difference in compared])
+        if sentence:
+            lines += ["", sentence.rstrip()]
     if all(result.shapley is not None for result in results):
         lines += _shapley_by_mode(by_mode, first.feature_names)
     return "\n".join(lines) + "\n"

@@ -594,15 +594,22 @@ def comparison_table(run_dirs: list[str]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def seeds_note(run_dirs: list[str]) -> str:
-    """A sentence under the comparison: for each difference the seeds cannot tell from 0, the
-    seeds per mode that would (:meth:`Difference.seeds_to_separate`); '' where there is none."""
-    needed = [f"{env} {difference.metric}: {seeds}" for env, rows in mode_differences(run_dirs).items()
-              for difference in rows if (seeds := difference.seeds_to_separate()) is not None]
+def seeds_sentence(differences: list[tuple[str, Difference]]) -> str:
+    """A sentence under a comparison: for each labelled difference the seeds cannot tell from
+    0, the seeds per mode that would (:meth:`Difference.seeds_to_separate`; "over 1,000": a
+    difference small against the seeds' spread); '' where there is none."""
+    needed = [f"{label}: {seeds:,}" if seeds <= 1000 else f"{label}: over 1,000" for label, difference in differences
+              if (seeds := difference.seeds_to_separate()) is not None]
     if not needed:
         return ""
     return ("Seeds per mode that would tell adversarial from uniform apart where these cannot (80% power at the "
             f"difference and spread seen, two-sided 5% t-test): {'; '.join(needed)}.\n")
+
+
+def seeds_note(run_dirs: list[str]) -> str:
+    """:func:`seeds_sentence` for :func:`comparison_table`'s rows."""
+    return seeds_sentence([(f"{env} {difference.metric}", difference)
+                           for env, rows in mode_differences(run_dirs).items() for difference in rows])
 
 
 def trained_on(run_dirs: list[str]) -> str:

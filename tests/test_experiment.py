@@ -14,7 +14,7 @@ from nbclient import NotebookClient
 from admissable_jax import mask_observation
 from admissable_jax.config import ExperimentConfig, pair_configs
 from admissable_jax.experiment import run_experiment
-from admissable_jax.plot import estimate, find_runs, plot_runs
+from admissable_jax.plot import Difference, estimate, find_runs, plot_runs
 from admissable_jax.memory import MemoryBudgetExceeded
 from admissable_jax.audit import AuditConfig, audit_experiment, audit_run
 from admissable_jax.audit import main as audit_main  # the command line, in this process
@@ -79,6 +79,11 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys):
         assert f"| {k} | worst a_u | {gap:+.1f} | [" in differences
         gap = np.mean([np.mean([e.score for e in r.sets[k]]) for r in results[:2]]) - np.mean(average)
         assert f"| {k} | mean a_u | {gap:+.1f} | [" in differences
+        # 2 seeds per mode cannot tell the modes' worst a_u apart here (the same in both, to
+        # about 0.0 ± 13), and far more seeds would be needed than the sentence counts.
+        adversarial = [min(e.score for e in r.sets[k]) for r in results[:2]]
+        assert Difference("", np.array(adversarial), np.array(worst)).seeds_to_separate() > 1000
+        assert f"k={k} worst a_u: over 1,000" in differences.split("Seeds per mode that would tell")[1]
     worth = comparison.split("## What each feature is worth, per mode")[1]  # φ_i per mode, over its pairs
     for i, name in enumerate(["x", "y", "x velocity", "y velocity"]):
         by_mode = [estimate(np.array([result.shapley.values[i] for result in pairs])) for pairs in (results[:2], results[2:])]
