@@ -550,6 +550,14 @@ class Difference:
         low, high = sorted((self.uniform, self.adversarial), key=np.mean)
         return samples_to_separate(low, high, paired=False)
 
+    def seeds_needed(self) -> str | None:
+        """:meth:`seeds_to_separate` in words: "about 4", or "over 1,000" (a difference small
+        against the seeds' spread); None where it is None."""
+        seeds = self.seeds_to_separate()
+        if seeds is None:
+            return None
+        return f"about {seeds:,}" if seeds <= 1000 else "over 1,000"
+
     def cells(self) -> str:
         """A markdown table's cells: difference | 95% interval | p | reading."""
         interval = self.interval()
@@ -596,10 +604,8 @@ def comparison_table(run_dirs: list[str]) -> str:
 
 def seeds_sentence(differences: list[tuple[str, Difference]]) -> str:
     """A sentence under a comparison: for each labelled difference the seeds cannot tell from
-    0, the seeds per mode that would (:meth:`Difference.seeds_to_separate`; "over 1,000": a
-    difference small against the seeds' spread); '' where there is none."""
-    needed = [f"{label}: {seeds:,}" if seeds <= 1000 else f"{label}: over 1,000" for label, difference in differences
-              if (seeds := difference.seeds_to_separate()) is not None]
+    0, the seeds per mode that would (:meth:`Difference.seeds_needed`); '' where there is none."""
+    needed = [f"{label}: {seeds}" for label, difference in differences if (seeds := difference.seeds_needed())]
     if not needed:
         return ""
     return ("Seeds per mode that would tell adversarial from uniform apart where these cannot (80% power at the "

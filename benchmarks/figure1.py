@@ -79,9 +79,9 @@ def _verdict(difference: Difference) -> str:
     words = {"adversarial higher": "adversarial training is higher, and 0 lies outside the 95% interval",
              "uniform higher": "uniform training is higher, and 0 lies outside the 95% interval",
              }.get(difference.reading(), "the seeds cannot tell the modes apart (the 95% interval holds 0)")
-    seeds = difference.seeds_to_separate()
-    if seeds is not None:
-        words += f"; about {seeds} seeds per mode would (80% power at the difference and spread seen)"
+    seeds = difference.seeds_needed()
+    if seeds:
+        words += f"; {seeds} seeds per mode would (80% power at the difference and spread seen)"
     return f"{difference.metric}: adversarial − uniform = {difference.mean:+.1f} [{low:.1f}, {high:.1f}], p = {p:.3g}: {words}."
 
 
