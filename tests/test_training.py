@@ -250,16 +250,16 @@ def test_candidate_pool_for_k2_search_draws_and_records(tmp_path):
     # Draws: adversarial with a fixed pool and p_miss, then uniform; the pool changes mid-run.
     pool, p_miss = jnp.array([0, 2, 5]), jnp.array([0.6, 0.3, 0.1])
 
+    def record(state, t):
+        state = state.replace(pool=jnp.where(t == 150, jnp.array([1, 3, 4]), state.pool))
+        state, _ = trainer.iteration(state)
+        return state, (state.set_index, state.env_states.step_count)
+
+    record_300 = jax.jit(lambda start: jax.lax.scan(record, start, jnp.arange(300))[1])  # both modes: one compile
+
     def draws(adversarial):
         start = trainer.init(1, adversarial, True).replace(pool=pool, p_miss=p_miss)
-
-        def record(state, t):
-            state = state.replace(pool=jnp.where(t == 150, jnp.array([1, 3, 4]), state.pool))
-            state, _ = trainer.iteration(state)
-            return state, (state.set_index, state.env_states.step_count)
-
-        _, (set_index, step_count) = jax.jit(lambda s: jax.lax.scan(record, s, jnp.arange(300)))(start)
-        set_index, step_count = np.asarray(set_index), np.asarray(step_count)
+        set_index, step_count = (np.asarray(values) for values in record_300(start))
         starts = step_count[1:] == 0
         assert not ((set_index[1:] != set_index[:-1]) & ~starts).any(), "u changed within an episode"
         return set_index[1:][starts & (np.arange(1, 300) < 150)[:, None]]
