@@ -591,7 +591,11 @@ def mode_differences(run_dirs: list[str]) -> dict[str, list[Difference]]:
 
 def comparison_table(run_dirs: list[str]) -> str:
     """Markdown: adversarial − uniform per env and metric (Welch), '' without both modes."""
-    differences = mode_differences(run_dirs)
+    return format_comparison(mode_differences(run_dirs))
+
+
+def format_comparison(differences: dict[str, list[Difference]]) -> str:
+    """:func:`comparison_table` from :func:`mode_differences`' result."""
     if not differences:
         return ""
     lines = ["| env | metric | adversarial − uniform | 95% interval (Welch) | p (two-sided) | reading |",
@@ -612,10 +616,10 @@ def seeds_sentence(differences: list[tuple[str, Difference]]) -> str:
             f"difference and spread seen, two-sided 5% t-test): {'; '.join(needed)}.\n")
 
 
-def seeds_note(run_dirs: list[str]) -> str:
-    """:func:`seeds_sentence` for :func:`comparison_table`'s rows."""
+def seeds_note(differences: dict[str, list[Difference]]) -> str:
+    """:func:`seeds_sentence` for :func:`format_comparison`'s rows."""
     return seeds_sentence([(f"{env} {difference.metric}", difference)
-                           for env, rows in mode_differences(run_dirs).items() for difference in rows])
+                           for env, rows in differences.items() for difference in rows])
 
 
 def trained_on(run_dirs: list[str]) -> str:
@@ -682,8 +686,8 @@ def main(argv: list[str]) -> int:
         if len(by_env) > 1:  # the paper's layout: every env's min_u a_u side by side
             written += plot_envs_side_by_side(runs, out_dir, config.window, formats)
         table = summary_table(runs)
-        comparison = comparison_table(runs)
-        seeds = seeds_note(runs)
+        differences = mode_differences(runs)  # the runs read once for the table and the seeds' sentence
+        comparison, seeds = format_comparison(differences), seeds_note(differences)
         provenance = trained_on(runs)
     except (ValueError, FileNotFoundError, KeyError, UnusableDirectory) as error:
         fail(str(error))

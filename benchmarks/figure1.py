@@ -33,7 +33,7 @@ import numpy as np
 from admissable_jax.cli import fail, parse_args
 from admissable_jax.errors import UnusableDirectory
 from admissable_jax.plot import (
-    Difference, Run, comparison_table, differing_settings, find_runs, load_run, mean_and_interval, mode_differences,
+    Difference, Run, differing_settings, find_runs, format_comparison, load_run, mean_and_interval, mode_differences,
     new_folder, parse_formats, plot_envs_side_by_side, plot_runs, summary_table, trained_on,
 )
 from admissable_jax.provenance import source_commit
@@ -153,14 +153,15 @@ def env_section(env: str, folder: str, window: int, out_file: str,
     steps = min(int(run.env_steps[-1]) for run in runs)
     figures = new_folder(os.path.join(folder, "figures"))
     plot_runs(run_dirs, figures, window, formats)
-    differences = mode_differences(run_dirs).get(env, [])
+    compared = mode_differences(run_dirs)
+    differences = compared.get(env, [])
     partial = "" if steps >= PAPER_STEPS else ", not the paper's 1M"
     figure = os.path.relpath(os.path.join(figures, "min_score.png"), os.path.dirname(os.path.abspath(out_file)))
     lines = [
         f"## {env}", "",
         f"Runs: `{folder}` ({len(run_dirs)} runs, {steps:,} env steps each{partial}). "
         f"Settings: {_settings(run_dirs)}.", "",
-        summary_table(run_dirs), comparison_table(run_dirs) or "Not both adversarial and uniform runs: no comparison.\n",
+        summary_table(run_dirs), format_comparison(compared) or "Not both adversarial and uniform runs: no comparison.\n",
         "**Verdict (computed):**", "",
         *(f"- {_verdict(difference)}" for difference in differences),
         f"- {_clean_sac_line(env, runs)}", "",
