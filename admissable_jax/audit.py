@@ -65,6 +65,7 @@ from tqdm.auto import tqdm
 from admissable_jax.cli import enable_compilation_cache, parse_args, reporting, run_from_cli, setting
 from admissable_jax.errors import make_directory
 from admissable_jax.method import candidate_sets, num_candidate_sets
+from admissable_jax.results import Difference, estimate, mean_and_interval, seeds_sentence
 from admissable_jax.scoring import SCORE_ESTIMATORS
 from admissable_jax.scoring.attribution import MIN_ORDERS, ShapleyAttribution, ShapleyPlan, plan_shapley, \
     shapley_attribution
@@ -955,7 +956,7 @@ def _comparison_chart(results: list[AuditResult], path: str) -> str:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from admissable_jax.plot import MODE_COLORS, mean_and_interval
+    from admissable_jax.plot import MODE_COLORS
 
     worst = _worst_by_mode(results)
     ks, modes = list(results[0].sets), sorted(worst)
@@ -987,10 +988,8 @@ def compare_modes(results: list[AuditResult]) -> str:
     average case; not for a searched k) and clean return (mean ± 95% t-interval over seeds)
     and the set most often worst; then adversarial − uniform per k on the worst and the mean
     (Welch's t: the seeds of one mode are independent of the other's), with the seeds per mode
-    that would tell apart what these cannot (:func:`~admissable_jax.plot.seeds_sentence`); where every pair
+    that would tell apart what these cannot (:func:`~admissable_jax.results.seeds_sentence`); where every pair
     was audited with ``shapley=``, each feature's Shapley value per mode."""
-    from admissable_jax.plot import Difference, estimate, seeds_sentence
-
     by_mode: dict[str, list[AuditResult]] = {}
     for result in results:
         by_mode.setdefault(result.source["mode"], []).append(result)
@@ -1038,8 +1037,6 @@ def _episodes_per_set(results: list[AuditResult]) -> str:
 def _shapley_by_mode(by_mode: dict[str, list[AuditResult]], names: list[str], most: int = 20) -> list[str]:
     """Markdown: each feature's Shapley value per mode, mean ± 95% t-interval over the
     mode's pairs; the ``most`` features of largest mean |φ_i| over every pair, largest φ first."""
-    from admissable_jax.plot import estimate
-
     values = {mode: np.array([result.shapley.values for result in group]) for mode, group in sorted(by_mode.items())}
     overall = np.concatenate(list(values.values())).mean(axis=0)
     shown = sorted(sorted(range(len(names)), key=lambda i: -abs(overall[i]))[:most], key=lambda i: -overall[i])

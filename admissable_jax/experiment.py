@@ -11,7 +11,9 @@ over every process's devices (:mod:`admissable_jax.placement`). Each pair writes
 run directory ``<out>/<mode>-s<seed>`` in the format of ``train`` (``config.yaml``,
 ``scores.jsonl``, ``metrics.jsonl``), written by the process that holds it; the experiment
 keeps one orbax checkpoint of the whole batch in ``<out>/checkpoints`` and resumes as one
-unit, onto the same device count or another.
+unit, onto the same device count or another. It ends with what the runs found
+(:func:`report`): per mode the final and area-under-curve min_u a_u, and adversarial −
+uniform with Welch's interval, as ``plot`` writes them to its ``summary.md``.
 Before anything is allocated the programs are compiled and their memory counted; an
 experiment that would not fit stops with a one-line message (``budget_only=true`` prints
 the budget and stops there).
@@ -34,6 +36,7 @@ from admissable_jax.config import ExperimentConfig, TrainConfig, config_file_of,
 from admissable_jax.errors import make_directory, remove_if_unused
 from admissable_jax.host_loop import TrainingLoop, make_trainer, mode_flags
 from admissable_jax.placement import PairPlacement, initialize_distributed
+from admissable_jax.results import comparison_section, mode_differences, summary_table
 from admissable_jax.run_directory import RunDirectory, load_config
 from admissable_jax.train import TrainResult
 
@@ -100,6 +103,17 @@ def check_same_pairs(config, pairs: list[TrainConfig], experiment_yaml: str) -> 
                          f"{names(saved)}, this one {names(wanted)} (keep seeds, first_seed and modes)")
 
 
+def report(run_dirs: list[str], root: str) -> str:
+    """What the pairs found, in the paper's terms: per mode final and area-under-curve
+    min_u a_u, mean_u a_u and the clean return (mean ± 95% interval over seeds); where both
+    adversarial and uniform ran, their difference with Welch's interval and, if the seeds
+    cannot tell them apart, how many would (:mod:`admissable_jax.results`, as ``plot``'s
+    ``summary.md``); then the command that draws the figures."""
+    comparison = comparison_section(mode_differences(run_dirs))
+    return (summary_table(run_dirs) + (f"\n{comparison}" if comparison else "")
+            + f"\nfigures and summary.md: python -m admissable_jax.plot {root}")
+
+
 def main(argv: list[str]) -> int:
     config = parse_args(
         ExperimentConfig, argv, "admissable_jax.experiment",
@@ -112,6 +126,9 @@ def main(argv: list[str]) -> int:
         return status
     for result in results:
         print(result.summary())
+    pairs = pair_configs(config)
+    if results and len(results) == len(pairs):  # every pair's directory is this process's
+        print("\n" + report([result.run_dir for result in results], experiment_dir(pairs)))
     return 0
 
 

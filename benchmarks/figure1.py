@@ -32,9 +32,10 @@ import numpy as np
 
 from admissable_jax.cli import fail, parse_args
 from admissable_jax.errors import UnusableDirectory
-from admissable_jax.plot import (
+from admissable_jax.plot import new_folder, parse_formats, plot_envs_side_by_side, plot_runs
+from admissable_jax.results import (
     Difference, Run, differing_settings, find_runs, format_comparison, load_run, mean_and_interval, mode_differences,
-    new_folder, parse_formats, plot_envs_side_by_side, plot_runs, summary_table, trained_on,
+    summary_table, trained_on,
 )
 from admissable_jax.provenance import source_commit
 from admissable_jax.run_directory import load_config_yaml

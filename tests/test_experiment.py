@@ -13,8 +13,10 @@ from nbclient import NotebookClient
 
 from admissable_jax import mask_observation
 from admissable_jax.config import ExperimentConfig, pair_configs
+from admissable_jax.experiment import main as experiment_main
 from admissable_jax.experiment import run_experiment
-from admissable_jax.plot import Difference, estimate, find_runs, plot_runs
+from admissable_jax.plot import plot_runs
+from admissable_jax.results import Difference, estimate, find_runs
 from admissable_jax.memory import MemoryBudgetExceeded
 from admissable_jax.audit import AuditConfig, audit_experiment, audit_run
 from admissable_jax.audit import main as audit_main  # the command line, in this process
@@ -100,8 +102,19 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys):
     assert sorted(os.listdir(os.path.join(resumed_root, "checkpoints"))) == ["1000", "2000"]
     with pytest.raises(FileExistsError, match="resume=true"):
         run_experiment(ExperimentConfig(**EXPERIMENT, total_steps=3000, out=resumed_root))
-    run_experiment(ExperimentConfig(**EXPERIMENT, total_steps=3000, out=resumed_root, resume=True))
+    # Resumed from the command line, which ends with what the pairs found: the summary per mode
+    # and adversarial − uniform, as plot's summary.md has them.
+    argv = [f"{key}={str(value).lower() if isinstance(value, bool) else value}" for key, value in EXPERIMENT.items()]
+    assert experiment_main([*argv, "total_steps=3000", f"out={resumed_root}", "resume=true"]) == 0
     assert _scores(resumed_root) == _scores(str(tmp_path / "straight"))
+    said = capsys.readouterr().out
+    final_min = {mode: np.array([r.scores[-1]["min_score"] for r in straight if r.config.missingness == mode])
+                 for mode in ("adversarial", "uniform")}
+    for mode, values in final_min.items():
+        assert f"| point_mass | {mode} | 2 | 3000 | {estimate(values)} | " in said
+    difference = Difference("final min_u a_u", final_min["adversarial"], final_min["uniform"])
+    assert f"| point_mass | final min_u a_u | {difference.cells()} |" in said.split("Adversarial − uniform")[1]
+    assert said.rstrip().endswith(f"figures and summary.md: python -m admissable_jax.plot {resumed_root}")
 
     written = plot_runs(find_runs([resumed_root]), str(tmp_path / "figures"), window=2, formats=("png",))
     assert {os.path.basename(path) for path in written} >= {"min_score.png", "p_miss_adversarial.png"}

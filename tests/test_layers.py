@@ -16,7 +16,7 @@ LAYERS = [
     {"missingness", "adversary"},
     {"agent", "scoring", "config", "run_spec"},
     {"training"},  # the pure core
-    {"run_directory", "host_loop"},
+    {"run_directory", "host_loop", "results"},  # a run's files written, and read back
     {"train", "experiment", "policies", "plot", "audit", "video", "rollout", "__main__"},  # the entry points
 ]
 FILE_KEEPERS = {"checkpointing", "run_directory", "host_loop", "locks", "loggers", "provenance", "cli"}

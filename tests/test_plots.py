@@ -10,9 +10,10 @@ from matplotlib.image import imread
 from omegaconf import OmegaConf
 
 from admissable_jax.config import TrainConfig
-from admissable_jax.plot import (
-    Difference, _cell_edges, _heatmap, _seeds, comparison_table, effective_window, final_scores, find_runs, load_run, main,
-    mean_and_interval, moving_average, plot_runs, set_names, summary_table,
+from admissable_jax.plot import _cell_edges, _heatmap, _seeds, effective_window, main, plot_runs
+from admissable_jax.results import (
+    Difference, comparison_table, final_scores, find_runs, load_run, mean_and_interval, moving_average, set_names,
+    summary_table,
 )
 
 

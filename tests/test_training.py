@@ -224,7 +224,8 @@ def test_candidate_pool_for_k2_search_draws_and_records(tmp_path):
     pool_explore, any pair of U; uniform mode draws every pair alike; an episode keeps its
     pair when the pool changes under it. End to end, scores.jsonl lists each row's pool and
     plot draws per-feature heatmaps."""
-    from admissable_jax.plot import load_run, plot_runs, summary_table
+    from admissable_jax.plot import plot_runs
+    from admissable_jax.results import load_run, summary_table
     from admissable_jax.scoring import beam_search_worst_sets
 
     config = dataclasses.replace(POINT_MASS, k=2, pool_size=3, pool_ranker="rollout", pool_explore=0.3, num_envs=20,

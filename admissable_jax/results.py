@@ -1,0 +1,370 @@
+"""Finished runs read back and compared: the numbers behind ``plot``'s figures and summary.
+
+A run directory (``train``'s, or one pair of an ``experiment``) holds ``config.yaml`` and
+``scores.jsonl``; :func:`load_run` reads them into a :class:`Run`, :func:`label_variants`
+names the settings in which runs of one env differ, and :func:`group_curves` groups them into
+curves (env, mode, variant), whose runs are the seeds. From those:
+
+* :func:`summary_table` — final and area-under-curve min_u a_u, the final mean_u a_u and
+  the final clean return per curve, mean ± 95% t-interval over seeds;
+* :func:`mode_differences` / :class:`Difference` — adversarial − uniform on each, with
+  Welch's 95% interval, p-value, a reading and, where the seeds cannot tell the modes
+  apart, how many seeds per mode would (:func:`comparison_section`);
+* :func:`trained_on` — where the runs were trained, from their ``invocations.jsonl``.
+
+Nothing here draws (no matplotlib): ``plot`` draws the figures from these, and
+``experiment`` prints the same comparison when it ends.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import os
+import sys
+
+import numpy as np
+from scipy import stats
+
+from admissable_jax.config import TrainConfig
+from admissable_jax.envs import observation_names
+from admissable_jax.method import candidate_sets, parse_set
+from admissable_jax.provenance import INVOCATIONS
+from admissable_jax.run_directory import TornLine, load_config_yaml, read_jsonl
+from admissable_jax.scoring.worst_set import samples_to_separate
+
+# Config keys that change neither what a run learns nor how it is scored: runs that differ
+# only in these are seeds of one curve (``physics``: both backends pass the same parity
+# tests; ``score_envs``: the same scores, tested). Runs differing in any other key are
+# separate curves, named by it (``label_variants``).
+NOT_SETTINGS = frozenset({"env", "missingness", "seed", "out", "resume", "resume_step", "progress", "logger",
+                          "time_limit", "checkpoint_every", "keep_checkpoints", "total_steps", "score_envs",
+                          "physics"})
+
+
+@dataclasses.dataclass
+class Run:
+    path: str
+    env: str
+    mode: str
+    seed: int
+    env_steps: np.ndarray  # (T,)
+    scores: np.ndarray  # (T, |U|) a_u; with a pool (T, d): the lowest a_u of the pool's sets hiding each feature
+    min_score: np.ndarray  # (T,)
+    mean_score: np.ndarray  # (T,) mean_u a_u over U, the average case; NaN with a pool (it scores only its sets)
+    clean_score: np.ndarray  # (T,)
+    p_miss: np.ndarray  # (T, |U|); with a pool (T, d): the p_miss mass on the pool's sets hiding each feature
+    set_names: list[str]  # (|U|,) the hidden features of each candidate set; with a pool each feature's name
+    score_episodes: int  # N: episodes behind each a_u
+    pooled: bool = False  # scores and p_miss are per feature (a run with a candidate pool)
+    uniform_draws: bool = False  # p_miss stayed uniform at every scoring
+    settings: dict[str, str] = dataclasses.field(default_factory=dict)  # config keys but NOT_SETTINGS, as text
+    variant: str = ""  # the settings in which it differs from the other runs of its env (label_variants)
+
+    @property
+    def curve(self) -> str:
+        """The curve this run is a seed of: its mode, and its variant where runs differ."""
+        return f"{self.mode}, {self.variant}" if self.variant else self.mode
+
+
+def set_names(env: str, k: int, include_empty: bool) -> list[str]:
+    """A name per candidate set u, in the runs' order: its hidden features' names."""
+    features = observation_names(env)
+    rows = candidate_sets(len(features), k, include_empty)
+    return [" + ".join(features[i] for i in np.flatnonzero(row)) or "nothing hidden" for row in rows]
+
+
+def load_run(path: str) -> Run:
+    """A run directory's config and scoring history."""
+    config = load_config_yaml(os.path.join(path, "config.yaml"))
+    scores_path = os.path.join(path, "scores.jsonl")
+    try:
+        rows = read_jsonl(scores_path)
+    except TornLine as torn:
+        print(f"warning: {torn}; reading the rows before it", file=sys.stderr)
+        rows = read_jsonl(scores_path, torn="drop")
+    if not rows:
+        raise ValueError(f"{path} has no scoring rows yet")
+    column = lambda key: np.asarray([row[key] for row in rows], dtype=float)
+    scores, p_miss = column("scores"), column("p_miss")
+    uniform_draws = bool(np.allclose(p_miss, 1.0 / p_miss.shape[-1]))
+    names = set_names(str(config.env), int(config.k), bool(config.include_empty_set))
+    pooled = "sets" in rows[0]
+    if pooled:  # per feature
+        names = observation_names(str(config.env))
+        scores, p_miss = per_feature(rows, len(names))
+    elif scores.ndim != 2 or scores.shape[1] != len(names) or p_miss.shape != scores.shape:
+        raise ValueError(f"{scores_path}: each row must hold {len(names)} scores and p_miss values "
+                         f"(one per set of {config.env} with k={config.k}), got {scores.shape[1:]} and {p_miss.shape[1:]}")
+    mean_score = np.full(len(rows), np.nan) if pooled else scores.mean(axis=1)
+    return Run(
+        path=path, env=str(config.env), mode=str(config.missingness), seed=int(config.seed),
+        env_steps=column("env_steps"), scores=scores, min_score=column("min_score"), mean_score=mean_score,
+        clean_score=column("clean_score"), p_miss=p_miss, set_names=names,
+        score_episodes=int(config.score_episodes), pooled=pooled, uniform_draws=uniform_draws,
+        settings={key: str(value) for key, value in {**dataclasses.asdict(TrainConfig()), **config}.items()
+                  if key not in NOT_SETTINGS},
+    )
+
+
+def differing_settings(runs: list[Run]) -> list[str]:
+    """The settings (config keys but ``NOT_SETTINGS``) whose values differ between these runs."""
+    keys = set().union(*(run.settings for run in runs))
+    return sorted(key for key in keys if len({run.settings.get(key) for run in runs}) > 1)
+
+
+def label_variants(runs: list[Run]) -> list[Run]:
+    """The runs, each with its variant named: the settings in which the runs of its env
+    differ ("k=2, score_episodes=5"; "" where all agree). Runs that differ in a setting are
+    separate curves, table rows and comparisons, never seeds of one."""
+    keys = {env: differing_settings([run for run in runs if run.env == env]) for env in {run.env for run in runs}}
+    return [dataclasses.replace(run, variant=", ".join(f"{key}={run.settings.get(key)}" for key in keys[run.env]))
+            for run in runs]
+
+
+def group_curves(runs: list[Run]) -> dict[tuple[str, str, str], list[Run]]:
+    """The runs by (env, mode, variant): each group one curve, its runs the seeds."""
+    curves: dict[tuple[str, str, str], list[Run]] = collections.defaultdict(list)
+    for run in runs:
+        curves[(run.env, run.mode, run.variant)].append(run)
+    return dict(sorted(curves.items()))
+
+
+def per_feature(rows: list[dict], num_features: int) -> tuple[np.ndarray, np.ndarray]:
+    """(T, d) from the rows of a run with a pool: per feature, the lowest a_u of the
+    pool's sets that hide it (NaN where none does) and the p_miss mass on those sets."""
+    scores = np.full((len(rows), num_features), np.nan)
+    p_miss = np.zeros((len(rows), num_features))
+    for t, row in enumerate(rows):
+        for hidden, score, weight in zip(row["sets"], row["scores"], row["p_miss"]):
+            features = parse_set(hidden)
+            scores[t, features] = np.fmin(scores[t, features], score)
+            p_miss[t, features] += weight
+    return scores, p_miss
+
+
+def find_runs(paths: list[str]) -> list[str]:
+    """Every directory at or under ``paths`` that holds a ``scores.jsonl``."""
+    found = []
+    for path in paths:
+        if not os.path.isdir(path):
+            raise FileNotFoundError(f"no such directory: {path}")
+        for root, _, files in os.walk(path):
+            if "scores.jsonl" in files and "config.yaml" in files:
+                found.append(root)
+    return sorted(found)
+
+
+def moving_average(values: np.ndarray, window: int) -> np.ndarray:
+    """Trailing mean over the last ``window`` records (fewer at the start), along axis -1."""
+    cumulative = np.cumsum(values, axis=-1)
+    shifted = np.concatenate([np.zeros_like(cumulative[..., :window]), cumulative[..., :-window]], axis=-1)
+    counts = np.minimum(np.arange(1, values.shape[-1] + 1), window)
+    return (cumulative - shifted[..., : values.shape[-1]]) / counts
+
+
+def mean_and_interval(curves: np.ndarray, confidence: float = 0.95) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean over seeds (axis 0) and a two-sided t-interval; the interval is the mean alone
+    for a single seed."""
+    mean = curves.mean(axis=0)
+    n = curves.shape[0]
+    if n < 2:
+        return mean, mean, mean
+    half = stats.t.ppf(0.5 + confidence / 2, n - 1) * curves.std(axis=0, ddof=1) / np.sqrt(n)
+    return mean, mean - half, mean + half
+
+
+def aligned(runs: list[Run], attribute: str) -> tuple[np.ndarray, np.ndarray]:
+    """(env steps, stacked values) over the records all runs share."""
+    length = min(len(run.env_steps) for run in runs)
+    return runs[0].env_steps[:length], np.stack([getattr(run, attribute)[:length] for run in runs])
+
+
+def shared_records(runs: list[Run]) -> int:
+    """How many records (scorings) the runs share."""
+    return min(len(run.env_steps) for run in runs)
+
+
+def final_scores(curve_runs: list[Run]) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+    """One curve's a_u per candidate set (per feature, with a pool) at the last record its
+    runs share: (env steps, mean over seeds, 95% t-interval low, high); NaN where a pool
+    scored no set hiding the feature."""
+    steps, values = aligned(curve_runs, "scores")  # (seeds, records, sets)
+    return (int(steps[-1]), *mean_and_interval(values[:, -1, :]))
+
+
+def estimate(values: np.ndarray) -> str:
+    """Per-seed values as text: "mean ± 95% t-interval half-width" (the mean alone for one seed)."""
+    mean, low, _ = mean_and_interval(values[:, None])
+    return f"{mean[0]:.1f} ± {mean[0] - low[0]:.1f}" if len(values) > 1 else f"{mean[0]:.1f}"
+
+
+def curves_of(run_dirs: list[str]) -> dict[tuple[str, str, str], list[Run]]:
+    """The runs in these directories by (env, mode, variant)."""
+    return group_curves(label_variants([load_run(path) for path in run_dirs]))
+
+
+def summary_table(run_dirs: list[str]) -> str:
+    """Markdown table per mode (and variant, where runs differ in settings): final and
+    area-under-curve min_u a_u, the final mean_u a_u (the average case; "—" for runs with a
+    pool, which score only its sets) and the final clean return, mean ± 95% t-interval
+    half-width over seeds. The AUC is the mean of min_u a_u over all records (the area
+    under the curve divided by its length in records)."""
+    lines = [
+        "| env | mode | seeds | env steps | final min_u a_u | AUC min_u a_u (mean over records) | final mean_u a_u "
+        "| final clean return |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for (env, _, _), runs in curves_of(run_dirs).items():
+        steps, minimum = aligned(runs, "min_score")
+        _, average = aligned(runs, "mean_score")
+        _, clean = aligned(runs, "clean_score")
+        final_average = "—" if np.isnan(average[:, -1]).any() else estimate(average[:, -1])
+        lines.append(
+            f"| {env} | {runs[0].curve} | {len(runs)} | {int(steps[-1])} | {estimate(minimum[:, -1])} | "
+            f"{estimate(minimum.mean(axis=1))} | {final_average} | {estimate(clean[:, -1])} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+@dataclasses.dataclass
+class Difference:
+    """Adversarial minus uniform on one per-seed quantity, with Welch's 95% t-interval and
+    two-sided p-value (seeds of one mode are independent of the other's)."""
+    metric: str
+    adversarial: np.ndarray  # (seeds,)
+    uniform: np.ndarray  # (seeds,)
+
+    @property
+    def mean(self) -> float:
+        return float(self.adversarial.mean() - self.uniform.mean())
+
+    def interval(self, confidence: float = 0.95) -> tuple[float, float, float] | None:
+        """(low, high, p), or None with fewer than two seeds in a mode (no variance to test)."""
+        if min(len(self.adversarial), len(self.uniform)) < 2:
+            return None
+        test = stats.ttest_ind(self.adversarial, self.uniform, equal_var=False)
+        low, high = test.confidence_interval(confidence)
+        return float(low), float(high), float(test.pvalue)
+
+    def reading(self) -> str:
+        """The difference in words: which mode is higher, or that seeds cannot tell them apart."""
+        interval = self.interval()
+        if interval is None:
+            return "one seed in a mode: not tested"
+        low, high, _ = interval
+        if low > 0:
+            return "adversarial higher"
+        if high < 0:
+            return "uniform higher"
+        return "not distinguishable (95% interval holds 0)"
+
+    def seeds_to_separate(self) -> int | None:
+        """Where these seeds cannot tell the modes apart (the 95% interval holds 0), the seeds
+        per mode that would at the difference and spread seen (80% power, two-sided 5% t-test;
+        :func:`~admissable_jax.scoring.worst_set.samples_to_separate`); else None, as with
+        fewer than 2 seeds in a mode or modes that neither differ nor vary."""
+        interval = self.interval()
+        if interval is None or not interval[0] <= 0 <= interval[1]:
+            return None
+        low, high = sorted((self.uniform, self.adversarial), key=np.mean)
+        return samples_to_separate(low, high, paired=False)
+
+    def seeds_needed(self) -> str | None:
+        """:meth:`seeds_to_separate` in words: "about 4", or "over 1,000" (a difference small
+        against the seeds' spread); None where it is None."""
+        seeds = self.seeds_to_separate()
+        if seeds is None:
+            return None
+        return f"about {seeds:,}" if seeds <= 1000 else "over 1,000"
+
+    def cells(self) -> str:
+        """A markdown table's cells: difference | 95% interval | p | reading."""
+        interval = self.interval()
+        low_high, p = ("—", "—") if interval is None else (f"[{interval[0]:.1f}, {interval[1]:.1f}]", f"{interval[2]:.3g}")
+        return f"{self.mean:+.1f} | {low_high} | {p} | {self.reading()}"
+
+
+def mode_differences(run_dirs: list[str]) -> dict[str, list[Difference]]:
+    """Per env (and variant, where runs differ in settings: "hopper, k=2") with both
+    adversarial and uniform runs: the paper's comparison (final and AUC min_u a_u), the
+    average case (final mean_u a_u; not for runs with a pool) and the price of robustness
+    (final clean return), adversarial − uniform. The paper's point is that the first may
+    differ where the second does not: a weak spot averaged away."""
+    curves = curves_of(run_dirs)
+    differences = {}
+    for env, variant in sorted({(env, variant) for env, _, variant in curves}):
+        adversarial, uniform = curves.get((env, "adversarial", variant)), curves.get((env, "uniform", variant))
+        if not adversarial or not uniform:
+            continue
+        # Both modes over the records all their runs share, so the AUCs cover the same steps.
+        _, minimum = aligned(adversarial + uniform, "min_score")
+        _, average = aligned(adversarial + uniform, "mean_score")
+        _, clean = aligned(adversarial + uniform, "clean_score")
+        metrics = [("final min_u a_u", minimum[:, -1]), ("AUC min_u a_u", minimum.mean(axis=1)),
+                   ("final mean_u a_u", average[:, -1]), ("final clean return", clean[:, -1])]
+        n = len(adversarial)
+        differences[f"{env}, {variant}" if variant else env] = [
+            Difference(name, values[:n], values[n:]) for name, values in metrics if not np.isnan(values).any()]
+    return differences
+
+
+def comparison_table(run_dirs: list[str]) -> str:
+    """Markdown: adversarial − uniform per env and metric (Welch), '' without both modes."""
+    return format_comparison(mode_differences(run_dirs))
+
+
+def format_comparison(differences: dict[str, list[Difference]]) -> str:
+    """:func:`comparison_table` from :func:`mode_differences`' result."""
+    if not differences:
+        return ""
+    lines = ["| env | metric | adversarial − uniform | 95% interval (Welch) | p (two-sided) | reading |",
+             "|---|---|---|---|---|---|"]
+    for env, rows in differences.items():
+        for difference in rows:
+            lines.append(f"| {env} | {difference.metric} | {difference.cells()} |")
+    return "\n".join(lines) + "\n"
+
+
+def seeds_sentence(differences: list[tuple[str, Difference]]) -> str:
+    """A sentence under a comparison: for each labelled difference the seeds cannot tell from
+    0, the seeds per mode that would (:meth:`Difference.seeds_needed`); '' where there is none."""
+    needed = [f"{label}: {seeds}" for label, difference in differences if (seeds := difference.seeds_needed())]
+    if not needed:
+        return ""
+    return ("Seeds per mode that would tell adversarial from uniform apart where these cannot (80% power at the "
+            f"difference and spread seen, two-sided 5% t-test): {'; '.join(needed)}.\n")
+
+
+def seeds_note(differences: dict[str, list[Difference]]) -> str:
+    """:func:`seeds_sentence` for :func:`format_comparison`'s rows."""
+    return seeds_sentence([(f"{env} {difference.metric}", difference)
+                           for env, rows in differences.items() for difference in rows])
+
+
+def comparison_section(differences: dict[str, list[Difference]]) -> str:
+    """Markdown: the adversarial − uniform table under its heading and, where seeds cannot
+    tell the modes apart, the seeds per mode that would; '' without both modes."""
+    comparison = format_comparison(differences)
+    if not comparison:
+        return ""
+    seeds = seeds_note(differences)
+    return ("Adversarial − uniform, per env (over the records both modes share; seeds independent, "
+            "so Welch's t):\n\n" + comparison + (f"\n{seeds}" if seeds else ""))
+
+
+def trained_on(run_dirs: list[str]) -> str:
+    """Where the runs were trained, from their ``invocations.jsonl`` (one record per command
+    that trained a run): each distinct device, physics, versions and commit, with its count."""
+    records = [record for path in run_dirs if os.path.exists(os.path.join(path, INVOCATIONS))
+               for record in read_jsonl(os.path.join(path, INVOCATIONS), torn="drop")]
+    if not records:
+        return "Trained on: not recorded (runs written before `invocations.jsonl`)."
+    setups = collections.Counter(
+        f"{record['device']} × {record['devices']}, {record['physics']} physics, "
+        + ", ".join(f"{name} {record['versions'][name]}" for name in ("jax", "mujoco", "mujoco-mjx", "warp-lang")
+                    if name in record["versions"])
+        + f", commit {record['commit'] or 'unknown'}"
+        for record in records)
+    return "Trained on (the runs' `invocations.jsonl`): " + "; ".join(
+        f"{setup} ({count} of {len(records)} records)" for setup, count in setups.items()) + "."
