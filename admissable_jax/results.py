@@ -24,7 +24,6 @@ import os
 import sys
 
 import numpy as np
-from scipy import stats
 
 from admissable_jax.config import TrainConfig
 from admissable_jax.envs import observation_names
@@ -166,6 +165,8 @@ def moving_average(values: np.ndarray, window: int) -> np.ndarray:
 def mean_and_interval(curves: np.ndarray, confidence: float = 0.95) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Mean over seeds (axis 0) and a two-sided t-interval; the interval is the mean alone
     for a single seed."""
+    from scipy import stats  # here, as in scoring.worst_set: 0.6 s that training's start-up does not need
+
     mean = curves.mean(axis=0)
     n = curves.shape[0]
     if n < 2:
@@ -241,6 +242,8 @@ class Difference:
 
     def interval(self, confidence: float = 0.95) -> tuple[float, float, float] | None:
         """(low, high, p), or None with fewer than two seeds in a mode (no variance to test)."""
+        from scipy import stats
+
         if min(len(self.adversarial), len(self.uniform)) < 2:
             return None
         test = stats.ttest_ind(self.adversarial, self.uniform, equal_var=False)
