@@ -16,8 +16,9 @@ COMMANDS = ("train", "experiment", "plot", "audit", "video", "rollout")
 
 
 def summary(command: str) -> str:
-    """The first line of ``admissable_jax.<command>``'s module docstring."""
-    with open(os.path.join(os.path.dirname(__file__), f"{command}.py")) as file:
+    """The first line of ``admissable_jax.<command>``'s module docstring (a package's: its ``__init__``'s)."""
+    module = os.path.join(os.path.dirname(__file__), command)
+    with open(f"{module}.py" if os.path.isfile(f"{module}.py") else os.path.join(module, "__init__.py")) as file:
         return ast.get_docstring(ast.parse(file.read())).splitlines()[0].replace("``", "")
 
 

@@ -22,7 +22,6 @@ the budget and stops there).
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import os
 import sys
 

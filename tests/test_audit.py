@@ -233,7 +233,7 @@ def test_audit_steps_as_many_envs_at_once_as_training_scores():
     audit has fewer episodes; slots=N: N."""
     from types import SimpleNamespace
 
-    from admissable_jax.audit import AuditConfig, _slots
+    from admissable_jax.audit.command import AuditConfig, _slots
 
     point_mass = SimpleNamespace(observation_size=4)
     assert jax.default_backend() == "cpu"

@@ -1,0 +1,313 @@
+"""``python -m admissable_jax.audit``: its settings (:class:`AuditConfig`), what they name (a
+run, an experiment's pairs, a run's checkpoints, a Python policy on a Gymnasium env), the
+audits that follow and where each one's files go."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from typing import TYPE_CHECKING
+
+from admissable_jax.audit.report import compare_modes, comparison_chart, over_training_chart, over_training_table, \
+    shapley_order, write_audit
+from admissable_jax.audit.sets import AuditResult, audit, audit_gymnasium, check_audit_size, check_search, \
+    gymnasium_features, plan_size, shapley_plan
+from admissable_jax.cli import enable_compilation_cache, parse_args, reporting, run_from_cli, setting
+from admissable_jax.errors import make_directory
+from admissable_jax.method import num_candidate_sets
+from admissable_jax.scoring import SCORE_ESTIMATORS
+from admissable_jax.scoring.attribution import MIN_ORDERS, ShapleyPlan
+
+if TYPE_CHECKING:  # for the annotations only
+    from admissable_jax.envs import MjxEnv
+    from admissable_jax.policies import TrainedPolicy
+    from admissable_jax.training import Trainer
+
+
+
+@dataclasses.dataclass
+class AuditConfig:
+    run_dir: str = setting("", "a train run directory, an experiment pair's, or an experiment's folder (every pair, "
+                               "then comparison.md of the modes); may be given first, without run_dir=")
+    k: str = setting("1", "set sizes to audit, comma separated (e.g. 1,2)")
+    episodes: int = setting(50, "N: deterministic episodes per set (the CI narrows as 1/sqrt(N))")
+    out: str = setting("", "where the report goes (default RUN_DIR/audit-step<STEP>)")
+    step: int = setting(-1, "the checkpoint (env step) to audit; -1 = the latest")
+    seed: int = setting(0, "seed of the N start states")
+    top: int = setting(10, "worst sets listed per k in report.md")
+    slots: int = setting(0, "envs stepped at once, each starting the next episode as its own ends (0 = as training "
+                            "scores: 32 on a CPU, every episode at once, at most 4096, on an accelerator; with "
+                            "policy=: 8 Gymnasium envs)")
+    score_estimator: str = setting("rollout", "rollout (the paper's a_u) | critic | horizon: the run's critic's discounted "
+                                              "value (see admissable_jax.scoring)")
+    score_horizon: int = setting(100, "H of score_estimator=horizon")
+    search: str = setting("exact", "exact (every set of each k) | beam (k > 1: beam search for the worst sets, "
+                                   "finalists confirmed by score_estimator)")
+    beam_width: int = setting(4, "b of search=beam: sets kept per level, and finalists per k")
+    ranker: str = setting("rollout", "what ranks the candidates of search=beam: rollout | critic | horizon")
+    steps: str = setting("", "audit several checkpoints of one run: 'all' or a comma list of env steps; each into "
+                             "its folder, then robustness_over_training.md/.png (worst and mean a_u per k by step)")
+    policy: str = setting("", "instead of a run: MODULE:NAME, any Python policy masked_obs_batch -> actions "
+                              "(Stable-Baselines3, CleanRL, PyTorch) to audit on the Gymnasium env gym=")
+    gym: str = setting("", "with policy=: the Gymnasium env id (Hopper-v5, or any other) the policy acts in")
+    tell_apart: bool = setting(False, "audit twice: a pilot of `episodes` per set, then, from fresh start states, as "
+                                      "many episodes per set as the pilot says tell the worst set of each k from the "
+                                      "runner-up (80% power; at most 1000)")
+    shapley: str = setting("0", "what each feature is worth: Shapley values of the return over the visible features; "
+                                "exact (every coalition, d <= 20), or M random feature orders (exact where the 2^d "
+                                "coalitions are fewer); 0 = none")
+
+
+def _ks(text: str) -> tuple[int, ...]:
+    try:
+        ks = tuple(sorted({int(part) for part in text.split(",") if part.strip()}))
+    except ValueError:
+        raise ValueError(f"k must be a comma list of set sizes, e.g. 1,2; got {text!r}") from None
+    if not ks or ks[0] < 1:
+        raise ValueError(f"k must be a comma list of set sizes >= 1, got {text!r}")
+    return ks
+
+
+def check_audit_config(config: AuditConfig) -> None:
+    if config.policy or config.gym:
+        if config.run_dir or not (config.policy and config.gym):
+            raise ValueError("a Python policy is audited with policy=MODULE:NAME and gym=ENV_ID, and no run directory")
+        if config.score_estimator != "rollout" or config.search != "exact":
+            raise ValueError("a Python policy is audited by rollouts of every set (it has no critic to estimate with)")
+    elif not config.run_dir:
+        raise ValueError("give the run directory: python -m admissable_jax.audit RUN_DIR [k=1,2] [episodes=50]")
+    if config.steps and (config.step >= 0 or config.policy or is_experiment(config.run_dir)):
+        raise ValueError("steps= audits several checkpoints of one run (a train run or one pair of an experiment), "
+                         "without step= or policy=")
+    _ks(config.k)
+    if config.top < 1:
+        raise ValueError(f"top must be at least 1, got {config.top}")
+    if config.episodes < 2:
+        raise ValueError("episodes must be at least 2 for a confidence interval")
+    if config.slots < 0:
+        raise ValueError(f"slots must be >= 0, got {config.slots}")
+    if config.score_estimator not in SCORE_ESTIMATORS or config.score_horizon < 1:
+        raise ValueError(f"score_estimator must be one of {', '.join(SCORE_ESTIMATORS)} and score_horizon >= 1")
+    check_search(config.search, config.beam_width, config.ranker)
+    _shapley(config.shapley)
+
+
+def _shapley(text: str) -> int | str:
+    """``shapley=``: 0 (none), ``exact``, or a number M >= 4 of feature orders."""
+    if text.strip() == "exact":
+        return "exact"
+    try:
+        orders = int(text)
+    except ValueError:
+        orders = -1
+    if orders == 0 or orders >= MIN_ORDERS:
+        return orders
+    raise ValueError(f"shapley must be 0 (none), exact, or at least {MIN_ORDERS} feature orders, got {text!r}")
+
+
+def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
+    """Audit ``config.policy`` (MODULE:NAME, importable from here) on the Gymnasium env
+    ``config.gym`` by :func:`~admissable_jax.audit.sets.audit_gymnasium`; write the report
+    into ``config.out`` (default ``audit-<ENV_ID>-<NAME>``)."""
+    import importlib
+
+    check_audit_config(config)
+    module_name, _, name = config.policy.partition(":")
+    if not module_name or not name:
+        raise ValueError(f"policy must be MODULE:NAME (a callable in an importable module), got {config.policy!r}")
+    try:
+        policy = getattr(importlib.import_module(module_name), name)
+    except (ImportError, AttributeError) as error:
+        raise ValueError(f"cannot load policy={config.policy}: {error}") from None
+    if not callable(policy):
+        raise ValueError(f"policy={config.policy} is a {type(policy).__name__}, not a callable masked_obs_batch -> actions")
+    ks = _ks(config.k)
+    gymnasium_features(config.gym, ks)  # before anything is written
+    out = config.out or f"audit-{config.gym}-{name}"
+    make_directory(out, "audit folder")
+    with reporting(f"auditing {config.policy} on {config.gym} for k={config.k} ({_episodes_asked(config)})"):
+        result = audit_gymnasium(config.gym, policy, ks, config.episodes, num_envs=config.slots or 8, seed=config.seed,
+                                 shapley=_shapley(config.shapley), progress=True, tell_apart=config.tell_apart)
+    return result, write_audit(result, out, config.top)
+
+
+def _episodes_asked(config: AuditConfig) -> str:
+    return (f"a pilot of {config.episodes} episodes per set, then as many as tell the worst sets apart"
+            if config.tell_apart else f"{config.episodes} episodes per set")
+
+
+def audit_run(config: AuditConfig) -> tuple[AuditResult, list[str]]:
+    """Audit the run in ``config.run_dir`` at ``config.step``; write the report."""
+    check_audit_config(config)
+    from admissable_jax.policies import load_policy
+
+    policy = load_policy(config.run_dir, None if config.step < 0 else config.step)
+    return _audit_policy(config, policy, _audit_env(config, policy), policy.trainer)
+
+
+def _audit_env(config: AuditConfig, policy: TrainedPolicy) -> MjxEnv:
+    """The run's env, sized for every episode the audit steps at once (at most ``slots``)."""
+    from admissable_jax.envs import make_env
+
+    train = policy.config
+    return make_env(train.env, physics=train.physics, episode_length=train.episode_length,
+                    max_batch=_slots(config, policy))
+
+
+def _slots(config: AuditConfig, policy: TrainedPolicy) -> int:
+    """Episodes stepped at once: all (sets + clean) × N, at most ``slots``, or as many as
+    training's scoring steps (:func:`~admissable_jax.config.default_score_envs`: 32 on a CPU,
+    where a batched step's cost grows with its batch; all on an accelerator), at most 4096."""
+    from admissable_jax.config import default_score_envs
+
+    d = policy.observation_size
+    episodes = (sum(num_candidate_sets(d, k) for k in _ks(config.k)) + plan_size(_plan(config, d)) + 1) * config.episodes
+    return min(episodes, config.slots) if config.slots else min(default_score_envs(episodes), 4096)
+
+
+def _plan(config: AuditConfig, d: int) -> ShapleyPlan | None:
+    return shapley_plan(d, _shapley(config.shapley), config.seed)
+
+
+def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
+                  trainer: Trainer) -> tuple[AuditResult, list[str]]:
+    """Audit ``policy``'s networks with ``env`` and ``trainer``'s policy and critic functions
+    (an experiment passes its first pair's to every pair, so the rollout compiles once)."""
+    import jax
+
+    from admissable_jax.envs import observation_names
+
+    out = config.out or os.path.join(config.run_dir, f"audit-step{policy.step}")
+    train = policy.config
+    d = policy.observation_size
+    check_audit_size(train.env, d, _ks(config.k), config.episodes, config.search, config.beam_width, _plan(config, d))
+    make_directory(out, "audit folder")  # before the rollout, not after it
+    with reporting(f"auditing checkpoint {policy.step} of {train.env} for k={config.k} ({config.search} search, "
+                   f"{_episodes_asked(config)}, {env.physics_name} physics on {jax.default_backend()}; "
+                   f"compiling included)"):
+        result = audit(env, trainer.policy, policy.actor_params, _ks(config.k), config.episodes, config.seed,
+                       _slots(config, policy), observation_names(train.env),
+                       {"run": os.path.abspath(config.run_dir), "checkpoint (env step)": policy.step,
+                        "mode": train.missingness, "seed": train.seed},
+                       config.score_estimator, trainer.critic_values, policy.critic_params,
+                       config.score_horizon, train.gamma, config.search, config.beam_width, config.ranker,
+                       _shapley(config.shapley), progress=True, tell_apart=config.tell_apart)
+    return result, write_audit(result, out, config.top)
+
+
+def audit_over_training(config: AuditConfig) -> tuple[list[AuditResult], list[str]]:
+    """Audit the run in ``config.run_dir`` at several checkpoints (``steps``: ``all`` or a
+    comma list of env steps), each into its own folder as :func:`audit_run` does, the
+    rollout compiled once; then ``robustness_over_training.md`` and ``.png`` (in
+    ``RUN_DIR/audit-over-training`` or ``out``): per checkpoint and k, the worst a_u and its
+    set and the mean a_u over the sets, beside the clean return. Training records a_u for
+    the sets it scores (k = 1 by default); this says when robustness to other k came."""
+    check_audit_config(config)
+    from admissable_jax.policies import checkpoint_steps
+
+    saved = checkpoint_steps(config.run_dir)
+    try:
+        steps = saved if config.steps == "all" else sorted({int(part) for part in config.steps.split(",") if part.strip()})
+    except ValueError:
+        raise ValueError(f"steps must be 'all' or a comma list of env steps, got {config.steps!r}") from None
+    missing = sorted(set(steps) - set(saved)) or ([] if steps else ["(none)"])
+    if missing:
+        raise ValueError(f"no checkpoint at {', '.join(map(str, missing))} in {config.run_dir}; "
+                         f"saved: {', '.join(map(str, saved)) or 'none'}")
+    out = config.out or os.path.join(config.run_dir, "audit-over-training")
+    results, written = _audit_each([(dataclasses.replace(config, out=os.path.join(out, f"step{step}")), step)
+                                    for step in steps])
+    written.append(over_training_chart(results, os.path.join(out, "robustness_over_training.png")))
+    written.append(os.path.join(out, "robustness_over_training.md"))
+    with open(written[-1], "w") as file:
+        file.write(over_training_table(results) + "\n![worst and mean a_u per k by checkpoint]"
+                   "(robustness_over_training.png)\n")
+    return results, written
+
+
+def _audit_each(jobs: list[tuple[AuditConfig, int | None]]) -> tuple[list[AuditResult], list[str]]:
+    """Audit each (config, checkpoint step; None = the latest) of ``jobs`` into its folder,
+    all with the first one's env and policy function (an experiment's pairs, or one run's
+    checkpoints, share the env and the network shapes), so the rollout compiles once."""
+    from admissable_jax.policies import load_policy
+
+    results, written, env, trainer = [], [], None, None
+    for config, step in jobs:
+        policy = load_policy(config.run_dir, step)
+        if env is None:
+            env, trainer = _audit_env(config, policy), policy.trainer
+        result, files = _audit_policy(config, policy, env, trainer)
+        results.append(result)
+        written += files
+    return results, written
+
+
+def is_experiment(path: str) -> bool:
+    return os.path.isfile(os.path.join(path, "experiment.yaml"))
+
+
+def audit_experiment(config: AuditConfig) -> tuple[list[AuditResult], list[str]]:
+    """Audit every (seed, mode) pair of the experiment in ``config.run_dir`` at the same
+    checkpoint, each into its own folder as :func:`audit_run` does (under ``out`` if given),
+    then compare the modes in ``comparison.md``: per k, each pair's worst a_u and its mean
+    a_u over the sets, mean ± 95% t-interval over seeds per mode, and adversarial − uniform
+    on both with Welch's interval. It
+    answers what the paper's Figure 1 cannot: does training against one missing feature
+    also protect against two?"""
+    check_audit_config(config)
+    root = config.run_dir
+    pairs = sorted(name for name in os.listdir(root) if os.path.isfile(os.path.join(root, name, "config.yaml")))
+    if not pairs:
+        raise FileNotFoundError(f"{root} holds an experiment.yaml but no pair directories")
+    step = None if config.step < 0 else config.step
+    pair_out = lambda name: os.path.join(config.out, name) if config.out else ""
+    results, written = _audit_each([(dataclasses.replace(config, run_dir=os.path.join(root, name), out=pair_out(name)),
+                                     step) for name in pairs])
+    out = config.out or os.path.join(root, f"audit-step{results[0].source['checkpoint (env step)']}")
+    make_directory(out, "audit folder")
+    written.append(comparison_chart(results, os.path.join(out, "comparison.png")))
+    written.append(os.path.join(out, "comparison.md"))
+    with open(written[-1], "w") as file:
+        file.write(compare_modes(results) + "\n![worst a_u per k and mode](comparison.png)\n")
+    return results, written
+
+
+def main(argv: list[str]) -> int:
+    config = parse_args(AuditConfig, argv, "admissable_jax.audit",
+                        "Which sensors break a policy? a_u of every set of k hidden features, with CIs, on one page.",
+                        validate=check_audit_config, positional="run_dir")
+    enable_compilation_cache()
+    experiment = bool(config.run_dir) and is_experiment(config.run_dir)
+    command = (audit_python_policy if config.policy else audit_over_training if config.steps
+               else audit_experiment if experiment else audit_run)
+    outcome, status = run_from_cli(command, config)
+    if status:
+        return status
+    results, written = outcome if experiment or config.steps else ([outcome[0]], outcome[1])
+    for result in results:
+        pair = (f"{result.source['mode']} seed {result.source['seed']}: " if experiment else
+                f"step {result.source['checkpoint (env step)']}: " if config.steps else "")
+        if result.pilot is not None:
+            print(f"{pair}N = {result.pilot['chosen']} episodes per set, chosen by a pilot of {result.pilot['episodes']}")
+        for k in result.sets:
+            (worst,) = result.worst(k, 1)
+            average = "" if math.isnan(result.mean(k)) else f"; mean over the {len(result.sets[k])} sets {result.mean(k):.1f}"
+            tied = sum(gap.tied for gap in result.gaps_to_worst(k)[1:])
+            print(f"{pair}k={k}: worst {', '.join(worst.names)} ({list(worst.hidden)}): a_u {worst.score:.1f} ± "
+                  f"{worst.ci95:.1f}, {worst.drop_percent:.1f}% below clean {result.clean_score:.1f}{average}; "
+                  f"{f'not told apart from {tied} other set(s)' if tied else 'told apart from every other set'}")
+        if result.shapley is not None:
+            attribution, top = result.shapley, shapley_order(result.shapley)[0]
+            print(f"{pair}shapley: {result.feature_names[top]} ({top}) worth most: φ {attribution.values[top]:.1f} ± "
+                  f"{attribution.ci95[top]:.1f} of v(all) − v(none) {attribution.full - attribution.blind:.1f}; "
+                  f"hidden alone it costs {attribution.leave_one_out[top]:.1f} ({attribution.method})")
+    if experiment or config.steps:
+        with open(written[-1]) as file:
+            print(file.read())
+        each = "pair" if experiment else "checkpoint"
+        print(f"wrote each {each}'s report, audit.json and figures into its audit folder, and {written[-1]}")
+    else:
+        print(f"wrote {', '.join(written)}")
+    return 0
+

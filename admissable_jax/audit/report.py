@@ -1,0 +1,408 @@
+"""What an audit writes: one policy's ``report.md``, ``audit.json`` and figures
+(:func:`write_audit`); an experiment's modes side by side (:func:`compare_modes`,
+:func:`comparison_chart`); a run's robustness by checkpoint (:func:`over_training_table`,
+:func:`over_training_chart`)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+from typing import Any
+
+import numpy as np
+
+from admissable_jax.audit.sets import AuditResult, drop_below_clean
+from admissable_jax.results import Difference, estimate, mean_and_interval, seeds_sentence
+from admissable_jax.scoring.attribution import ShapleyAttribution
+
+
+
+def write_audit(result: AuditResult, out: str, top: int = 10) -> list[str]:
+    """report.md, audit.json and the figures into ``out``; returns the paths written."""
+    os.makedirs(out, exist_ok=True)
+    written = [os.path.join(out, "audit.json"), os.path.join(out, "report.md")]
+    record = dataclasses.asdict(result)
+    record["gaps_to_worst"] = {k: {"paired": result.same_starts, "episodes_to_separate": result.episodes_to_separate(k),
+                                   "gaps": [{"hidden": list(gap.entry.hidden), "gap": gap.gap, "ci95": gap.ci95,
+                                             "tied": gap.tied} for gap in result.gaps_to_worst(k)[1:]]}
+                               for k in result.sets}
+    with open(written[0], "w") as file:
+        json.dump(record, file, indent=1)
+    if 1 in result.sets:
+        written.append(_bar_chart(result, os.path.join(out, "scores_k1.png")))
+    if 2 in result.sets and 2 not in result.search:  # a search scores too few pairs for a map
+        written.append(_pair_heatmap(result, os.path.join(out, "pairs_k2.png")))
+    if result.shapley is not None:
+        written.append(_shapley_chart(result, os.path.join(out, "shapley.png")))
+    with open(written[1], "w") as file:
+        file.write(_report(result, top, [os.path.basename(path) for path in written[2:]]))
+    return written
+
+
+def _report(result: AuditResult, top: int, figures: list[str]) -> str:
+    source = ", ".join(f"{key} {value}" for key, value in result.source.items())
+    episodes = ("deterministic episodes from the same N start states" if result.same_starts else
+                "episodes of the policy as given, each set's from the vector env's own resets")
+    measure = ("the mean undiscounted return of" if result.estimator == "rollout" else
+               f"the `{result.estimator}` estimate (the critic's discounted value; admissable_jax.scoring) over")
+    lines = [
+        f"# Robustness audit: {result.env}", "",
+        f"{source}. Every set u of the sizes below was hidden for whole episodes (hidden features read 0, "
+        f"with the 0/1 indicator of the paper's masked observation); a_u is {measure} "
+        f"N = {result.n_episodes} {episodes}, ± the 95% confidence "
+        f"interval (Student's t); the drop is relative to the clean case.", "",
+        f"**Clean return (nothing hidden): {result.clean_score:.1f} ± {result.clean_ci95:.1f}**", "",
+    ]
+    if result.pilot is not None:
+        lines += [_pilot_sentence(result.pilot), ""]
+    for k, entries in result.sets.items():
+        worst = result.worst(k, top)
+        searched = result.search.get(k)
+        if searched:
+            lines += [f"## k = {k}: the {len(worst)} worst found by beam search", "",
+                      f"Beam search of width {searched['beam_width']} ranked {searched['sets_ranked']:,} candidate sets "
+                      f"(of all {searched['sets_in_all']:,}) by `{searched['ranker']}`; its {len(entries)} finalists "
+                      f"are scored here as every set above. A search may miss the worst set: "
+                      f"`search=exact` scores them all.", ""]
+        else:
+            lines += [f"## k = {k}: the {len(worst)} worst of {len(entries)} sets", "",
+                      f"Mean over all {len(entries)} sets (the average case, u drawn uniformly): "
+                      f"{result.mean(k):.1f}, {drop_below_clean(result.clean_score, result.mean(k)):.1f}% below clean; "
+                      f"the worst: {worst[0].score:.1f}.", ""]
+        lines += ["| rank | hidden features | indices | a_u ± 95% CI | drop | above the worst ± 95% CI |",
+                  "|---|---|---|---|---|---|"]
+        for rank, gap in enumerate(result.gaps_to_worst(k)[:top], 1):
+            entry = gap.entry
+            lines.append(f"| {rank} | {', '.join(entry.names)} | {', '.join(map(str, entry.hidden))} | "
+                         f"{entry.score:.1f} ± {entry.ci95:.1f} | {entry.drop_percent:.1f}% | "
+                         f"{'—' if rank == 1 else f'+{_small(gap.gap)} ± {_small(gap.ci95)}'} |")
+        lines += ["", _worst_told_apart(result, k), ""]
+    if result.shapley is not None:
+        lines += _shapley_section(result, result.shapley)
+    lines += [f"![{name}]({name})" for name in figures]
+    lines += ["", "Every number, with each episode's return: `audit.json`."]
+    return "\n".join(lines) + "\n"
+
+
+def _small(value: float) -> str:
+    """One decimal, or two significant digits where one decimal would read 0.0 (a gap of
+    0.004 ± 0.001 is told apart; "0.0 ± 0.0" would not say so)."""
+    return f"{value:.1f}" if value == 0 or abs(value) >= 0.05 else f"{value:.2g}"
+
+
+def _pilot_sentence(pilot: dict[str, Any]) -> str:
+    """How ``tell_apart`` chose N, in words."""
+    needed = ", ".join(f"k = {k}: {'—' if n is None else f'{n:,}'}" for k, n in pilot["needed"].items())
+    largest = max([n for n in pilot["needed"].values() if n is not None], default=0)
+    capped = (f" The largest, {largest:,}, is more than one audit here takes: capped at {pilot['chosen']:,}."
+              if largest > pilot["chosen"] else "")
+    return (f"N = {pilot['chosen']:,} was chosen by a pilot audit of {pilot['episodes']} episodes per set (the start "
+            f"states of seed {pilot['seed']}; these are seed {pilot['seed'] + 1}'s): about this many episodes per set "
+            f"would tell the worst set of each size from the runner-up ({needed}; —: the two did not differ), and "
+            f"no fewer than the pilot's.{capped}")
+
+
+def _worst_told_apart(result: AuditResult, k: int) -> str:
+    """In words: is the worst set of size k told apart from the others, and if not, about
+    how many episodes would tell it from the runner-up."""
+    gaps = result.gaps_to_worst(k)
+    if len(gaps) < 2:
+        return "One set of this size: nothing to tell the worst apart from."
+    how = ("paired episode by episode, as every set's episode i starts from one state" if result.same_starts
+           else "Welch's t, as the sets' episodes start from different states")
+    tied = [gap for gap in gaps[1:] if gap.tied]
+    if not tied:
+        return (f"The worst is told apart from every other set: the runner-up, {', '.join(gaps[1].entry.names)}, lies "
+                f"{_small(gaps[1].gap)} ± {_small(gaps[1].ci95)} above it (the gap's 95% interval, {how}).")
+    named = ", ".join("{" + ", ".join(gap.entry.names) + "}" for gap in tied[:5]) + (", ..." if len(tied) > 5 else "")
+    needed = result.episodes_to_separate(k)
+    more = ("the runner-up's returns equal the worst's episode by episode" if needed is None else
+            f"about {needed:,} episodes per set would tell the worst from the runner-up at the gap and spread "
+            f"seen (80% power; `episodes=`)")
+    return (f"Not told apart from the worst (the gap's 95% interval holds 0; {how}; each set compared alone): "
+            f"{len(tied)} of the other {len(gaps) - 1} sets ({named}). {more[0].upper()}{more[1:]}.")
+
+
+def shapley_order(attribution: ShapleyAttribution) -> list[int]:
+    """Features by Shapley value, largest first."""
+    return sorted(range(len(attribution.values)), key=lambda i: -attribution.values[i])
+
+
+def _shapley_section(result: AuditResult, attribution: ShapleyAttribution) -> list[str]:
+    """The report's table of every feature's Shapley value beside the loss of hiding it alone."""
+    worth = attribution.full - attribution.blind
+    how = (f"Exact: all {attribution.coalitions:,} coalitions valued" if attribution.method == "exact" else
+           f"Estimated from M = {attribution.orders} random orders of the features in antithetic pairs "
+           f"({attribution.coalitions:,} coalitions valued)")
+    interval_orders = "" if attribution.method == "exact" else ", combined with that over the orders' pairs"
+    value = "the mean return" if result.estimator == "rollout" else f"the `{result.estimator}` estimate"
+    lines = ["## What each feature is worth: Shapley values", "",
+             f"A coalition S of visible features is worth v(S), {value} with every other feature hidden. Feature i's "
+             f"Shapley value φ_i is its share of what seeing everything is worth: v(all) = {attribution.full:.1f}, "
+             f"v(none) = {attribution.blind:.1f}, and the φ_i sum to v(all) − v(none) = {worth:.1f}. Beside it, the "
+             f"loss of hiding it alone (clean − a_i), which is all an adversary of k = 1 sees. A feature whose φ_i "
+             f"is well above its loss alone carries what other features carry too: hidden alone it costs little, "
+             f"hidden with them it costs much. {how}; ± the 95% interval over the N = {result.n_episodes} start "
+             f"states (Student's t){interval_orders}. Method: admissable_jax.scoring.attribution.", "",
+             "| rank | feature | index | φ_i ± 95% CI | share of v(all) − v(none) | loss hidden alone |",
+             "|---|---|---|---|---|---|"]
+    for rank, i in enumerate(shapley_order(attribution), 1):
+        share = 100 * attribution.values[i] / worth if worth else float("nan")
+        lines.append(f"| {rank} | {result.feature_names[i]} | {i} | {attribution.values[i]:.1f} ± "
+                     f"{attribution.ci95[i]:.1f} | {share:.1f}% | {attribution.leave_one_out[i]:.1f} |")
+    return lines + [""]
+
+
+def _shapley_chart(result: AuditResult, path: str, most: int = 30) -> str:
+    """Horizontal bars of φ_i (95% CI), largest first, the loss of hiding each alone beside them."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    attribution = result.shapley
+    shown = shapley_order(attribution)[:most]
+    figure, ax = plt.subplots(figsize=(7, max(3, 0.3 * len(shown) + 1)))
+    rows = np.arange(len(shown))
+    ax.barh(rows, [attribution.values[i] for i in shown], xerr=attribution.ci95[shown], capsize=2,
+            color="tab:blue", label="Shapley value φ_i (95% CI)")
+    ax.scatter([attribution.leave_one_out[i] for i in shown], rows, marker="D", color="tab:red", zorder=3,
+               label="loss when hidden alone (clean − $a_i$)")
+    ax.axvline(0, color="black", linewidth=0.8)
+    ax.set_yticks(rows, [result.feature_names[i] for i in shown], fontsize=7)
+    ax.invert_yaxis()
+    measure = "return" if result.estimator == "rollout" else f"{result.estimator} estimate"
+    ax.set_xlabel(f"{measure}; the φ_i sum to v(all) − v(none) = {attribution.full - attribution.blind:.0f}")
+    d = len(attribution.values)
+    largest = f"the {len(shown)} largest of {d}" if len(shown) < d else "every feature"
+    ax.set_title(f"{result.env}: what each feature is worth ({largest}; {attribution.method})", fontsize=9)
+    ax.legend(fontsize=7)
+    figure.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(figure)
+    return path
+
+
+def _bar_chart(result: AuditResult, path: str) -> str:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    entries = result.sets[1]
+    worst = min(range(len(entries)), key=lambda i: entries[i].score)
+    figure, ax = plt.subplots(figsize=(max(6, 0.35 * len(entries)), 4))
+    ax.bar(range(len(entries)), [e.score for e in entries], yerr=[e.ci95 for e in entries], capsize=2,
+           color=["tab:red" if i == worst else "tab:blue" for i in range(len(entries))])
+    ax.axhline(result.clean_score, color="black", linestyle="--", label=f"nothing hidden ({result.clean_score:.0f})")
+    ax.axhline(result.mean(1), color="gray", linestyle=":", label=f"mean over the {len(entries)} sets ({result.mean(1):.0f})")
+    ax.set_xticks(range(len(entries)), [", ".join(e.names) for e in entries], rotation=60, ha="right", fontsize=7)
+    ax.set_ylabel(f"$a_u$: mean return of {result.n_episodes} episodes (95% CI)")
+    ax.set_title(f"{result.env}: return with one feature hidden (worst in red)")
+    ax.legend()
+    figure.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(figure)
+    return path
+
+
+def _pair_heatmap(result: AuditResult, path: str) -> str:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    d = len(result.feature_names)
+    grid = np.full((d, d), np.nan)
+    for entry in result.sets[2]:
+        i, j = entry.hidden
+        grid[i, j] = grid[j, i] = entry.score
+    for entry in result.sets.get(1, []):  # the diagonal: the feature alone, where audited
+        grid[entry.hidden[0], entry.hidden[0]] = entry.score
+    size = max(5, 0.3 * d)
+    figure, ax = plt.subplots(figsize=(size + 1.5, size))
+    image = ax.imshow(grid, cmap="viridis")
+    figure.colorbar(image, ax=ax, label="$a_{ij}$: mean return with features i and j hidden")
+    labels = result.feature_names if d <= 40 else [str(i) for i in range(d)]
+    ax.set_xticks(range(d), labels, rotation=90, fontsize=6)
+    ax.set_yticks(range(d), labels, fontsize=6)
+    ax.set_title(f"{result.env}: pairs hidden (diagonal: one feature, where audited)")
+    figure.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(figure)
+    return path
+
+
+def over_training_table(results: list[AuditResult]) -> str:
+    """Markdown: a row per checkpoint; per k the worst a_u (its set) and the mean a_u over the
+    sets; with ``shapley=``, the feature worth most then and its φ."""
+    first = results[0]
+    ks = list(first.sets)
+    attributed = all(result.shapley is not None for result in results)
+    lines = [f"# Robustness over training: {first.env}, {first.source['run']}", "",
+             f"Each checkpoint audited as its folder's report says ({episodes_per_set(results)}, "
+             f"`{first.estimator}`): per k, the worst a_u ± its 95% interval with its set, and the mean a_u over the "
+             "sets (the average case; none for a searched k)" + ("; and the feature worth most, its Shapley value "
+                                                                "φ_i of v(all) − v(none)" if attributed else "") + ".", "",
+             "| env step | clean return | " + " | ".join(f"k={k}: worst a_u (set) | k={k}: mean a_u" for k in ks)
+             + (" | worth most: φ_i of v(all) − v(none)" if attributed else "") + " |",
+             "|---|---|" + "---|---|" * len(ks) + ("---|" if attributed else "")]
+    for result in results:
+        cells = []
+        for k in ks:
+            (worst,) = result.worst(k, 1)
+            mean = result.mean(k)
+            cells += [f"{worst.score:.1f} ± {worst.ci95:.1f} ({', '.join(worst.names)})",
+                      "—" if math.isnan(mean) else f"{mean:.1f}"]
+        if attributed:
+            attribution, top = result.shapley, shapley_order(result.shapley)[0]
+            cells.append(f"{result.feature_names[top]}: {attribution.values[top]:.1f} ± {attribution.ci95[top]:.1f} "
+                         f"of {attribution.full - attribution.blind:.1f}")
+        lines.append(f"| {result.source['checkpoint (env step)']} | {result.clean_score:.1f} ± {result.clean_ci95:.1f} | "
+                     + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def over_training_chart(results: list[AuditResult], path: str) -> str:
+    """Per k: the worst a_u (solid, with its 95% interval) and the mean a_u (dashed) by
+    checkpoint; the clean return in black."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    steps = [result.source["checkpoint (env step)"] for result in results]
+    figure, ax = plt.subplots(figsize=(8, 4.5))
+    ax.plot(steps, [result.clean_score for result in results], "k--", marker="o", label="nothing hidden")
+    for index, k in enumerate(results[0].sets):
+        color = f"C{index}"
+        worst = [result.worst(k, 1)[0] for result in results]
+        ax.errorbar(steps, [entry.score for entry in worst], yerr=[entry.ci95 for entry in worst], color=color,
+                    marker="o", capsize=3, label=f"k = {k}: worst $a_u$")
+        means = [result.mean(k) for result in results]
+        if not any(math.isnan(mean) for mean in means):
+            ax.plot(steps, means, color=color, linestyle=":", marker=".", label=f"k = {k}: mean $a_u$ over the sets")
+    ax.set_xlabel("checkpoint (env steps)")
+    ax.set_ylabel(f"return ({results[0].n_episodes} episodes per set)")
+    ax.set_title(f"{results[0].env}: robustness over training", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    figure.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(figure)
+    return path
+
+
+def _worst_by_mode(results: list[AuditResult]) -> dict[str, dict[int, np.ndarray]]:
+    """Per mode and k: each pair's worst a_u (the lowest over the sets of that size)."""
+    return _per_pair_by_mode(results, lambda result, k: min(entry.score for entry in result.sets[k]))
+
+
+def _per_pair_by_mode(results: list[AuditResult], measure) -> dict[str, dict[int, np.ndarray]]:
+    """Per mode and k: ``measure(result, k)`` of each pair, in pair order."""
+    by_mode: dict[str, dict[int, list[float]]] = {}
+    for result in results:
+        for k in result.sets:
+            by_mode.setdefault(result.source["mode"], {}).setdefault(k, []).append(measure(result, k))
+    return {mode: {k: np.array(values) for k, values in per_k.items()} for mode, per_k in by_mode.items()}
+
+
+def comparison_chart(results: list[AuditResult], path: str) -> str:
+    """Bars per k and mode: the mean of the pairs' worst a_u with its 95% t-interval, and
+    each pair's own as a dot."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from admissable_jax.plot import MODE_COLORS
+
+    worst = _worst_by_mode(results)
+    ks, modes = list(results[0].sets), sorted(worst)
+    width = 0.8 / len(modes)
+    figure, ax = plt.subplots(figsize=(max(5, 1.6 * len(ks) * len(modes)), 4))
+    for offset, mode in enumerate(modes):
+        x = np.arange(len(ks)) + (offset - (len(modes) - 1) / 2) * width
+        bounds = [mean_and_interval(worst[mode][k][:, None]) for k in ks]
+        means = np.array([mean[0] for mean, _, _ in bounds])
+        errors = np.array([[mean[0] - low[0] for mean, low, _ in bounds], [high[0] - mean[0] for mean, _, high in bounds]])
+        color = MODE_COLORS.get(mode, "black")
+        ax.bar(x, means, width, yerr=errors, capsize=3, color=color, alpha=0.6,
+               label=f"{mode} ({len(worst[mode][ks[0]])} seeds)")
+        for position, k in zip(x, ks):
+            ax.plot(np.full(len(worst[mode][k]), position), worst[mode][k], "o", color=color, markersize=3)
+    ax.set_xticks(range(len(ks)), [f"k = {k}" for k in ks])
+    ax.set_ylabel("worst $a_u$ over the sets of size k")
+    ax.set_title(f"{results[0].env}, checkpoint {results[0].source['checkpoint (env step)']}: "
+                 f"the worst hidden set per pair (bars: mean, 95% CI; dots: pairs)", fontsize=9)
+    ax.legend()
+    ax.grid(alpha=0.3, axis="y")
+    figure.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(figure)
+    return path
+
+
+def compare_modes(results: list[AuditResult]) -> str:
+    """Markdown: per k and mode, the pairs' worst a_u, their mean a_u over the sets (the
+    average case; not for a searched k) and clean return (mean ± 95% t-interval over seeds)
+    and the set most often worst; then adversarial − uniform per k on the worst and the mean
+    (Welch's t: the seeds of one mode are independent of the other's), with the seeds per mode
+    that would tell apart what these cannot (:func:`~admissable_jax.results.seeds_sentence`); where every pair
+    was audited with ``shapley=``, each feature's Shapley value per mode."""
+    by_mode: dict[str, list[AuditResult]] = {}
+    for result in results:
+        by_mode.setdefault(result.source["mode"], []).append(result)
+    first = results[0]
+    lines = [f"# Robustness audit of an experiment: {first.env}, checkpoint {first.source['checkpoint (env step)']}", "",
+             f"Each pair audited as its own report says ({episodes_per_set(results)}, `{first.estimator}`); "
+             "here, per pair, the worst a_u over the sets of each size and the mean a_u over them (the average case, "
+             "u drawn uniformly), then mean ± 95% t-interval over the seeds of a mode. Where a k was searched "
+             "(`search=beam`), the worst found is an upper bound on the worst, and there is no mean.", "",
+             "| k | mode | seeds | worst a_u | mean a_u over the sets | most often worst | clean return |",
+             "|---|---|---|---|---|---|---|"]
+    measures = {"worst a_u": _worst_by_mode(results), "mean a_u": _per_pair_by_mode(results, AuditResult.mean)}
+    for k in first.sets:
+        for mode, group in sorted(by_mode.items()):
+            names = [", ".join(result.worst(k, 1)[0].names) for result in group]
+            common = max(names, key=names.count)  # ties: the first pair's
+            clean = np.array([result.clean_score for result in group])
+            average = measures["mean a_u"][mode][k]
+            lines.append(f"| {k} | {mode} | {len(group)} | {estimate(measures['worst a_u'][mode][k])} | "
+                         f"{'—' if np.isnan(average).any() else estimate(average)} | {common} "
+                         f"({names.count(common)} of {len(group)}) | {estimate(clean)} |")
+    if {"adversarial", "uniform"} <= set(by_mode):
+        lines += ["", "| k | measure | adversarial − uniform | 95% interval (Welch) | p (two-sided) | reading |",
+                  "|---|---|---|---|---|---|"]
+        compared = [(k, name, Difference(f"k={k} {name}", per_mode["adversarial"][k], per_mode["uniform"][k]))
+                    for k in first.sets for name, per_mode in measures.items()
+                    if not np.isnan(per_mode["adversarial"][k]).any()]
+        lines += [f"| {k} | {name} | {difference.cells()} |" for k, name, difference in compared]
+        sentence = seeds_sentence([(difference.metric, difference) for _, _, difference in compared])
+        if sentence:
+            lines += ["", sentence.rstrip()]
+    if all(result.shapley is not None for result in results):
+        lines += _shapley_by_mode(by_mode, first.feature_names)
+    return "\n".join(lines) + "\n"
+
+
+def episodes_per_set(results: list[AuditResult]) -> str:
+    """N of several audits (an experiment's pairs, a run's checkpoints): one number, or their
+    range where ``tell_apart`` chose each."""
+    low, high = min(result.n_episodes for result in results), max(result.n_episodes for result in results)
+    return (f"N = {low} episodes per set" if low == high else
+            f"N = {low}–{high} episodes per set, each audit's chosen by its pilot (`tell_apart`)")
+
+
+def _shapley_by_mode(by_mode: dict[str, list[AuditResult]], names: list[str], most: int = 20) -> list[str]:
+    """Markdown: each feature's Shapley value per mode, mean ± 95% t-interval over the
+    mode's pairs; the ``most`` features of largest mean |φ_i| over every pair, largest φ first."""
+    values = {mode: np.array([result.shapley.values for result in group]) for mode, group in sorted(by_mode.items())}
+    overall = np.concatenate(list(values.values())).mean(axis=0)
+    shown = sorted(sorted(range(len(names)), key=lambda i: -abs(overall[i]))[:most], key=lambda i: -overall[i])
+    which = "every feature" if len(shown) == len(names) else f"the {len(shown)} of largest mean |φ_i| of {len(names)}"
+    lines = ["", "## What each feature is worth, per mode", "",
+             f"Each pair's Shapley values φ_i (its report's last section: the feature's share of v(all) − v(none)), "
+             f"mean ± 95% t-interval over the seeds of a mode; {which}, largest mean first.", "",
+             "| feature | index | " + " | ".join(values) + " |", "|---|---|" + "---|" * len(values)]
+    for i in shown:
+        lines.append(f"| {names[i]} | {i} | " + " | ".join(estimate(per_pair[:, i]) for per_pair in values.values()) + " |")
+    return lines

@@ -1,0 +1,362 @@
+"""The audit itself: every set of k hidden features scored in one batched rollout (and the
+clean case), N episodes each, ranked, each with its gap to the worst; for a JAX policy on
+our envs (:func:`audit`) and for any policy on any Gymnasium env (:func:`audit_gymnasium`).
+The package's docstring says what is measured and why."""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import functools
+from typing import Any
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from admissable_jax.method import candidate_sets, num_candidate_sets
+from admissable_jax.scoring import SCORE_ESTIMATORS
+from admissable_jax.scoring.attribution import ShapleyAttribution, ShapleyPlan, plan_shapley, shapley_attribution
+from admissable_jax.scoring.worst_set import gap_above, samples_to_separate, t_half_width
+
+
+
+MAX_AUDIT_EPISODES = 200_000  # sets × N stepped in one program; beyond it, audit fewer k or episodes
+
+
+MAX_TELL_APART_EPISODES = 1000  # the most episodes per set tell_apart chooses
+
+
+SEARCHES = ("exact", "beam")
+
+
+def check_search(search: str, beam_width: int, ranker: str) -> None:
+    if search not in SEARCHES:
+        raise ValueError(f"search must be one of {', '.join(SEARCHES)}, got {search!r}")
+    if beam_width < 1:
+        raise ValueError(f"beam_width must be >= 1, got {beam_width}")
+    if ranker not in SCORE_ESTIMATORS:
+        raise ValueError(f"ranker must be one of {', '.join(SCORE_ESTIMATORS)}, got {ranker!r}")
+
+
+@dataclasses.dataclass
+class SetScore:
+    """One audited set: its features, a_u, the 95% CI half-width, the drop from clean in %."""
+
+    hidden: tuple[int, ...]
+    names: tuple[str, ...]
+    score: float
+    ci95: float
+    drop_percent: float
+    returns: list[float]
+
+
+@dataclasses.dataclass
+class AuditResult:
+    env: str
+    estimator: str  # rollout: undiscounted returns; critic, horizon: discounted values (admissable_jax.scoring)
+    n_episodes: int
+    clean_score: float
+    clean_ci95: float
+    clean_returns: list[float]
+    sets: dict[int, list[SetScore]]  # by k: every set in candidate_sets order, or a search's finalists
+    feature_names: list[str]
+    source: dict[str, Any]  # what was audited (run directory, step), for the report
+    search: dict[int, dict[str, Any]] = dataclasses.field(default_factory=dict)  # by searched k: how, and ranks
+    same_starts: bool = True  # every set's episode i starts from one state (False: a Gymnasium vector env's resets)
+    shapley: ShapleyAttribution | None = None  # what each feature is worth, where asked (scoring.attribution)
+    pilot: dict[str, Any] | None = None  # with tell_apart: the pilot audit that chose N (see audit)
+
+    def worst(self, k: int, top: int) -> list[SetScore]:
+        return sorted(self.sets[k], key=lambda entry: entry.score)[:top]
+
+    def mean(self, k: int) -> float:
+        """The mean a_u over all sets of size k: the average case (u drawn uniformly), where
+        the paper warns a weak spot hides. NaN where k was searched (its finalists are the
+        worst found, not all the sets)."""
+        return float("nan") if k in self.search else float(np.mean([entry.score for entry in self.sets[k]]))
+
+    def gaps_to_worst(self, k: int) -> list[GapToWorst]:
+        """Every set of size k, worst first (its own gap 0), with how far its a_u lies above the worst's."""
+        worst, *others = self.worst(k, len(self.sets[k]))
+        return [GapToWorst(worst, 0.0, 0.0)] + [GapToWorst.between(worst, entry, self.same_starts) for entry in others]
+
+    def episodes_to_separate(self, k: int) -> int | None:
+        """N per set that would tell the worst set of size k from the runner-up (80% power at
+        the gap and spread seen; :func:`~admissable_jax.scoring.worst_set.samples_to_separate`).
+        None with one set, or where the two sets' returns do not differ."""
+        if len(self.sets[k]) < 2:
+            return None
+        worst, runner_up = self.worst(k, 2)
+        return samples_to_separate(worst.returns, runner_up.returns, self.same_starts)
+
+
+@dataclasses.dataclass(frozen=True)
+class GapToWorst:
+    """A set's a_u above the worst's of its size, with the 95% interval's half-width
+    (:func:`~admissable_jax.scoring.worst_set.gap_above`: paired where the sets share start
+    states, else Welch's)."""
+
+    entry: SetScore
+    gap: float
+    ci95: float
+
+    @property
+    def tied(self) -> bool:
+        """Not told apart from the worst: the interval of the gap holds 0."""
+        return self.gap - self.ci95 <= 0
+
+    @classmethod
+    def between(cls, worst: SetScore, entry: SetScore, paired: bool) -> GapToWorst:
+        return cls(entry, *gap_above(worst.returns, entry.returns, paired))
+
+
+def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, num_slots: int | None = None,
+          feature_names: list[str] | None = None, source: dict[str, Any] | None = None, estimator: str = "rollout",
+          critic_fn=None, critic_params=None, horizon: int = 0, gamma: float = 0.99, search: str = "exact",
+          beam_width: int = 4, ranker: str = "rollout", shapley: int | str = 0, progress: bool = False,
+          tell_apart: bool = False) -> AuditResult:
+    """Score every set of each size in ``ks`` and the clean case in one batch, N =
+    ``n_episodes`` each from the same N start states, by
+    :func:`~admissable_jax.scoring.score_missingness` with ``estimator`` (``critic`` and
+    ``horizon`` from ``critic_fn`` and ``critic_params``; H = ``horizon``). With
+    ``search="beam"`` the sets of each k > 1 are the ``beam_width`` finalists of a beam
+    search ranked by ``ranker`` instead of all C(d, k). ``shapley`` (``"exact"``, or M >= 4
+    feature orders; 0: none) adds the Shapley attribution's coalitions to the batch (module
+    package docstring). ``progress`` draws a bar over each rollout's episodes as they finish.
+
+    ``tell_apart``: ``n_episodes`` is a pilot's N; the audit returned is a second one, from
+    the start states of ``seed + 1``, with as many episodes per set as the pilot says would
+    tell the worst set of each k from the runner-up (:meth:`AuditResult.episodes_to_separate`,
+    the largest over the ks; at least the pilot's, at most MAX_TELL_APART_EPISODES and what
+    one rollout may hold); its ``pilot`` says how N was chosen."""
+    import jax
+
+    from admissable_jax.scoring import beam_search_worst_sets, score_missingness
+
+    check_search(search, beam_width, ranker)
+    d = env.observation_size
+    searched = [k for k in ks if search == "beam" and k > 1]
+    plan = shapley_plan(d, shapley, seed)
+    check_audit_size(env.name, d, ks, n_episodes, search, beam_width, plan)
+    if tell_apart:
+        return _told_apart(functools.partial(
+            audit, env, policy_fn, params, ks, num_slots=num_slots, feature_names=feature_names, source=source,
+            estimator=estimator, critic_fn=critic_fn, critic_params=critic_params, horizon=horizon, gamma=gamma,
+            search=search, beam_width=beam_width, ranker=ranker, progress=progress),
+            ks, n_episodes, seed, shapley, _rollout_sets(d, ks, search, beam_width, plan))
+    scorer = jax.jit(score_missingness, static_argnums=(0, 1, 5, 6, 7), static_argnames=(
+        "score_estimator", "critic_fn", "score_horizon", "gamma", "progress"))
+    key = jax.random.key(seed)
+
+    def score(rows: np.ndarray, how: str):
+        counted = progress and how == "rollout"  # the estimates run no episodes to count
+        with _episode_bar((len(rows) + 1) * n_episodes) if counted else contextlib.nullcontext():
+            scored = scorer(env, policy_fn, params, key, rows, n_episodes, None, num_slots, score_estimator=how,
+                            critic_fn=critic_fn, critic_params=critic_params, score_horizon=horizon, gamma=gamma,
+                            progress=_advance_episode_bar if counted else None)
+            jax.effects_barrier()  # every report from inside the rollout made before the bar closes
+        if bool(scored.capacity_exceeded):
+            raise ValueError(f"the physics ran out of contact buffers: {env.capacity_message()}")
+        return scored
+
+    search_info, blocks = {}, []
+    for k in ks:
+        if k not in searched:
+            blocks.append(candidate_sets(d, k))
+            continue
+        found = beam_search_worst_sets(lambda rows: score(rows, ranker).scores, d, k, beam_width)
+        kept = np.asarray(found.found)
+        finalists, ranker_scores = np.asarray(found.rows)[kept], np.asarray(found.scores)[kept]
+        blocks.append(finalists)
+        search_info[k] = {"method": "beam", "beam_width": beam_width, "ranker": ranker,
+                          "sets_ranked": int(found.num_ranked), "sets_in_all": num_candidate_sets(d, k),
+                          "ranker_scores": [[np.flatnonzero(row).tolist(), float(score_)]
+                                            for row, score_ in zip(finalists, ranker_scores)]}
+    return _audit_result(env.name, estimator, lambda rows: score(rows, estimator).returns, ks, blocks, plan,
+                         feature_names or [str(i) for i in range(d)], source or {}, search_info)
+
+
+def _told_apart(audit_with, ks, n_episodes: int, seed: int, shapley: int | str, rollout_sets: int) -> AuditResult:
+    """``tell_apart``: a pilot audit (``audit_with(n_episodes=, seed=, shapley=)``) of
+    ``n_episodes`` per set from ``seed``'s start states, without the Shapley coalitions;
+    then the audit returned, from ``seed + 1``'s, with as many episodes per set as the pilot
+    says tell the worst set of each k from the runner-up (the largest; at least the pilot's,
+    at most MAX_TELL_APART_EPISODES and what one rollout of ``rollout_sets`` sets may hold)."""
+    pilot = audit_with(n_episodes=n_episodes, seed=seed, shapley=0)
+    needed = {k: pilot.episodes_to_separate(k) for k in ks}
+    most = min(MAX_TELL_APART_EPISODES, MAX_AUDIT_EPISODES // (rollout_sets + 1))
+    chosen = min(max([n_episodes] + [n for n in needed.values() if n is not None]), max(most, n_episodes))
+    final = audit_with(n_episodes=chosen, seed=seed + 1, shapley=shapley)
+    return dataclasses.replace(final, pilot={"episodes": n_episodes, "seed": seed, "needed": needed,
+                                             "chosen": chosen, "most": most})
+
+
+class _EpisodeBar:
+    """A bar over a rollout's ``total`` episodes, drawn from the first report from inside the
+    rollout on (so its clock and rate leave the compile out)."""
+
+    def __init__(self, total: int):
+        self.total, self.bar = total, None
+
+    def advance(self, finished: int) -> None:
+        if self.bar is None:
+            self.bar = tqdm(total=self.total, unit="episode")
+        self.bar.update(max(0, finished - self.bar.n))
+
+
+_OPEN_EPISODE_BARS: list[_EpisodeBar] = []  # the bar the running rollout advances (innermost last)
+
+
+@contextlib.contextmanager
+def _episode_bar(total: int):
+    """While open, :func:`_advance_episode_bar` advances a bar over ``total`` episodes."""
+    bar = _EpisodeBar(total)
+    _OPEN_EPISODE_BARS.append(bar)
+    try:
+        yield
+    finally:
+        _OPEN_EPISODE_BARS.remove(bar)
+        if bar.bar is not None:
+            bar.bar.close()
+
+
+def _advance_episode_bar(finished) -> None:
+    """Called from inside the jitted rollout with the episodes finished so far. One module
+    function, not a bar's own method, so that the rollout compiles once for every audit
+    (a new callable would be a new static argument)."""
+    if _OPEN_EPISODE_BARS:
+        _OPEN_EPISODE_BARS[-1].advance(int(finished))
+
+
+def shapley_plan(d: int, shapley: int | str, seed: int) -> ShapleyPlan | None:
+    """The Shapley attribution's plan for ``shapley`` (``"exact"`` or M orders; 0: none)."""
+    return plan_shapley(d, shapley, seed) if shapley else None
+
+
+def plan_size(plan: ShapleyPlan | None) -> int:
+    return 0 if plan is None else len(plan.hidden_rows)
+
+
+def _distinct_hidden_sets(blocks: list[np.ndarray], plan: ShapleyPlan | None) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct non-empty hidden sets of ``blocks`` and of ``plan`` (each valued once; the
+    empty one is the clean case every rollout adds last), and where each row of the blocks,
+    concatenated, lies among those rollout rows."""
+    rows = np.concatenate(blocks + ([plan.hidden_rows] if plan is not None else []))
+    distinct, index = np.unique(rows, axis=0, return_inverse=True)
+    empty = ~distinct.any(axis=1)
+    row_in_rollout = np.where(empty, (~empty).sum(), np.cumsum(~empty) - 1)  # the empty set: the clean row, last
+    return distinct[~empty], row_in_rollout[index.reshape(-1)][:sum(len(block) for block in blocks)]
+
+
+def _audit_result(env_name: str, estimator: str, score_rows, ks, blocks: list[np.ndarray], plan: ShapleyPlan | None,
+                  names: list[str], source: dict[str, Any], search_info: dict[int, dict[str, Any]]) -> AuditResult:
+    """The audit of one rollout by ``score_rows`` ((r, d) 0/1 rows -> (r + 1, N) returns,
+    the clean case last) of the sets in ``blocks`` (one block of 0/1 rows per k in ``ks``)
+    and of ``plan``'s coalitions, each distinct set once."""
+    rollout_rows, block_rows = _distinct_hidden_sets(blocks, plan)
+    valued = np.asarray(score_rows(rollout_rows), np.float64)
+    returns = valued[np.append(block_rows, -1)]
+    clean = returns[-1]
+    clean_score = float(clean.mean())
+    sets, row = {}, 0
+    for k, block in zip(ks, blocks):
+        entries = []
+        for hidden_row in block:
+            hidden = tuple(int(i) for i in np.flatnonzero(hidden_row))
+            score_ = float(returns[row].mean())
+            entries.append(SetScore(hidden, tuple(names[i] for i in hidden), score_, t_half_width(returns[row]),
+                                    drop_below_clean(clean_score, score_), returns[row].tolist()))
+            row += 1
+        sets[k] = entries
+    shapley = None if plan is None else shapley_attribution(
+        plan, np.concatenate([rollout_rows, np.zeros((1, len(names)), np.float32)]), valued)
+    return AuditResult(env_name, estimator, returns.shape[1], clean_score, t_half_width(clean), clean.tolist(), sets,
+                       list(names), source, search_info, shapley=shapley)
+
+
+def gymnasium_features(env_id: str, ks, **env_kwargs) -> int:
+    """d of the Gymnasium env ``env_id``; one-line ValueError if it cannot be made or a k
+    in ``ks`` does not fit it."""
+    import gymnasium
+
+    from admissable_jax.envs import settotalmass_warning_dropped
+
+    try:
+        with settotalmass_warning_dropped():
+            probe = gymnasium.make(env_id, **env_kwargs)
+    except gymnasium.error.Error as error:
+        raise ValueError(f"cannot make the Gymnasium env {env_id!r}: {error}") from None
+    d = int(probe.observation_space.shape[0])
+    probe.close()
+    if not ks or any(not 1 <= k < d for k in ks):
+        raise ValueError(f"ks must be set sizes 1 <= k < d = {d}, got {tuple(ks)}")
+    return d
+
+
+def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs: int = 8, seed: int = 0,
+                    feature_names: list[str] | None = None, shapley: int | str = 0, progress: bool = False,
+                    tell_apart: bool = False, **env_kwargs) -> AuditResult:
+    """:func:`audit` for any policy on any Gymnasium env (Stable-Baselines3, CleanRL, your
+    own PyTorch): every set of each size in ``ks`` and the clean case, N = ``n_episodes``
+    episodes each, in one rollout on ``num_envs`` copies of ``gymnasium.make_vec(env_id)``
+    by :func:`~admissable_jax.wrappers.score_policy` (``policy(masked_obs_batch) ->
+    actions``). Episode starts follow the vector env's seed, so unlike :func:`audit` the
+    sets do not share their N start states. ``feature_names`` default to our env's for
+    Hopper-v5, Walker2d-v5, Ant-v5 and HalfCheetah-v5, else the indices. ``shapley``
+    and ``tell_apart`` as in :func:`audit` (the gaps by Welch's t); ``progress`` draws a bar over
+    the episodes. :func:`~admissable_jax.audit.report.write_audit` writes the files."""
+    from admissable_jax.envs import canonical_env_name, observation_names, settotalmass_warning_dropped
+    from admissable_jax.wrappers import score_policy
+
+    d = gymnasium_features(env_id, ks, **env_kwargs)
+    blocks = [candidate_sets(d, k) for k in ks]
+    plan = shapley_plan(d, shapley, seed)
+    check_audit_size(env_id, d, ks, n_episodes, search=None, plan=plan)
+    if tell_apart:
+        return _told_apart(functools.partial(audit_gymnasium, env_id, policy, ks, num_envs=num_envs,
+                                             feature_names=feature_names, progress=progress, **env_kwargs),
+                           ks, n_episodes, seed, shapley, _rollout_sets(d, ks, None, 0, plan))
+    if feature_names is None:
+        try:
+            feature_names = observation_names(canonical_env_name(env_id))
+        except ValueError:  # not one of our envs
+            feature_names = []
+        if len(feature_names) != d:  # or made with other observation arguments
+            feature_names = [str(i) for i in range(d)]
+
+    def score_rows(rows: np.ndarray) -> np.ndarray:
+        with settotalmass_warning_dropped():
+            return score_policy(env_id, policy, n_episodes=n_episodes, num_envs=num_envs, seed=seed, hidden_sets=rows,
+                                progress=progress, **env_kwargs).returns
+
+    source = {"Gymnasium env": env_id, "policy": getattr(policy, "__name__", type(policy).__name__)}
+    result = _audit_result(env_id, "rollout", score_rows, ks, blocks, plan, feature_names, source, {})
+    return dataclasses.replace(result, same_starts=False)
+
+
+def drop_below_clean(clean_score: float, score: float) -> float:
+    """How far ``score`` lies below the clean return, in percent of it."""
+    return 100.0 * (clean_score - score) / abs(clean_score) if clean_score else float("nan")
+
+
+def check_audit_size(env_name: str, d: int, ks, n_episodes: int, search: str | None = "exact", beam_width: int = 4,
+                     plan: ShapleyPlan | None = None) -> None:
+    """Refuse, in one line, an audit whose one rollout would step more than
+    MAX_AUDIT_EPISODES episodes: (its sets, where searched the b finalists, and the plan's
+    coalitions, + the clean case) × N; a beam search's levels rank b · d sets a batch.
+    ``search`` None: the audit cannot search (a Gymnasium policy's)."""
+    num_sets = _rollout_sets(d, ks, search, beam_width, plan)
+    if (num_sets + 1) * n_episodes > MAX_AUDIT_EPISODES:
+        offers = ["lower episodes=", "drop the largest k"]
+        offers += [] if search is None else ["use search=beam" if search == "exact" else "lower beam_width="]
+        offers += [] if plan is None else ["give shapley= fewer feature orders"]
+        raise ValueError(f"auditing k={','.join(map(str, ks))} on {env_name} is {num_sets:,} sets x {n_episodes} "
+                         f"episodes in one rollout, over {MAX_AUDIT_EPISODES:,}: {', '.join(offers[:-1])} or {offers[-1]}")
+
+
+def _rollout_sets(d: int, ks, search: str | None, beam_width: int, plan: ShapleyPlan | None) -> int:
+    """The most sets an audit's one rollout scores besides the clean case: its sets (where
+    searched, the b finalists) and the plan's coalitions; a beam search's level, b · d."""
+    searched = [k for k in ks if search == "beam" and k > 1]
+    num_sets = sum(beam_width if k in searched else num_candidate_sets(d, k) for k in ks) + plan_size(plan)
+    return max(num_sets, beam_width * d if searched else 0)
