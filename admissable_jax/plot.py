@@ -24,7 +24,8 @@ and draws, as PNG and PDF (``formats``: any matplotlib writes, e.g. ``png,svg``)
   set (per feature with a pool), the modes' bars side by side, mean over seeds with 95%
   t-intervals (:func:`~admissable_jax.results.final_scores`);
 * ``summary.md`` (CLI) — :func:`~admissable_jax.results.summary_table`: final and AUC
-  min_u a_u, final mean_u a_u (the average over U) and clean return per mode, and
+  min_u a_u, final mean_u a_u (the average over U), clean return and the set most often
+  worst at the end per mode, and
   :func:`~admissable_jax.results.comparison_section`: adversarial − uniform on each with
   Welch's 95% interval and p-value.
 

@@ -54,6 +54,7 @@ class Run:
     clean_score: np.ndarray  # (T,)
     p_miss: np.ndarray  # (T, |U|); with a pool (T, d): the p_miss mass on the pool's sets hiding each feature
     set_names: list[str]  # (|U|,) the hidden features of each candidate set; with a pool each feature's name
+    worst_sets: list[str]  # (T,) the set of lowest a_u at each scoring, by its features' names
     score_episodes: int  # N: episodes behind each a_u
     pooled: bool = False  # scores and p_miss are per feature (a run with a candidate pool)
     uniform_draws: bool = False  # p_miss stayed uniform at every scoring
@@ -96,10 +97,16 @@ def load_run(path: str) -> Run:
         raise ValueError(f"{scores_path}: each row must hold {len(names)} scores and p_miss values "
                          f"(one per set of {config.env} with k={config.k}), got {scores.shape[1:]} and {p_miss.shape[1:]}")
     mean_score = np.full(len(rows), np.nan) if pooled else scores.mean(axis=1)
+    if pooled:  # the pool's set of lowest a_u, named
+        features = names
+        worst_sets = [" + ".join(features[i] for i in parse_set(row["sets"][int(np.argmin(row["scores"]))]))
+                      for row in rows]
+    else:
+        worst_sets = [names[i] for i in np.argmin(scores, axis=1)]
     return Run(
         path=path, env=str(config.env), mode=str(config.missingness), seed=int(config.seed),
         env_steps=column("env_steps"), scores=scores, min_score=column("min_score"), mean_score=mean_score,
-        clean_score=column("clean_score"), p_miss=p_miss, set_names=names,
+        clean_score=column("clean_score"), p_miss=p_miss, set_names=names, worst_sets=worst_sets,
         score_episodes=int(config.score_episodes), pooled=pooled, uniform_draws=uniform_draws,
         settings={key: str(value) for key, value in {**dataclasses.asdict(TrainConfig()), **config}.items()
                   if key not in NOT_SETTINGS},
@@ -209,21 +216,25 @@ def summary_table(run_dirs: list[str]) -> str:
     """Markdown table per mode (and variant, where runs differ in settings): final and
     area-under-curve min_u a_u, the final mean_u a_u (the average case; "—" for runs with a
     pool, which score only its sets) and the final clean return, mean ± 95% t-interval
-    half-width over seeds. The AUC is the mean of min_u a_u over all records (the area
-    under the curve divided by its length in records)."""
+    half-width over seeds; and where the mode is weak at the end: the set most often worst
+    at the final record, in how many seeds (ties: the first seed's). The AUC is the mean of
+    min_u a_u over all records (the area under the curve divided by its length in records)."""
     lines = [
         "| env | mode | seeds | env steps | final min_u a_u | AUC min_u a_u (mean over records) | final mean_u a_u "
-        "| final clean return |",
-        "|---|---|---|---|---|---|---|---|",
+        "| final clean return | final worst u (seeds) |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for (env, _, _), runs in curves_of(run_dirs).items():
         steps, minimum = aligned(runs, "min_score")
         _, average = aligned(runs, "mean_score")
         _, clean = aligned(runs, "clean_score")
         final_average = "—" if np.isnan(average[:, -1]).any() else estimate(average[:, -1])
+        worst = [run.worst_sets[len(steps) - 1] for run in runs]
+        common = max(worst, key=worst.count)
         lines.append(
             f"| {env} | {runs[0].curve} | {len(runs)} | {int(steps[-1])} | {estimate(minimum[:, -1])} | "
-            f"{estimate(minimum.mean(axis=1))} | {final_average} | {estimate(clean[:, -1])} |"
+            f"{estimate(minimum.mean(axis=1))} | {final_average} | {estimate(clean[:, -1])} | "
+            f"{common} ({worst.count(common)} of {len(runs)}) |"
         )
     return "\n".join(lines) + "\n"
 

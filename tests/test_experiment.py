@@ -13,11 +13,13 @@ from nbclient import NotebookClient
 
 from admissable_jax import mask_observation
 from admissable_jax.config import ExperimentConfig, pair_configs
+from admissable_jax.envs import observation_names
 from admissable_jax.experiment import main as experiment_main
 from admissable_jax.experiment import run_experiment
 from admissable_jax.plot import plot_runs
 from admissable_jax.results import Difference, estimate, find_runs
 from admissable_jax.memory import MemoryBudgetExceeded
+from admissable_jax.method import parse_set
 from admissable_jax.audit import AuditConfig, audit_experiment, audit_run
 from admissable_jax.audit import main as audit_main  # the command line, in this process
 from admissable_jax.policies import load_policy
@@ -110,8 +112,14 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys):
     said = capsys.readouterr().out
     final_min = {mode: np.array([r.scores[-1]["min_score"] for r in straight if r.config.missingness == mode])
                  for mode in ("adversarial", "uniform")}
+    features = observation_names("point_mass")
     for mode, values in final_min.items():
         assert f"| point_mass | {mode} | 2 | 3000 | {estimate(values)} | " in said
+        # The row ends with where the mode is weak: the set most often worst at the end, as the trainer recorded it.
+        worst = [features[parse_set(r.scores[-1]["argmin_set"])[0]] for r in straight if r.config.missingness == mode]
+        common = max(worst, key=worst.count)
+        row = said.split(f"| point_mass | {mode} | 2 | 3000 | ")[1].splitlines()[0]
+        assert row.endswith(f"| {common} ({worst.count(common)} of 2) |")
     difference = Difference("final min_u a_u", final_min["adversarial"], final_min["uniform"])
     assert f"| point_mass | final min_u a_u | {difference.cells()} |" in said.split("Adversarial − uniform")[1]
     assert said.rstrip().endswith(f"figures and summary.md: python -m admissable_jax.plot {resumed_root}")

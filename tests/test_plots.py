@@ -135,10 +135,12 @@ def test_summary_table_reports_final_and_auc_per_mode(tmp_path):
     # Two seeds: 95% half-width t(0.975, 1) · sd / √2 = 12.706 · sd / √2.
     # final: mean(40, 60) = 50, sd 14.142 → ± 127.1; AUC: mean(25, 40) = 32.5, sd 10.607 → ± 95.3;
     # final mean_u a_u: mean(90, 110) = 100 ± 127.1; clean: mean(100, 120) = 110 ± 127.1.
+    # The last column: where the mode is weak at the end (set 0, the lowest in every row here).
+    worst = set_names("hopper", 1, False)[0]
     assert cells(adversarial) == ["hopper", "adversarial", "2", "20000", "50.0 ± 127.1", "32.5 ± 95.3", "100.0 ± 127.1",
-                                  "110.0 ± 127.1"]
+                                  "110.0 ± 127.1", f"{worst} (2 of 2)"]
     # One seed: the values alone, no interval (AUC: mean(5, 6, 7, 8) = 6.5; mean_u a_u: 8 + 5 · 30 = 158).
-    assert cells(uniform) == ["hopper", "uniform", "1", "20000", "8.0", "6.5", "158.0", "90.0"]
+    assert cells(uniform) == ["hopper", "uniform", "1", "20000", "8.0", "6.5", "158.0", "90.0", f"{worst} (1 of 1)"]
     # final_scores.png's numbers: set i scores (40, 60) + 10 i at the last record: 50 + 10 i ± 127.1.
     steps, mean, low, high = final_scores([load_run(path) for path in paths[:2]])
     assert steps == 20000

@@ -225,6 +225,8 @@ def test_candidate_pool_for_k2_search_draws_and_records(tmp_path):
     pair when the pool changes under it. End to end, scores.jsonl lists each row's pool and
     plot draws per-feature heatmaps."""
     from admissable_jax.plot import plot_runs
+    from admissable_jax.envs import observation_names
+    from admissable_jax.method import parse_set
     from admissable_jax.results import load_run, summary_table
     from admissable_jax.scoring import beam_search_worst_sets
 
@@ -280,7 +282,11 @@ def test_candidate_pool_for_k2_search_draws_and_records(tmp_path):
     assert run.scores.shape == (3, 4) and np.allclose(run.p_miss.sum(axis=1), 2.0)  # each pair counts for 2 features
     assert np.isnan(run.mean_score).all()
     assert any("scores_adversarial.png" in path for path in plot_runs([config.out], str(tmp_path / "figures"), formats=("png",)))
-    assert summary_table([config.out]).splitlines()[-1].split(" | ")[-2] == "—"  # no final mean_u a_u
+    last = summary_table([config.out]).splitlines()[-1].split(" | ")
+    assert last[-3] == "—"  # no final mean_u a_u
+    # Where the run is weak at the end: the pool's set of lowest a_u, as the trainer recorded it.
+    worst = " + ".join(observation_names("point_mass")[i] for i in parse_set(rows[-1]["argmin_set"]))
+    assert last[-1] == f"{worst} (1 of 1) |"
 
 
 def _feature_zero_controller(gain, masked_obs):
