@@ -105,10 +105,10 @@ def check_same_pairs(config, pairs: list[TrainConfig], experiment_yaml: str) -> 
 def report(run_dirs: list[str], root: str) -> str:
     """What the pairs found, in the paper's terms: per mode final and area-under-curve
     min_u a_u, mean_u a_u and the clean return (mean ± 95% interval over seeds) and the set
-    most often worst at the end; where both
-    adversarial and uniform ran, their difference with Welch's interval and, if the seeds
-    cannot tell them apart, how many would (:mod:`admissable_jax.results`, as ``plot``'s
-    ``summary.md``); then the command that draws the figures."""
+    most often worst at the end; where both adversarial and uniform ran, their difference
+    with Welch's interval and, if the seeds cannot tell them apart, how many would
+    (:mod:`admissable_jax.results`, as ``plot``'s ``summary.md``); then the command that
+    draws the figures."""
     comparison = comparison_section(mode_differences(run_dirs))
     return (summary_table(run_dirs) + (f"\n{comparison}" if comparison else "")
             + f"\nfigures and summary.md: python -m admissable_jax.plot {root}")

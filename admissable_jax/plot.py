@@ -5,8 +5,9 @@
 from :mod:`admissable_jax.results`.
 
 ``plot_runs(run_dirs, out_dir)`` groups runs by env, missingness mode and the settings in
-which they differ (:func:`~admissable_jax.results.label_variants`: a run with k = 2 is never a seed of a k = 1 curve)
-and draws, as PNG and PDF (``formats``: any matplotlib writes, e.g. ``png,svg``):
+which they differ (:func:`~admissable_jax.results.label_variants`: a run with k = 2 is
+never a seed of a k = 1 curve) and draws, as PNG and PDF (``formats``: any matplotlib
+writes, e.g. ``png,svg``):
 
 * ``min_score.*`` — the paper's Figure 1: min_u a_u against env steps, one line per mode
   (adversarial blue, uniform red, as in the paper; none grey), the mean over seeds of the
