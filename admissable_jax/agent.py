@@ -56,6 +56,8 @@ def linear(features: int, fan_in: int) -> nn.Dense:
 
 
 class MLP(nn.Module):
+    """ReLU hidden layers, then a linear output (SB3's initialisation, :func:`linear`)."""
+
     hidden_sizes: Sequence[int]
     out_size: int
 
@@ -97,6 +99,9 @@ class TwinCritic(nn.Module):
 
 @struct.dataclass
 class SACState:
+    """SAC's learned state: the actor, twin critics and their Polyak targets, the entropy
+    temperature log α, and an Adam state for each."""
+
     actor_params: dict
     critic_params: dict
     target_critic_params: dict
@@ -108,6 +113,8 @@ class SACState:
 
 @struct.dataclass
 class SACBatch:
+    """A minibatch as the losses see it: observations already masked with their episode's u."""
+
     obs: jax.Array  # (B, 2·d) masked
     action: jax.Array  # (B, A)
     reward: jax.Array  # (B,)
@@ -160,6 +167,7 @@ class SAC:
 
     # --- learning -----------------------------------------------------------------------
     def init(self, rng: jax.Array) -> SACState:
+        """Fresh networks (targets equal to the critics), α = ``initial_alpha``, fresh Adam states."""
         actor_rng, critic_rng = jax.random.split(rng)
         dummy_obs = jnp.zeros((1, self.input_size))
         actor_params = self.actor.init(actor_rng, dummy_obs)

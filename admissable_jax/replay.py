@@ -16,6 +16,8 @@ from flax import struct
 
 @struct.dataclass
 class Transitions:
+    """Transitions as stored: raw observations and u's index (masked at sampling)."""
+
     obs: jax.Array  # (..., d) raw observation
     set_index: jax.Array  # (...,) index of the episode's missing set
     action: jax.Array  # (..., A)
@@ -26,6 +28,8 @@ class Transitions:
 
 @struct.dataclass
 class ReplayBuffer:
+    """The ring buffer: ``capacity`` rows of :class:`Transitions`, where the next write goes, how many are filled."""
+
     data: Transitions  # leading axis: capacity
     position: jax.Array  # () next row to write
     size: jax.Array  # () rows filled

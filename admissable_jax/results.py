@@ -43,6 +43,8 @@ NOT_SETTINGS = frozenset({"env", "missingness", "seed", "out", "resume", "resume
 
 @dataclasses.dataclass
 class Run:
+    """One run directory read back (:func:`load_run`): its scoring history, one row per scoring."""
+
     path: str
     env: str
     mode: str

@@ -38,6 +38,11 @@ from admissable_jax.scoring import MissingnessScores, beam_search_worst_sets, sc
 
 @struct.dataclass
 class TrainState:
+    """Everything a run carries from one iteration to the next, as one pytree: the agent,
+    its replay buffer, the envs mid-episode with each one's hidden set u, the adversary's
+    p_miss, and the mode as data (``adversarial``, ``masking``), so one compiled program
+    trains every mode and a vmap over a leading axis trains many (seed, mode) pairs."""
+
     sac: SACState
     buffer: replay.ReplayBuffer
     env_states: EnvState  # batched over num_envs
@@ -163,6 +168,10 @@ class Trainer:
 
     # --- the iteration ------------------------------------------------------------------
     def iteration(self, state: TrainState, _=None) -> tuple[TrainState, dict[str, jax.Array]]:
+        """One step of every env under its episode's u (paper §3: u is drawn from p_miss at
+        each episode start and held for the episode), the transitions stored with u's index,
+        then ``updates_per_iteration`` SAC updates once learning has started. Pure: a
+        ``lax.scan`` body (the second argument is the scanned-over slot, unused)."""
         rng, act_rng, reset_rng, set_rng, learn_rng = jax.random.split(state.rng, 5)
         actions = self._act(state, act_rng)
         stepped = jax.vmap(self.env.step)(state.env_states, actions)

@@ -52,6 +52,8 @@ class SetScore:
 
 @dataclasses.dataclass
 class AuditResult:
+    """One audit: the clean case and every audited set of each size k, with what was audited and how."""
+
     env: str
     estimator: str  # rollout: undiscounted returns; critic, horizon: discounted values (admissable_jax.scoring)
     n_episodes: int
