@@ -128,7 +128,11 @@ def main(argv: list[str]) -> int:
         print(result.summary())
     pairs = pair_configs(config)
     if results and len(results) == len(pairs):  # every pair's directory is this process's
-        print("\n" + report([result.run_dir for result in results], experiment_dir(pairs)))
+        try:
+            print("\n" + report([result.run_dir for result in results], experiment_dir(pairs)))
+        except (ValueError, OSError) as error:  # the runs are written; only their summary failed
+            print(f"warning: no summary of the pairs ({error}); python -m admissable_jax.plot "
+                  f"{experiment_dir(pairs)} draws them", file=sys.stderr)
     return 0
 
 

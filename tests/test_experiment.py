@@ -39,7 +39,7 @@ def _scores(root: str) -> dict[str, list]:
     }
 
 
-def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys):
+def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, monkeypatch):
     straight = run_experiment(ExperimentConfig(**EXPERIMENT, total_steps=3000, out=str(tmp_path / "straight")))
     assert [(r.config.missingness, r.config.seed) for r in straight] == [
         ("adversarial", 0), ("adversarial", 1), ("uniform", 0), ("uniform", 1)]
@@ -123,6 +123,15 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys):
     difference = Difference("final min_u a_u", final_min["adversarial"], final_min["uniform"])
     assert f"| point_mass | final min_u a_u | {difference.cells()} |" in said.split("Adversarial − uniform")[1]
     assert said.rstrip().endswith(f"figures and summary.md: python -m admissable_jax.plot {resumed_root}")
+    # A summary that cannot be made costs a warning, not the exit status: the runs are written.
+    def unreadable(run_dirs):
+        raise ValueError("a torn scores.jsonl")
+
+    monkeypatch.setattr("admissable_jax.experiment.summary_table", unreadable)
+    assert experiment_main([*argv, "total_steps=3000", f"out={resumed_root}", "resume=true"]) == 0  # nothing left
+    assert f"warning: no summary of the pairs (a torn scores.jsonl); python -m admissable_jax.plot {resumed_root}" \
+        in capsys.readouterr().err
+    monkeypatch.undo()
 
     written = plot_runs(find_runs([resumed_root]), str(tmp_path / "figures"), window=2, formats=("png",))
     assert {os.path.basename(path) for path in written} >= {"min_score.png", "p_miss_adversarial.png"}
