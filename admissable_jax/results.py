@@ -6,7 +6,8 @@ names the settings in which runs of one env differ, and :func:`group_curves` gro
 curves (env, mode, variant), whose runs are the seeds. From those:
 
 * :func:`summary_table` — final and area-under-curve min_u a_u, the final mean_u a_u and
-  the final clean return per curve, mean ± 95% t-interval over seeds;
+  the final clean return per curve, mean ± 95% t-interval over seeds, and the set most
+  often worst at the end;
 * :func:`mode_differences` / :class:`Difference` — adversarial − uniform on each, with
   Welch's 95% interval, p-value, a reading and, where the seeds cannot tell the modes
   apart, how many seeds per mode would (:func:`comparison_section`);
