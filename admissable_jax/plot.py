@@ -165,7 +165,7 @@ def _save(figure, out_dir: str, name: str, formats: tuple[str, ...]) -> list[str
     return paths
 
 
-def drawgroup_curves(ax, runs: list[Run], attribute: str, window: int) -> None:
+def draw_curves(ax, runs: list[Run], attribute: str, window: int) -> None:
     """One panel: ``attribute`` (``min_score``, ``mean_score``, ``clean_score``) of each curve
     of these labelled runs of one env against env steps: the mean over seeds of the trailing
     moving average (mode's colour, variant's line style), its 95% t-band, and the unsmoothed
@@ -200,7 +200,7 @@ def plot_envs_side_by_side(run_dirs: list[str], out_dir: str, window: int = 0,
     notes = []
     for ax, env in zip(axes[0], envs):
         env_runs = [run for run in runs if run.env == env]
-        drawgroup_curves(ax, env_runs, "min_score", window)
+        draw_curves(ax, env_runs, "min_score", window)
         ax.set_title(getattr(ENV_SPECS.get(env), "gymnasium_id", None) or env)
         notes.append(f"{env}: {_window_note(env_runs, window)}")
     axes[0][0].set_ylabel("adversarial performance $\\mathrm{min}_u\\, a_u$")
@@ -242,7 +242,7 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0,
     panels.append(("clean_score", "clean return (nothing hidden)"))
     figure, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 4), sharey=True)
     for ax, (attribute, title) in zip(axes, panels):
-        drawgroup_curves(ax, runs, attribute, window)
+        draw_curves(ax, runs, attribute, window)
         ax.set_title(f"{envs[0]}: {title}", fontsize=10)
     axes[0].set_ylabel("return")
     figure.suptitle(_figure_caption(runs, window), fontsize=9, y=-0.02, va="top")
