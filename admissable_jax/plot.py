@@ -97,15 +97,17 @@ def _window_note(runs: list[Run], window: int) -> str:
     return f"{average} (window={window} shortened: the runs have {used})"
 
 
-def _figure_caption(runs: list[Run], window: int) -> str:
-    """What Figure 1 shows, in words under it: a_u, the smoothing, the dots, the band."""
+def _figure_caption(runs: list[Run], window: int, per_seed: bool = False) -> str:
+    """What Figure 1 shows, in words under it: a_u, the smoothing, the dots, the band (and
+    the seeds' own lines)."""
     episodes = sorted({run.score_episodes for run in runs})
     average = ("" if any(run.pooled for run in runs) else
                "; $\\mathrm{mean}_u\\, a_u$: the mean over all u (the average case, u drawn uniformly)")
     shaded = "; shaded: 95% t-interval over seeds" if max(collections.Counter(run.curve for run in runs).values()) > 1 else ""
+    thin = "; thin lines: each seed, smoothed alike" if per_seed else ""
     return (f"$a_u$: mean undiscounted return of N = {'/'.join(map(str, episodes))} deterministic episodes with the "
             f"features u hidden; $\\mathrm{{min}}_u\\, a_u$: the worst u at each scoring{average}.\n"
-            f"Lines: mean over seeds of the trailing {_window_note(runs, window)}{shaded}; dots: each record "
+            f"Lines: mean over seeds of the trailing {_window_note(runs, window)}{shaded}{thin}; dots: each record "
             f"unsmoothed (the summary's 'final' is the last dot).")
 
 
@@ -165,19 +167,23 @@ def _save(figure, out_dir: str, name: str, formats: tuple[str, ...]) -> list[str
     return paths
 
 
-def draw_curves(ax, runs: list[Run], attribute: str, window: int) -> None:
+def draw_curves(ax, runs: list[Run], attribute: str, window: int, per_seed: bool = False) -> None:
     """One panel: ``attribute`` (``min_score``, ``mean_score``, ``clean_score``) of each curve
     of these labelled runs of one env against env steps: the mean over seeds of the trailing
     moving average (mode's colour, variant's line style), its 95% t-band, and the unsmoothed
-    mean of each record as dots."""
+    mean of each record as dots; with ``per_seed``, each seed's own moving average as a thin
+    line (is one seed the outlier behind a wide band?)."""
     used = effective_window(runs, window)
     variants = sorted({run.variant for run in runs})
     for (_, mode, variant), curve_runs in group_curves(runs).items():
         steps, values = aligned(curve_runs, attribute)
-        mean, low, high = mean_and_interval(moving_average(values, used))
+        smoothed = moving_average(values, used)
+        mean, low, high = mean_and_interval(smoothed)
         color = MODE_COLORS.get(mode, "black")
-        ax.plot(steps, mean, color=color, linestyle=LINE_STYLES[variants.index(variant) % len(LINE_STYLES)],
-                label=f"{curve_runs[0].curve} ({_seeds(len(curve_runs))})")
+        style = LINE_STYLES[variants.index(variant) % len(LINE_STYLES)]
+        ax.plot(steps, mean, color=color, linestyle=style, label=f"{curve_runs[0].curve} ({_seeds(len(curve_runs))})")
+        for seed_curve in smoothed if per_seed else ():
+            ax.plot(steps, seed_curve, color=color, linestyle=style, linewidth=0.6, alpha=0.45)
         ax.fill_between(steps, low, high, color=color, alpha=0.2, linewidth=0)
         ax.plot(steps, values.mean(axis=0), ".", color=color, alpha=0.35, markersize=3)
     ax.set_xlabel("env steps")
@@ -186,10 +192,11 @@ def draw_curves(ax, runs: list[Run], attribute: str, window: int) -> None:
 
 
 def plot_envs_side_by_side(run_dirs: list[str], out_dir: str, window: int = 0,
-                           formats: tuple[str, ...] = DEFAULT_FORMATS) -> list[str]:
+                           formats: tuple[str, ...] = DEFAULT_FORMATS, per_seed: bool = False) -> list[str]:
     """The paper's Figure 1 as it lays it out: min_u a_u of each env's runs in a panel of its
     own, side by side (Hopper-v5, Walker2d-v5, Ant-v5 first), as ``figure1.png``/``.pdf`` (or
-    ``formats``) in ``out_dir``; each env smoothed by its own records (:func:`effective_window`)."""
+    ``formats``) in ``out_dir``; each env smoothed by its own records (:func:`effective_window`);
+    ``per_seed`` as in :func:`draw_curves`."""
     check_formats(formats)
     runs = label_variants([load_run(path) for path in run_dirs])
     if not runs:
@@ -200,22 +207,23 @@ def plot_envs_side_by_side(run_dirs: list[str], out_dir: str, window: int = 0,
     notes = []
     for ax, env in zip(axes[0], envs):
         env_runs = [run for run in runs if run.env == env]
-        draw_curves(ax, env_runs, "min_score", window)
+        draw_curves(ax, env_runs, "min_score", window, per_seed)
         ax.set_title(getattr(ENV_SPECS.get(env), "gymnasium_id", None) or env)
         notes.append(f"{env}: {_window_note(env_runs, window)}")
     axes[0][0].set_ylabel("adversarial performance $\\mathrm{min}_u\\, a_u$")
     figure.suptitle(f"Performance under adversarial missingness: $\\mathrm{{min}}_u\\, a_u$ at every scoring. Lines: "
-                    f"mean over seeds, smoothed per env ({'; '.join(notes)}); shaded: 95% t-interval over seeds",
+                    f"mean over seeds, smoothed per env ({'; '.join(notes)}); shaded: 95% t-interval over seeds"
+                    + ("; thin lines: each seed" if per_seed else ""),
                     fontsize=8, y=-0.02, va="top", wrap=True)
     make_directory(out_dir, "figures folder")
     return _save(figure, out_dir, "figure1", formats)
 
 
 def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0,
-              formats: tuple[str, ...] = DEFAULT_FORMATS) -> list[str]:
+              formats: tuple[str, ...] = DEFAULT_FORMATS, per_seed: bool = False) -> list[str]:
     """Draw the figures for these runs into ``out_dir``, each in every one of ``formats``;
     returns the files written. ``window``: records in the moving average (0: the paper's,
-    :func:`effective_window`)."""
+    :func:`effective_window`); ``per_seed``: each seed's curve too, thin (:func:`draw_curves`)."""
     check_formats(formats)
     runs = label_variants([load_run(path) for path in run_dirs])
     if not runs:
@@ -242,10 +250,10 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0,
     panels.append(("clean_score", "clean return (nothing hidden)"))
     figure, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 4), sharey=True)
     for ax, (attribute, title) in zip(axes, panels):
-        draw_curves(ax, runs, attribute, window)
+        draw_curves(ax, runs, attribute, window, per_seed)
         ax.set_title(f"{envs[0]}: {title}", fontsize=10)
     axes[0].set_ylabel("return")
-    figure.suptitle(_figure_caption(runs, window), fontsize=9, y=-0.02, va="top")
+    figure.suptitle(_figure_caption(runs, window, per_seed), fontsize=9, y=-0.02, va="top")
     written += _save(figure, out_dir, "min_score", formats)
 
     for (_, mode, variant), mode_runs in curves.items():
@@ -323,6 +331,8 @@ class PlotConfig:
     out: str = dataclasses.field(default="", metadata={"help": "output folder ('' = a new <first path>/figures, figures-2, ...)"})
     formats: str = dataclasses.field(default=",".join(DEFAULT_FORMATS), metadata={
         "help": "figure file formats, comma separated: any matplotlib writes (png, pdf, svg, eps, ...)"})
+    per_seed: bool = dataclasses.field(default=False, metadata={
+        "help": "also draw each seed's smoothed curve, thin, beside the mean and its band"})
 
 
 def new_folder(path: str) -> str:
@@ -359,9 +369,9 @@ def main(argv: list[str]) -> int:
         written = []  # one env's figures in out_dir, several envs' each in out_dir/<env>
         for env, env_runs in sorted(by_env.items()):
             written += plot_runs([run.path for run in env_runs], out_dir if len(by_env) == 1 else os.path.join(out_dir, env),
-                                 config.window, formats)
+                                 config.window, formats, config.per_seed)
         if len(by_env) > 1:  # the paper's layout: every env's min_u a_u side by side
-            written += plot_envs_side_by_side(runs, out_dir, config.window, formats)
+            written += plot_envs_side_by_side(runs, out_dir, config.window, formats, config.per_seed)
         table = summary_table(runs)
         comparison = comparison_section(mode_differences(runs))
         provenance = trained_on(runs)

@@ -10,7 +10,7 @@ from matplotlib.image import imread
 from omegaconf import OmegaConf
 
 from admissable_jax.config import TrainConfig
-from admissable_jax.plot import _cell_edges, _heatmap, _seeds, effective_window, main, plot_runs
+from admissable_jax.plot import _cell_edges, _heatmap, _seeds, draw_curves, effective_window, main, plot_runs
 from admissable_jax.results import (
     Difference, comparison_table, final_scores, find_runs, load_run, mean_and_interval, moving_average, set_names,
     summary_table,
@@ -228,11 +228,24 @@ def test_plots_say_what_they_show(tmp_path, capsys, monkeypatch):
     assert set_names("hopper", 2, True)[:2] == ["nothing hidden", "torso z + torso angle"]
     assert set_names("ant", 1, False)[27:30] == ["torso contact torque x", "torso contact torque y", "torso contact torque z"]
     assert _seeds(1) == "1 seed" and _seeds(5) == "5 seeds"
+    # per_seed: each seed's own moving average, thin, after the mean's line (here one curve of 2 seeds).
+    for per_seed in (False, True):
+        figure, ax = plt.subplots()
+        draw_curves(ax, runs, "min_score", 3, per_seed)
+        lines = ax.get_lines()  # the mean, each seed's line where asked, the dots
+        assert len(lines) == (4 if per_seed else 2)
+        for run, line in zip(runs, lines[1:-1]):
+            np.testing.assert_allclose(line.get_ydata(), moving_average(run.min_score, 3))
+        plt.close(figure)
 
     # The CLI writes into a new folder each time, never over earlier figures, and its
     # summary says how the figure was smoothed.
     root = str(tmp_path / "runs")
-    assert main([root, "formats=png"]) == 0 and main([root, "window=40", "formats=png"]) == 0
+    asked = []  # what the CLI's per_seed= reaches the panels as
+    monkeypatch.setattr("admissable_jax.plot.draw_curves", lambda *args: asked.append(args[-1]) or draw_curves(*args))
+    assert main([root, "formats=png"]) == 0 and main([root, "window=40", "formats=png", "per_seed=true"]) == 0
+    assert asked == [False] * 3 + [True] * 3  # min_u a_u, mean_u a_u and clean return, each run
+    monkeypatch.undo()
     assert sorted(name for name in os.listdir(root) if name.startswith("figures")) == ["figures", "figures-2"]
     with open(os.path.join(root, "figures", "summary.md")) as file:
         assert "moving average over 1 record (the paper's 40 of 200, scaled to the runs' 7)" in file.read()
