@@ -36,7 +36,7 @@ from admissable_jax.errors import make_directory, remove_if_unused
 from admissable_jax.host_loop import TrainingLoop, make_trainer, mode_flags
 from admissable_jax.placement import PairPlacement, initialize_distributed
 from admissable_jax.results import comparison_section, mode_differences, summary_table
-from admissable_jax.run_directory import RunDirectory, load_config
+from admissable_jax.run_directory import RunDirectory, load_config, read_jsonl
 from admissable_jax.train import TrainResult
 
 def experiment_dir(pairs: list[TrainConfig]) -> str:
@@ -127,13 +127,31 @@ def main(argv: list[str]) -> int:
     for result in results:
         print(result.summary())
     pairs = pair_configs(config)
-    if results and len(results) == len(pairs):  # every pair's directory is this process's
-        try:
-            print("\n" + report([result.run_dir for result in results], experiment_dir(pairs)))
-        except (ValueError, OSError) as error:  # the runs are written; only their summary failed
-            print(f"warning: no summary of the pairs ({error}); python -m admissable_jax.plot "
-                  f"{experiment_dir(pairs)} draws them", file=sys.stderr)
+    if not results or jax.process_index() != 0:
+        return 0
+    root = experiment_dir(pairs)
+    reached = results[0].scores[-1]["env_steps"]
+    if not all(scored_up_to(pair.out, reached) for pair in pairs):  # other hosts' pairs, on their own disks
+        print(f"the other processes' pairs are not here: python -m admissable_jax.plot {root} summarises and draws "
+              "them where every pair's folder is")
+        return 0
+    try:
+        print("\n" + report([pair.out for pair in pairs], root))
+    except (ValueError, OSError) as error:  # the runs are written; only their summary failed
+        print(f"warning: no summary of the pairs ({error}); python -m admissable_jax.plot {root} draws them",
+              file=sys.stderr)
     return 0
+
+
+def scored_up_to(run_dir: str, env_steps: int) -> bool:
+    """Whether ``run_dir`` is here with its scoring at ``env_steps`` written: in a multi-process
+    experiment every process writes its own pairs' folders, and process 0 sees the others'
+    only on a shared file system (their rows are written before the collective last
+    checkpoint that process 0 has passed)."""
+    try:
+        return read_jsonl(os.path.join(run_dir, "scores.jsonl"))[-1]["env_steps"] == env_steps
+    except (OSError, ValueError, IndexError, KeyError):
+        return False
 
 
 if __name__ == "__main__":

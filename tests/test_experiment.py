@@ -15,7 +15,7 @@ from admissable_jax import mask_observation
 from admissable_jax.config import ExperimentConfig, pair_configs
 from admissable_jax.envs import observation_names
 from admissable_jax.experiment import main as experiment_main
-from admissable_jax.experiment import run_experiment
+from admissable_jax.experiment import run_experiment, scored_up_to
 from admissable_jax.plot import plot_runs
 from admissable_jax.results import Difference, estimate, find_runs
 from admissable_jax.memory import MemoryBudgetExceeded
@@ -135,6 +135,16 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
 
     written = plot_runs(find_runs([resumed_root]), str(tmp_path / "figures"), window=2, formats=("png",))
     assert {os.path.basename(path) for path in written} >= {"min_score.png", "p_miss_adversarial.png"}
+
+
+def test_process_0_summarises_only_pairs_whose_last_scoring_it_sees(tmp_path):
+    """A multi-process experiment's process 0 reports on every pair only if each pair's folder
+    is here with the scoring it reached (test_sharding runs the processes)."""
+    assert not scored_up_to(str(tmp_path / "on-another-host"), 2000)
+    (tmp_path / "scores.jsonl").write_text('{"env_steps": 1000}\n{"env_steps": 2000}\n')
+    assert scored_up_to(str(tmp_path), 2000) and not scored_up_to(str(tmp_path), 3000)  # stale: an earlier run
+    (tmp_path / "scores.jsonl").write_text('{"env_steps": 1000}\n{"env_st')  # cut off mid-append
+    assert not scored_up_to(str(tmp_path), 1000)
 
 
 def test_experiment_refuses_what_does_not_fit_before_allocating(tmp_path, monkeypatch):

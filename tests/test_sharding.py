@@ -91,6 +91,9 @@ def test_pairs_over_devices_and_processes(tmp_path):
     held = [[os.path.basename(line.rsplit("run in ", 1)[1]) for line in stdout.splitlines() if "run in " in line]
             for stdout, _ in outputs]
     assert held == [PAIRS[:2], PAIRS[2:]]
+    # Process 0 sees every pair's folder (one file system here) and ends with their summary; process 1 does not.
+    assert "| point_mass | uniform | 2 | 2000 |" in outputs[0][0] and "Adversarial − uniform" in outputs[0][0]
+    assert "| point_mass |" not in outputs[1][0]
 
 
 def test_placement_pads_or_refuses_with_one_line(monkeypatch):
