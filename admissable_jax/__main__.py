@@ -1,4 +1,6 @@
-"""``python -m admissable_jax``: which command lines the package has, one line each.
+"""``python -m admissable_jax``: which command lines the package has, one line each;
+``--version``: this package's version and source commit and those of the libraries a run's
+numbers depend on, for a bug report.
 
 Each line is the first line of the command's own module docstring, read from its source
 (nothing is imported, so this answers at once, without JAX).
@@ -11,6 +13,7 @@ import os
 import sys
 
 from admissable_jax.errors import USAGE_ERROR
+from admissable_jax.provenance import package_versions, source_commit
 
 COMMANDS = ("train", "experiment", "plot", "audit", "video", "rollout")
 
@@ -22,7 +25,20 @@ def summary(command: str) -> str:
         return ast.get_docstring(ast.parse(file.read())).splitlines()[0].replace("``", "")
 
 
+def versions() -> str:
+    """Two lines: this package (and its commit, where it runs from a checkout), then the
+    installed versions of the libraries its numbers depend on, and Python's."""
+    installed = package_versions()
+    ours = installed.pop("admissable_jax", "not installed")
+    commit = source_commit()
+    return (f"admissable_jax {ours}" + (f", commit {commit}" if commit else "") + "\n"
+            + ", ".join([f"{name} {version}" for name, version in installed.items()] + [f"Python {sys.version.split()[0]}"]))
+
+
 def main(argv: list[str]) -> int:
+    if argv == ["--version"]:
+        print(versions())
+        return 0
     if argv and argv not in (["--help"], ["-h"]):
         print(f"error: run one of the package's commands, e.g. python -m admissable_jax.train {' '.join(argv)} "
               f"(python -m admissable_jax lists them)", file=sys.stderr)

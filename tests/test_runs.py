@@ -128,6 +128,14 @@ def test_the_package_lists_its_commands(capsys):
     assert main(["env=ant"]) == 2
     assert capsys.readouterr().err == ("error: run one of the package's commands, e.g. python -m admissable_jax.train "
                                        "env=ant (python -m admissable_jax lists them)\n")
+    # --version: what a bug report needs, read from the installed metadata (no JAX imported).
+    import importlib.metadata
+
+    assert main(["--version"]) == 0
+    ours, libraries = capsys.readouterr().out.splitlines()
+    assert ours.startswith(f"admissable_jax {importlib.metadata.version('admissable_jax')}")
+    for name in ("jax", "mujoco", "mujoco-mjx"):
+        assert f"{name} {importlib.metadata.version(name)}, " in libraries
 
 
 @pytest.mark.parametrize("setting, message", [
