@@ -2,7 +2,7 @@
 
     python benchmarks/figure1.py hopper=benchmarks/results/fig1-hopper-1m \\
         walker2d=benchmarks/results/fig1-walker2d-1m ant=benchmarks/results/fig1-ant [window=0] \\
-        [out=benchmarks/results/FIGURE1.md] [formats=png,pdf]
+        [out=benchmarks/results/FIGURE1.md] [formats=png,pdf] [per_seed=false]
 
 Each ``ENV=DIR`` is an experiment's folder (its ``<mode>-s<seed>/`` run directories with
 ``config.yaml`` and ``scores.jsonl``, as ``gpu_campaign.sh`` brings them back). Per env it
@@ -59,6 +59,8 @@ class Figure1Config:
     out: str = dataclasses.field(default="benchmarks/results/FIGURE1.md", metadata={"help": "the file to write"})
     formats: str = dataclasses.field(default="png,pdf", metadata={
         "help": "figure file formats, comma separated (PNG always: the file shows the PNGs)"})
+    per_seed: bool = dataclasses.field(default=False, metadata={
+        "help": "the figures also draw each seed's smoothed curve, thin (as plot per_seed=true)"})
 
 
 def _settings(run_dirs: list[str]) -> str:
@@ -138,8 +140,8 @@ def _cost_line(run_dirs: list[str]) -> str:
     return line
 
 
-def env_section(env: str, folder: str, window: int, out_file: str,
-                formats: tuple[str, ...] = ("png", "pdf")) -> tuple[str, list[str]]:
+def env_section(env: str, folder: str, window: int, out_file: str, formats: tuple[str, ...] = ("png", "pdf"),
+                per_seed: bool = False) -> tuple[str, list[str]]:
     """(the env's Markdown section, one summary row per Difference for the top table)."""
     run_dirs = find_runs([folder])
     if not run_dirs:
@@ -154,7 +156,7 @@ def env_section(env: str, folder: str, window: int, out_file: str,
                          "setting per env (plot draws each setting as its own curve)")
     steps = min(int(run.env_steps[-1]) for run in runs)
     figures = new_folder(os.path.join(folder, "figures"))
-    plot_runs(run_dirs, figures, window, formats)
+    plot_runs(run_dirs, figures, window, formats, per_seed)
     compared = mode_differences(run_dirs)
     differences = compared.get(env, [])
     partial = "" if steps >= PAPER_STEPS else ", not the paper's 1M"
@@ -185,12 +187,12 @@ def main(argv: list[str]) -> int:
     try:
         formats = parse_formats(f"png,{config.formats}")
         for env, folder in folders.items():
-            section, env_rows = env_section(env, folder, config.window, config.out, formats)
+            section, env_rows = env_section(env, folder, config.window, config.out, formats, config.per_seed)
             sections.append(section)
             rows += env_rows
         # The paper's layout, beside FIGURE1.md: every env's min_u a_u in a panel of its own.
         plot_envs_side_by_side([path for folder in folders.values() for path in find_runs([folder])], out_folder,
-                               config.window, formats)
+                               config.window, formats, config.per_seed)
     except (ValueError, FileNotFoundError, KeyError, UnusableDirectory) as error:
         fail(str(error))
     command = " ".join(["python", "benchmarks/figure1.py", *argv])

@@ -21,7 +21,7 @@ def _figure1(*args: str) -> int:
         return exit.code
 
 
-def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys):
+def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys, monkeypatch):
     """Hand-computed: adversarial finals 40, 60 against uniform 8, 10 (Welch: +41.0
     [-80.9, 162.9], p = 0.149). Mode none's final clean returns at 1M env steps against SB3's
     Hopper 2,326 ± 1,130 (mean − 1 sd = 1196), two seeds so ± t(0.975, 1) · 70.7 / √2 = 635.3:
@@ -70,7 +70,12 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys):
     for seed, clean in enumerate((1000, 1100)):
         _run_with_minimums(str(within), "none", seed, [1, 2, 3, 4], clean, score_every=250_000)
         _run_with_minimums(str(young), "none", seed, [1, 2, 3, 4], clean)
-    assert _figure1(f"hopper={within}", f"out={out}", "formats=png") == 0
+    drawn = []  # per_seed=true reaches both figures (each seed's thin line: test_plots)
+    for name in ("plot_runs", "plot_envs_side_by_side"):
+        monkeypatch.setattr(figure1, name, lambda *args, draw=getattr(figure1, name): drawn.append(args[-1]) or draw(*args))
+    assert _figure1(f"hopper={within}", f"out={out}", "formats=png", "per_seed=true") == 0
+    assert drawn == [True, True]
+    monkeypatch.undo()
     assert "Trained on: not recorded (runs written before `invocations.jsonl`)." in out.read_text()
     assert ("final clean return 1050.0 [414.7, 1685.3] against the SB3 RL-Zoo SAC at 1M, 2,326 ± 1,130 (v3 envs): "
             "within SB3's spread (our 95% interval reaches its mean ± 1 sd).") in out.read_text()
