@@ -91,20 +91,19 @@ def load_run(path: str) -> Run:
     column = lambda key: np.asarray([row[key] for row in rows], dtype=float)
     scores, p_miss = column("scores"), column("p_miss")
     uniform_draws = bool(np.allclose(p_miss, 1.0 / p_miss.shape[-1]))
-    names = set_names(str(config.env), int(config.k), bool(config.include_empty_set))
     pooled = "sets" in rows[0]
-    if pooled:  # per feature
+    if pooled:  # per feature; at each scoring the pool's set of lowest a_u, named
         names = observation_names(str(config.env))
         scores, p_miss = per_feature(rows, len(names))
-    elif scores.ndim != 2 or scores.shape[1] != len(names) or p_miss.shape != scores.shape:
-        raise ValueError(f"{scores_path}: each row must hold {len(names)} scores and p_miss values "
-                         f"(one per set of {config.env} with k={config.k}), got {scores.shape[1:]} and {p_miss.shape[1:]}")
-    mean_score = np.full(len(rows), np.nan) if pooled else scores.mean(axis=1)
-    if pooled:  # the pool's set of lowest a_u, named
-        features = names
-        worst_sets = [" + ".join(features[i] for i in parse_set(row["sets"][int(np.argmin(row["scores"]))]))
+        mean_score = np.full(len(rows), np.nan)
+        worst_sets = [" + ".join(names[i] for i in parse_set(row["sets"][int(np.argmin(row["scores"]))]))
                       for row in rows]
     else:
+        names = set_names(str(config.env), int(config.k), bool(config.include_empty_set))
+        if scores.ndim != 2 or scores.shape[1] != len(names) or p_miss.shape != scores.shape:
+            raise ValueError(f"{scores_path}: each row must hold {len(names)} scores and p_miss values (one per set "
+                             f"of {config.env} with k={config.k}), got {scores.shape[1:]} and {p_miss.shape[1:]}")
+        mean_score = scores.mean(axis=1)
         worst_sets = [names[i] for i in np.argmin(scores, axis=1)]
     return Run(
         path=path, env=str(config.env), mode=str(config.missingness), seed=int(config.seed),
@@ -326,13 +325,9 @@ def mode_differences(run_dirs: list[str]) -> dict[str, list[Difference]]:
     return differences
 
 
-def comparison_table(run_dirs: list[str]) -> str:
-    """Markdown: adversarial − uniform per env and metric (Welch), '' without both modes."""
-    return format_comparison(mode_differences(run_dirs))
-
-
 def format_comparison(differences: dict[str, list[Difference]]) -> str:
-    """:func:`comparison_table` from :func:`mode_differences`' result."""
+    """Markdown: :func:`mode_differences`' adversarial − uniform per env and metric (Welch),
+    '' without both modes."""
     if not differences:
         return ""
     lines = ["| env | metric | adversarial − uniform | 95% interval (Welch) | p (two-sided) | reading |",

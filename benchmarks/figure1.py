@@ -11,7 +11,7 @@ side, as the paper lays Figure 1 out, into ``figure1.png`` beside the file), and
 runs used; final and AUC min_u a_u, the final mean_u a_u (the average over U) and the
 final clean return per mode, mean ± 95% t-interval over seeds, and the set most often worst
 at the end (``summary_table``);
-adversarial − uniform on each with Welch's 95% interval and p-value (``comparison_table``);
+adversarial − uniform on each with Welch's 95% interval and p-value (``format_comparison``);
 the verdict those numbers give, in words; mode ``none``'s clean return against the SB3
 RL-Zoo SAC at 1M env steps; what the runs cost, from their ``metrics.jsonl`` (seconds per
 training chunk and per scoring round), with a 1M-step run projected from it where they

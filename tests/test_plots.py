@@ -12,8 +12,8 @@ from omegaconf import OmegaConf
 from admissable_jax.config import TrainConfig
 from admissable_jax.plot import _cell_edges, _heatmap, _seeds, draw_curves, effective_window, main, plot_runs
 from admissable_jax.results import (
-    Difference, comparison_table, final_scores, find_runs, load_run, mean_and_interval, moving_average, set_names,
-    summary_table,
+    Difference, final_scores, find_runs, format_comparison, load_run, mean_and_interval, mode_differences,
+    moving_average, set_names, summary_table,
 )
 
 
@@ -176,12 +176,12 @@ def test_adversarial_minus_uniform_is_welchs_t(tmp_path):
         _run_with_minimums(str(tmp_path), "uniform", 1, [5, 6, 9, 10], 94, spread=30),
     ]
     cells = lambda row: [cell.strip() for cell in row.strip("|").split("|")]
-    rows = [cells(row) for row in comparison_table(paths).splitlines()[2:]]
+    rows = [cells(row) for row in format_comparison(mode_differences(paths)).splitlines()[2:]]
     assert [row[:3] for row in rows] == [["hopper", "final min_u a_u", "+41.0"], ["hopper", "AUC min_u a_u", "+25.5"],
                                          ["hopper", "final mean_u a_u", "-59.0"], ["hopper", "final clean return", "+18.0"]]
     assert rows[0][3:] == ["[-80.9, 162.9]", "0.149", "not distinguishable (95% interval holds 0)"]
     assert rows[2][3:5] == ["[-180.9, 62.9]", "0.104"]
-    assert comparison_table(paths[:2]) == ""  # one mode: nothing to compare
+    assert format_comparison(mode_differences(paths[:2])) == ""  # one mode: nothing to compare
     # The CLI's summary.md carries it under the per-mode table.
     assert main([str(tmp_path), f"out={tmp_path / 'figures'}", "formats=png"]) == 0
     summary = (tmp_path / "figures" / "summary.md").read_text()
