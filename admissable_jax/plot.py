@@ -28,7 +28,10 @@ writes, e.g. ``png,svg``):
   min_u a_u, final mean_u a_u (the average over U), clean return and the set most often
   worst at the end per mode, and
   :func:`~admissable_jax.results.comparison_section`: adversarial − uniform on each with
-  Welch's 95% interval and p-value.
+  Welch's 95% interval and p-value;
+* ``curves.csv`` and ``scores.csv`` (CLI) — the same histories as tidy tables for one's own
+  analysis (:func:`~admissable_jax.results.write_tables`): a row per run and scoring, and
+  a row per run, scoring and hidden set.
 
 The default ``window=0`` smooths as the paper's Figure 1 does (40 of its 200 records), and
 a shorter run over the same fifth of its records; a window longer than the runs' records is
@@ -61,6 +64,7 @@ from admissable_jax.errors import UnusableDirectory, make_directory  # noqa: E40
 from admissable_jax.results import (  # noqa: E402
     Run, aligned, comparison_section, differing_settings, final_scores, find_runs, group_curves, label_variants,
     load_run, mean_and_interval, mode_differences, moving_average, shared_records, summary_table, trained_on,
+    write_tables,
 )
 
 MODE_COLORS = {"adversarial": "tab:blue", "uniform": "tab:red", "none": "tab:gray"}
@@ -372,6 +376,7 @@ def main(argv: list[str]) -> int:
                                  config.window, formats, config.per_seed)
         if len(by_env) > 1:  # the paper's layout: every env's min_u a_u side by side
             written += plot_envs_side_by_side(runs, out_dir, config.window, formats, config.per_seed)
+        written += write_tables(runs, out_dir)
         table = summary_table(runs)
         comparison = comparison_section(mode_differences(runs))
         provenance = trained_on(runs)

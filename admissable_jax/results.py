@@ -11,7 +11,10 @@ curves (env, mode, variant), whose runs are the seeds. From those:
 * :func:`mode_differences` / :class:`Difference` — adversarial − uniform on each, with
   Welch's 95% interval, p-value, a reading and, where the seeds cannot tell the modes
   apart, how many seeds per mode would (:func:`comparison_section`);
-* :func:`trained_on` — where the runs were trained, from their ``invocations.jsonl``.
+* :func:`trained_on` — where the runs were trained, from their ``invocations.jsonl``;
+* :func:`write_tables` — every run's history as two tidy CSV tables (``curves.csv``: a row
+  per run and scoring; ``scores.csv``: a row per run, scoring and hidden set), for analyses
+  of one's own in pandas, R or a spreadsheet.
 
 Nothing here draws (no matplotlib): ``plot`` draws the figures from these, and
 ``experiment`` prints the same comparison when it ends.
@@ -20,7 +23,9 @@ Nothing here draws (no matplotlib): ``plot`` draws the figures from these, and
 from __future__ import annotations
 
 import collections
+import csv
 import dataclasses
+import math
 import os
 import sys
 
@@ -380,3 +385,46 @@ def trained_on(run_dirs: list[str]) -> str:
         for record in records)
     return "Trained on (the runs' `invocations.jsonl`): " + "; ".join(
         f"{setup} ({count} of {len(records)} records)" for setup, count in setups.items()) + "."
+
+
+CURVE_COLUMNS = ("env", "mode", "variant", "seed", "env_steps", "min_score", "mean_score", "clean_score",
+                 "worst_set", "score_episodes", "pooled", "run")
+SET_COLUMNS = ("env", "mode", "variant", "seed", "env_steps", "hidden", "a_u", "p_miss", "pooled", "run")
+
+
+def tidy_rows(runs: list[Run]) -> tuple[list[dict], list[dict]]:
+    """The runs' histories in long form: (a row per run and scoring with min_u a_u, mean_u
+    a_u, the clean return and the worst set; a row per run, scoring and candidate set with
+    a_u and p_miss). A run with a pool (``pooled``) has a row per feature instead of per
+    set: the lowest a_u of the pool's sets that hide it (NaN where none does) and the
+    p_miss mass on them, as its heatmaps show."""
+    curves, sets = [], []
+    for run in runs:
+        labels = {"env": run.env, "mode": run.mode, "variant": run.variant, "seed": run.seed}
+        # As Python numbers: the csv module writes a NumPy float as its repr, "np.float64(...)".
+        minimum, mean, clean, scores, p_miss = (values.tolist() for values in (
+            run.min_score, run.mean_score, run.clean_score, run.scores, run.p_miss))
+        for t, env_steps in enumerate(run.env_steps.astype(int).tolist()):
+            common = {**labels, "env_steps": env_steps}
+            curves.append({**common, "min_score": minimum[t], "mean_score": mean[t], "clean_score": clean[t],
+                           "worst_set": run.worst_sets[t], "score_episodes": run.score_episodes,
+                           "pooled": run.pooled, "run": run.path})
+            sets += [{**common, "hidden": name, "a_u": scores[t][i], "p_miss": p_miss[t][i],
+                      "pooled": run.pooled, "run": run.path} for i, name in enumerate(run.set_names)]
+    return curves, sets
+
+
+def write_tables(run_dirs: list[str], out_dir: str) -> list[str]:
+    """:func:`tidy_rows` of these runs (their variants named, as in the figures) as
+    ``curves.csv`` and ``scores.csv`` in ``out_dir``; NaN is an empty cell. Returns the paths."""
+    curves, sets = tidy_rows(label_variants([load_run(path) for path in run_dirs]))
+    written = []
+    for name, columns, rows in (("curves.csv", CURVE_COLUMNS, curves), ("scores.csv", SET_COLUMNS, sets)):
+        path = os.path.join(out_dir, name)
+        with open(path, "w", newline="") as file:
+            writer = csv.DictWriter(file, columns)
+            writer.writeheader()
+            writer.writerows({key: "" if isinstance(value, float) and math.isnan(value) else value
+                              for key, value in row.items()} for row in rows)
+        written.append(path)
+    return written

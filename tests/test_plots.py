@@ -1,5 +1,6 @@
 """Figures from run directories (synthetic histories; no training)."""
 
+import csv
 import json
 import os
 import shutil
@@ -72,7 +73,9 @@ def test_plot_runs_writes_every_figure(tmp_path, capsys):
     assert refused.value.code == 2 and error.startswith("error: formats: 'docx': give formats matplotlib writes") \
         and "svg" in error and "\n" not in error and not (tmp_path / "never").exists()
     assert main([str(tmp_path / "runs"), f"out={tmp_path / 'both'}", "formats=png,SVG"]) == 0
-    assert sorted(os.listdir(tmp_path / "both")) == ["figure1.png", "figure1.svg", "hopper", "summary.md", "walker2d"]
+    assert sorted(os.listdir(tmp_path / "both")) == [
+        "curves.csv", "figure1.png", "figure1.svg", "hopper", "scores.csv", "summary.md", "walker2d"]
+    _check_tables(tmp_path / "both", runs + find_runs([str(tmp_path / "runs" / "walker")]))
     height, width, _ = imread(os.path.join(tmp_path, "both", "figure1.png")).shape
     assert width > 2 * height  # the paper's layout: a panel per env, side by side
     assert sorted(os.listdir(tmp_path / "both" / "walker2d")) == [
@@ -81,6 +84,32 @@ def test_plot_runs_writes_every_figure(tmp_path, capsys):
     assert "| walker2d | uniform | 1 |" in summary and "| hopper | adversarial | 3 |" in summary
     assert "hopper: moving average over 2 records (the paper's 40 of 200, scaled to the runs' 12)" in summary
     assert "Trained on: not recorded (runs written before `invocations.jsonl`)." in summary
+
+
+def _check_tables(folder, run_dirs):
+    """``curves.csv`` and ``scores.csv`` hold every run's scoring rows, as its scores.jsonl
+    has them (read here directly), a_u named by the hidden set."""
+    with open(folder / "curves.csv") as file:
+        curves = list(csv.DictReader(file))
+    with open(folder / "scores.csv") as file:
+        sets = list(csv.DictReader(file))
+    expected_curves, expected_sets = [], []
+    for path in sorted(run_dirs):
+        config = OmegaConf.load(os.path.join(path, "config.yaml"))
+        names = set_names(config.env, 1, False)
+        with open(os.path.join(path, "scores.jsonl")) as file:
+            for row in map(json.loads, file):
+                key = (config.env, config.missingness, str(config.seed), str(row["env_steps"]))
+                expected_curves.append((*key, row["min_score"], round(float(np.mean(row["scores"])), 9),
+                                        row["clean_score"], names[int(np.argmin(row["scores"]))], path))
+                expected_sets += [(*key, name, a_u, p) for name, a_u, p in zip(names, row["scores"], row["p_miss"])]
+    got_curves = [(row["env"], row["mode"], row["seed"], row["env_steps"], float(row["min_score"]),
+                   round(float(row["mean_score"]), 9), float(row["clean_score"]), row["worst_set"], row["run"])
+                  for row in curves]
+    got_sets = [(row["env"], row["mode"], row["seed"], row["env_steps"], row["hidden"], float(row["a_u"]),
+                 float(row["p_miss"])) for row in sets]
+    assert sorted(got_curves) == sorted(expected_curves)
+    assert sorted(got_sets) == sorted(expected_sets)
 
 
 def test_runs_that_differ_in_settings_are_separate_curves(tmp_path, capsys):

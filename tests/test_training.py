@@ -7,6 +7,7 @@ tests/test_hopper_pipelines.py.
 from __future__ import annotations
 
 import collections
+import csv
 import dataclasses
 import functools
 import glob
@@ -227,7 +228,7 @@ def test_candidate_pool_for_k2_search_draws_and_records(tmp_path):
     from admissable_jax.plot import plot_runs
     from admissable_jax.envs import observation_names
     from admissable_jax.method import parse_set
-    from admissable_jax.results import load_run, summary_table
+    from admissable_jax.results import load_run, summary_table, write_tables
     from admissable_jax.scoring import beam_search_worst_sets
 
     config = dataclasses.replace(POINT_MASS, k=2, pool_size=3, pool_ranker="rollout", pool_explore=0.3, num_envs=20,
@@ -281,6 +282,17 @@ def test_candidate_pool_for_k2_search_draws_and_records(tmp_path):
     run = load_run(config.out)
     assert run.scores.shape == (3, 4) and np.allclose(run.p_miss.sum(axis=1), 2.0)  # each pair counts for 2 features
     assert np.isnan(run.mean_score).all()
+    # Its tidy table: a row per feature, the lowest a_u of the pool's sets hiding it (empty where none does).
+    write_tables([config.out], str(tmp_path))
+    with open(tmp_path / "scores.csv") as file:
+        table = list(csv.DictReader(file))
+    names = observation_names("point_mass")
+    assert [row["hidden"] for row in table] == names * 3 and {row["pooled"] for row in table} == {"True"}
+    for t, row in enumerate(rows):
+        for i in range(len(names)):
+            hiding = [score for hidden, score in zip(row["sets"], row["scores"]) if i in parse_set(hidden)]
+            cell = table[len(names) * t + i]["a_u"]
+            assert (float(cell) if cell else None) == (min(hiding) if hiding else None)
     assert any("scores_adversarial.png" in path for path in plot_runs([config.out], str(tmp_path / "figures"), formats=("png",)))
     last = summary_table([config.out]).splitlines()[-1].split(" | ")
     assert last[-3] == "—"  # no final mean_u a_u
