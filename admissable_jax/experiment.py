@@ -111,7 +111,7 @@ def report(run_dirs: list[str], root: str) -> str:
     draws the figures."""
     comparison = comparison_section(mode_differences(run_dirs))
     return (summary_table(run_dirs) + (f"\n{comparison}" if comparison else "")
-            + f"\nfigures and summary.md: python -m admissable_jax.plot {root}")
+            + f"\nfigures, summary.md and CSV tables: python -m admissable_jax.plot {root}")
 
 
 def main(argv: list[str]) -> int:

@@ -388,7 +388,7 @@ def main(argv: list[str]) -> int:
     with open(os.path.join(out_dir, "summary.md"), "w") as file:
         file.write(table)
     print(table)
-    print(f"figures and summary.md written to {out_dir}/:")
+    print(f"figures, summary.md and CSV tables written to {out_dir}/:")
     print("\n".join(f"  {os.path.relpath(path, out_dir)}" for path in [*written, os.path.join(out_dir, "summary.md")]))
     return 0
 

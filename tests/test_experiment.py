@@ -122,7 +122,7 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
         assert row.endswith(f"| {common} ({worst.count(common)} of 2) |")
     difference = Difference("final min_u a_u", final_min["adversarial"], final_min["uniform"])
     assert f"| point_mass | final min_u a_u | {difference.cells()} |" in said.split("Adversarial − uniform")[1]
-    assert said.rstrip().endswith(f"figures and summary.md: python -m admissable_jax.plot {resumed_root}")
+    assert said.rstrip().endswith(f"figures, summary.md and CSV tables: python -m admissable_jax.plot {resumed_root}")
     # A summary that cannot be made costs a warning, not the exit status: the runs are written.
     def unreadable(run_dirs):
         raise ValueError("a torn scores.jsonl")
