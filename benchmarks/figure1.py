@@ -6,7 +6,8 @@
 
 Each ``ENV=DIR`` is an experiment's folder (its ``<mode>-s<seed>/`` run directories with
 ``config.yaml`` and ``scores.jsonl``, as ``gpu_campaign.sh`` brings them back). Per env it
-draws the figures (``plot_runs``, into a new ``DIR/figures``; and every env's min_u a_u side by
+draws the figures (``plot_runs``, into a new ``DIR/figures``, with the runs' histories as tidy
+tables beside them, ``curves.csv`` and ``scores.csv``; and every env's min_u a_u side by
 side, as the paper lays Figure 1 out, into ``figure1.png`` beside the file), and writes: the settings the
 runs used; final and AUC min_u a_u, the final mean_u a_u (the average over U) and the
 final clean return per mode, mean ± 95% t-interval over seeds, and the set most often worst
@@ -36,7 +37,7 @@ from admissable_jax.errors import UnusableDirectory
 from admissable_jax.plot import new_folder, parse_formats, plot_envs_side_by_side, plot_runs
 from admissable_jax.results import (
     Difference, Run, differing_settings, find_runs, format_comparison, load_run, mean_and_interval, mode_differences,
-    summary_table, trained_on,
+    summary_table, trained_on, write_tables,
 )
 from admissable_jax.provenance import source_commit
 from admissable_jax.run_directory import load_config_yaml
@@ -157,6 +158,7 @@ def env_section(env: str, folder: str, window: int, out_file: str, formats: tupl
     steps = min(int(run.env_steps[-1]) for run in runs)
     figures = new_folder(os.path.join(folder, "figures"))
     plot_runs(run_dirs, figures, window, formats, per_seed)
+    tables = [os.path.relpath(path, os.path.dirname(os.path.abspath(out_file))) for path in write_tables(run_dirs, figures)]
     compared = mode_differences(run_dirs)
     differences = compared.get(env, [])
     partial = "" if steps >= PAPER_STEPS else ", not the paper's 1M"
@@ -172,6 +174,8 @@ def env_section(env: str, folder: str, window: int, out_file: str, formats: tupl
         _cost_line(run_dirs), "",
         trained_on(run_dirs), "",
         f"![min_u a_u, mean_u a_u and clean return]({figure})", "",
+        "Every scoring of every run, as tidy tables for one's own analysis: "
+        + " (a row per run and scoring) and ".join(f"`{table}`" for table in tables) + " (a row per run, scoring and hidden set).", "",
     ]
     rows = [f"| {env} | {steps:,} | {d.metric} | {d.mean:+.1f} | {d.reading()} |" for d in differences[:2]]
     return "\n".join(lines), rows

@@ -64,7 +64,9 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys, 
     assert "![every env's min_u a_u, as the paper's Figure 1 lays it out](figure1.png)" in text
     # The formats asked for, and PNG always (the file shows the PNGs).
     assert sorted(path.name for path in tmp_path.glob("figure1.*")) == ["figure1.png", "figure1.svg"]
-    assert {path.suffix for path in (root / "figures").iterdir()} == {".png", ".svg"}
+    assert {path.suffix for path in (root / "figures").iterdir()} == {".png", ".svg", ".csv"}
+    assert ("Every scoring of every run, as tidy tables for one's own analysis: `hopper/figures/curves.csv` (a row "
+            "per run and scoring) and `hopper/figures/scores.csv` (a row per run, scoring and hidden set).") in text
 
     within, young = tmp_path / "within", tmp_path / "young"
     for seed, clean in enumerate((1000, 1100)):
