@@ -158,7 +158,8 @@ def env_section(env: str, folder: str, window: int, out_file: str, formats: tupl
     steps = min(int(run.env_steps[-1]) for run in runs)
     figures = new_folder(os.path.join(folder, "figures"))
     plot_runs(run_dirs, figures, window, formats, per_seed)
-    tables = [os.path.relpath(path, os.path.dirname(os.path.abspath(out_file))) for path in write_tables(run_dirs, figures)]
+    curves_csv, scores_csv = (os.path.relpath(path, os.path.dirname(os.path.abspath(out_file)))
+                              for path in write_tables(run_dirs, figures))
     compared = mode_differences(run_dirs)
     differences = compared.get(env, [])
     partial = "" if steps >= PAPER_STEPS else ", not the paper's 1M"
@@ -174,8 +175,8 @@ def env_section(env: str, folder: str, window: int, out_file: str, formats: tupl
         _cost_line(run_dirs), "",
         trained_on(run_dirs), "",
         f"![min_u a_u, mean_u a_u and clean return]({figure})", "",
-        "Every scoring of every run, as tidy tables for one's own analysis: "
-        + " (a row per run and scoring) and ".join(f"`{table}`" for table in tables) + " (a row per run, scoring and hidden set).", "",
+        f"Every scoring of every run, as tidy tables for one's own analysis: `{curves_csv}` (a row per run and "
+        f"scoring) and `{scores_csv}` (a row per run, scoring and hidden set).", "",
     ]
     rows = [f"| {env} | {steps:,} | {d.metric} | {d.mean:+.1f} | {d.reading()} |" for d in differences[:2]]
     return "\n".join(lines), rows
