@@ -62,9 +62,8 @@ from admissable_jax.cli import fail, parse_args  # noqa: E402
 from admissable_jax.envs import ENV_SPECS  # noqa: E402
 from admissable_jax.errors import UnusableDirectory, make_directory  # noqa: E402
 from admissable_jax.results import (  # noqa: E402
-    Run, aligned, comparison_section, differing_settings, final_scores, find_runs, group_curves, label_variants,
-    load_run, mean_and_interval, mode_differences, moving_average, shared_records, summary_table, trained_on,
-    write_tables,
+    Run, aligned, comparison_section, differing_settings, final_scores, find_runs, group_curves, load_run, load_runs,
+    mean_and_interval, mode_differences, moving_average, shared_records, summary_table, trained_on, write_tables,
 )
 
 MODE_COLORS = {"adversarial": "tab:blue", "uniform": "tab:red", "none": "tab:gray"}
@@ -202,7 +201,7 @@ def plot_envs_side_by_side(run_dirs: list[str], out_dir: str, window: int = 0,
     ``formats``) in ``out_dir``; each env smoothed by its own records (:func:`effective_window`);
     ``per_seed`` as in :func:`draw_curves`."""
     check_formats(formats)
-    runs = label_variants([load_run(path) for path in run_dirs])
+    runs = load_runs(run_dirs)
     if not runs:
         raise ValueError("no runs to plot")
     order = list(ENV_SPECS)
@@ -229,7 +228,7 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0,
     returns the files written. ``window``: records in the moving average (0: the paper's,
     :func:`effective_window`); ``per_seed``: each seed's curve too, thin (:func:`draw_curves`)."""
     check_formats(formats)
-    runs = label_variants([load_run(path) for path in run_dirs])
+    runs = load_runs(run_dirs)
     if not runs:
         raise ValueError("no runs to plot")
     envs = sorted({run.env for run in runs})

@@ -214,9 +214,14 @@ def estimate(values: np.ndarray) -> str:
     return f"{mean[0]:.1f} ± {mean[0] - low[0]:.1f}" if len(values) > 1 else f"{mean[0]:.1f}"
 
 
+def load_runs(run_dirs: list[str]) -> list[Run]:
+    """The runs in these directories, each with its variant named (:func:`label_variants`)."""
+    return label_variants([load_run(path) for path in run_dirs])
+
+
 def curves_of(run_dirs: list[str]) -> dict[tuple[str, str, str], list[Run]]:
     """The runs in these directories by (env, mode, variant)."""
-    return group_curves(label_variants([load_run(path) for path in run_dirs]))
+    return group_curves(load_runs(run_dirs))
 
 
 def summary_table(run_dirs: list[str]) -> str:
@@ -417,7 +422,7 @@ def tidy_rows(runs: list[Run]) -> tuple[list[dict], list[dict]]:
 def write_tables(run_dirs: list[str], out_dir: str) -> list[str]:
     """:func:`tidy_rows` of these runs (their variants named, as in the figures) as
     ``curves.csv`` and ``scores.csv`` in ``out_dir``; NaN is an empty cell. Returns the paths."""
-    curves, sets = tidy_rows(label_variants([load_run(path) for path in run_dirs]))
+    curves, sets = tidy_rows(load_runs(run_dirs))
     written = []
     for name, columns, rows in (("curves.csv", CURVE_COLUMNS, curves), ("scores.csv", SET_COLUMNS, sets)):
         path = os.path.join(out_dir, name)
