@@ -248,6 +248,29 @@ def report(message: str) -> None:
 
 
 @contextlib.contextmanager
+def ticking(bar: tqdm, seconds: float | None = None):
+    """While inside, redraw ``bar`` every ``seconds`` (1 on a terminal, else 30), so that its
+    clock runs on through device calls that advance nothing (a scoring round: minutes on a CPU)."""
+    if bar.disable:
+        yield
+        return
+    seconds = seconds or (1.0 if sys.stderr.isatty() else 30.0)
+    stop = threading.Event()
+
+    def tick():
+        while not stop.wait(seconds):
+            bar.refresh()
+
+    ticker = threading.Thread(target=tick, name="progress-bar-clock", daemon=True)
+    ticker.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        ticker.join()
+
+
+@contextlib.contextmanager
 def reporting(what: str):
     """Say what is about to happen (long work: a compile, a rollout), then how long it took."""
     report(f"{what}...")

@@ -1,8 +1,9 @@
 """The host loop over scorings, for one run or a batch of (seed, mode) pairs.
 
 It alternates two jitted functions: ``run_chunk`` (ζ env steps of SAC over the parallel
-envs, on the device) and ``score_and_update`` (every u scored in one batched rollout,
-then the adversary's p_miss update). After each scoring it appends one row to
+envs, on the device, in up to 10 calls so that the progress bar moves) and
+``score_and_update`` (every u scored in one batched rollout, then the adversary's p_miss
+update). After each scoring it appends one row to
 ``scores.jsonl`` and one to ``metrics.jsonl`` of every run directory, and every
 ``checkpoint_every`` scorings (and at the end) it saves an orbax checkpoint of the whole
 training state, from which ``resume=true`` continues. Both functions are compiled before
@@ -24,7 +25,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from admissable_jax.checkpointing import Checkpoints
-from admissable_jax.cli import report, reporting, stop_at_next_boundary
+from admissable_jax.cli import report, reporting, stop_at_next_boundary, ticking
 from admissable_jax.config import TrainConfig
 from admissable_jax.envs import make_env
 from admissable_jax.errors import Interrupted, RunFailed
@@ -54,6 +55,17 @@ def make_trainer(config: TrainConfig, num_runs: int = 1) -> Trainer:
     on one device."""
     spec = RunSpec.of(config, num_runs)
     return Trainer(make_env(spec.env, spec.env_options), spec)
+
+
+MAX_PIECES = 10
+
+
+def interval_pieces(iterations: int) -> int:
+    """Into how many jitted calls a scoring interval's ``iterations`` are cut, so that the
+    progress bar moves within an interval (on a CPU one takes minutes): the largest divisor
+    of ``iterations`` up to 10. The calls are queued at once, so the device never waits on
+    the host between them; the iterations they run are the same as in one call."""
+    return max(pieces for pieces in range(1, MAX_PIECES + 1) if iterations % pieces == 0)
 
 
 def take_pair(tree: Any, index: int) -> Any:
@@ -95,9 +107,10 @@ class TrainingLoop:
         self.init, self.placement = init, placement
         self.num_runs = placement.num_pairs if placement else 1
         self.num_devices = placement.num_devices if placement else 1
-        run_chunk = lambda state: trainer.run_chunk(state, trainer.spec.iterations_per_scoring)
+        self.pieces = interval_pieces(trainer.spec.iterations_per_scoring)
+        run_piece = lambda state: trainer.run_chunk(state, trainer.spec.iterations_per_scoring // self.pieces)
         score_and_update = trainer.score_and_update
-        self._run_chunk = placement.spread(run_chunk) if placement else run_chunk
+        self._run_piece = placement.spread(run_piece) if placement else run_piece
         self._score_and_update = placement.spread(score_and_update) if placement else score_and_update
 
     def host_rows(self, tree: Any) -> Any:
@@ -131,11 +144,11 @@ class TrainingLoop:
         # Both programs are traced here, then compiled on two threads at once: XLA compiles
         # outside Python's lock, so on two or more cores the compiles overlap.
         lowered = [jax.jit(function, donate_argnums=0, **shardings).lower(abstract_state)
-                   for function in (self._run_chunk, self._score_and_update)]
+                   for function in (self._run_piece, self._score_and_update)]
         with reporting(f"compiling the training step and the scoring round for {where}"):
             with concurrent.futures.ThreadPoolExecutor(max_workers=2) as pool:
-                self.run_chunk, self.score_and_update = pool.map(lambda program: program.compile(), lowered)
-        budget = memory_budget(abstract_state, self.run_chunk, self.score_and_update, self.num_devices)
+                self.run_piece, self.score_and_update = pool.map(lambda program: program.compile(), lowered)
+        budget = memory_budget(abstract_state, self.run_piece, self.score_and_update, self.num_devices)
         if budget.needed_bytes > budget.available_bytes:
             raise MemoryBudgetExceeded(
                 f"does not fit: {budget.describe()}; use fewer pairs, fewer num_envs or a smaller buffer_size"
@@ -172,19 +185,20 @@ class TrainingLoop:
         num_scorings = config.planned_steps // config.score_every
         invocation = invocation_record(start_step, budget.device, self.num_devices, self.trainer.env.physics_name,
                                        self.num_runs)
+        # smoothing=0: the rate (and the time left) over this invocation, scorings included.
         bar = tqdm(total=config.planned_steps, initial=start_step, unit="step", disable=not config.progress,
-                   dynamic_ncols=True)
-        with stop_at_next_boundary("at the end of this scoring interval, with a checkpoint") as stop:
+                   dynamic_ncols=True, smoothing=0)
+        with stop_at_next_boundary("at the end of this scoring interval, with a checkpoint") as stop, ticking(bar):
             try:
                 for scoring in range(start_step // config.score_every, num_scorings):
                     interval_started = started = time.perf_counter()
-                    state, chunk_metrics = self.run_chunk(state)
-                    chunk_metrics = self.host_rows(chunk_metrics)
+                    state, chunk_metrics = self.train_interval(state, bar)
                     train_seconds = time.perf_counter() - started
                     env_steps = config.score_every * (scoring + 1)
                     self._check_finite(chunk_metrics, env_steps)
                     self._check_physics(np.any(chunk_metrics["capacity_exceeded"]), env_steps)
 
+                    bar.set_description_str("scoring")
                     started = time.perf_counter()
                     state, scores = self.score_and_update(state)
                     scores, p_miss, pool, grad_steps = self.host_rows((scores, state.p_miss, state.pool, state.grad_steps))
@@ -209,8 +223,9 @@ class TrainingLoop:
                                              and now - started_run + (now - interval_started) > config.time_limit)
                     stopped = not last and self.any_process(stop.requested)  # Ctrl-C or SIGTERM, in any process
                     if (scoring + 1) % config.checkpoint_every == 0 or last or pause or stopped:
+                        bar.set_description_str("saving")
                         self.checkpoints.save(env_steps, state)
-                    bar.update(config.score_every)
+                    bar.set_description_str("")
                     if rows:
                         bar.set_postfix(progress_postfix(rows, [run.missingness for run in self.runs]),
                                         train_sps=f"{config.score_every * self.num_runs / train_seconds:.0f}")
@@ -227,6 +242,22 @@ class TrainingLoop:
                 bar.close()
                 self.checkpoints.close()
         return state
+
+    def train_interval(self, state: TrainState, bar: tqdm) -> tuple[TrainState, dict[str, np.ndarray]]:
+        """One scoring interval of training (ζ env steps) as ``pieces`` calls, all queued
+        before the first is waited for; ``bar`` advances as each finishes. Returns the state
+        and every iteration's metrics, on the host (``host_rows``)."""
+        bar.set_description_str("training")
+        piece_metrics = []
+        for _ in range(self.pieces):
+            state, metrics = self.run_piece(state)
+            piece_metrics.append(metrics)
+        for metrics in piece_metrics:
+            jax.block_until_ready(metrics)
+            bar.update(self.config.score_every // self.pieces)
+        iteration_axis = 1 if self.placement else 0  # after the pair axis
+        return state, jax.tree.map(lambda *pieces: np.concatenate(pieces, axis=iteration_axis),
+                                   *[self.host_rows(metrics) for metrics in piece_metrics])
 
     def _check_disk(self, state_bytes: int) -> None:
         """Warn at the start when the checkpoints kept (``keep_checkpoints``, each about the

@@ -15,16 +15,17 @@ import shutil
 import signal
 import subprocess
 import sys
+import time
 
 import jax
 import numpy as np
 import pytest
 
-from admissable_jax import TrainConfig, train_fn
+from admissable_jax import TrainConfig, host_loop, train_fn
 from admissable_jax.checkpointing import CheckpointError
-from admissable_jax.cli import run_from_cli
+from admissable_jax.cli import run_from_cli, ticking
 from admissable_jax.errors import INTERRUPTED
-from admissable_jax.host_loop import TrainingLoop
+from admissable_jax.host_loop import TrainingLoop, interval_pieces
 from admissable_jax.locks import LOCK_NAME, RunDirectoryLocked
 from admissable_jax.memory import MemoryBudgetExceeded
 
@@ -157,6 +158,49 @@ def test_settings_that_would_train_nonsense_are_refused_before_anything_is_writt
     assert not out.exists()
 
 
+def test_the_bar_moves_within_an_interval_and_names_what_runs(tmp_path, monkeypatch):
+    """On a CPU one scoring interval can take many minutes. Its training runs as up to 10
+    calls, and the bar advances after each one. The bar names the phase (training, scoring,
+    saving), and its clock keeps running through calls that advance nothing. The metrics
+    still cover the whole interval."""
+    assert [interval_pieces(n) for n in (1, 7, 10, 40, 125, 625, 1249)] == [1, 7, 10, 10, 5, 5, 1]
+    said = []
+
+    class RecordingBar(host_loop.tqdm):
+        def update(self, n=1):
+            said.append(n)
+            return super().update(n)
+
+        def set_description_str(self, desc=None, refresh=True):
+            said.append(desc)
+            return super().set_description_str(desc, refresh)
+
+    monkeypatch.setattr(host_loop, "tqdm", RecordingBar)
+    result = train_fn(dataclasses.replace(RUN, total_steps=1000, checkpoint_every=2, progress=True, out=str(tmp_path / "r")))
+    # 500 env steps per interval over 4 envs: 125 iterations, as 5 calls of 100 env steps.
+    assert said == ["training", *[100] * 5, "scoring", ""] + ["training", *[100] * 5, "scoring", "saving", ""]
+    with open(os.path.join(result.run_dir, "metrics.jsonl")) as file:
+        rows = [json.loads(line) for line in file]
+    # The gradient steps the metrics saw in each interval: none before learning_starts=500,
+    # then 4 in each of the 125 iterations of all 5 calls.
+    assert [round(row["grad_steps_per_s"] / row["env_steps_per_s"] * 500) for row in rows] == [0, 500]
+
+    class Clock:
+        def __init__(self, disable):
+            self.disable, self.refreshed = disable, 0
+
+        def refresh(self):
+            self.refreshed += 1
+
+    running, disabled = Clock(disable=False), Clock(disable=True)
+    for clock in (running, disabled):
+        with ticking(clock, seconds=0.01):
+            time.sleep(0.2)
+    ticks = running.refreshed
+    time.sleep(0.05)
+    assert ticks >= 3 and running.refreshed == ticks and disabled.refreshed == 0
+
+
 @pytest.mark.parametrize("stop, on_chunk", [("ctrl-c", 2), ("sigterm", 2), ("sigterm twice", 2), ("ctrl-c", 1)])
 def test_ctrl_c_says_where_to_resume_and_exits_130(stop, on_chunk, tmp_path, monkeypatch, capsys):
     """Ctrl-C, or SIGTERM (a job scheduler's stop), during the second chunk: the run ends
@@ -164,25 +208,18 @@ def test_ctrl_c_says_where_to_resume_and_exits_130(stop, on_chunk, tmp_path, mon
     Ctrl-C's SIGINT alike) first lets the interval finish and keeps it as a checkpoint, though
     none was due (checkpoint_every=10); a second stops at once. During the first chunk, before
     any checkpoint, it says there is nothing to resume, and the folder it made is gone."""
-    compile_loop = TrainingLoop.compile
+    train_interval, calls = TrainingLoop.train_interval, []
 
-    def compile_then_interrupt_second_chunk(self):
-        budget = compile_loop(self)
-        chunk, calls = self.run_chunk, []
+    def interrupted_in_interval(self, state, bar):
+        calls.append(1)
+        if len(calls) == on_chunk and stop == "ctrl-c":
+            raise KeyboardInterrupt
+        if len(calls) == on_chunk:
+            for _ in range(2 if stop == "sigterm twice" else 1):
+                signal.raise_signal(signal.SIGTERM)  # the loop's handler, or the default: death
+        return train_interval(self, state, bar)
 
-        def interrupted_on_second_call(state):
-            calls.append(1)
-            if len(calls) == on_chunk and stop == "ctrl-c":
-                raise KeyboardInterrupt
-            if len(calls) == on_chunk:
-                for _ in range(2 if stop == "sigterm twice" else 1):
-                    signal.raise_signal(signal.SIGTERM)  # the loop's handler, or the default: death
-            return chunk(state)
-
-        self.run_chunk = interrupted_on_second_call
-        return budget
-
-    monkeypatch.setattr(TrainingLoop, "compile", compile_then_interrupt_second_chunk)
+    monkeypatch.setattr(TrainingLoop, "train_interval", interrupted_in_interval)
     out = str(tmp_path / "interrupted")
     checkpoint_every = 1 if stop == "ctrl-c" else 10
     result, status = run_from_cli(train_fn, dataclasses.replace(RUN, out=out, checkpoint_every=checkpoint_every))
