@@ -48,7 +48,7 @@ from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.cli import enable_compilation_cache, parse_args
 from admissable_jax.envs import env_spec, make_env, resolve_physics
 from admissable_jax.config import ExperimentConfig, pair_configs
-from admissable_jax.host_loop import make_trainer, mode_flags
+from admissable_jax.host_loop import interval_pieces, make_trainer, mode_flags
 from admissable_jax.training import Trainer
 from common import COMMITTED_RESULTS_DIR, RESULTS_DIR, append_record, environment_record, timed
 
@@ -84,15 +84,23 @@ def measure(config: MeasureConfig) -> int:
     seeds = jax.numpy.array([pair.seed for pair in pairs])
     adversarial, masking = (jax.numpy.array(flags) for flags in zip(*(mode_flags(p.missingness) for p in pairs)))
     init = jax.jit(lambda: jax.vmap(trainer.init)(seeds, adversarial, masking))
-    chunk = jax.vmap(lambda state: trainer.run_chunk(state, trainer.spec.iterations_per_scoring))
+    pieces = interval_pieces(trainer.spec.iterations_per_scoring)
+    piece = jax.vmap(lambda state: trainer.run_chunk(state, trainer.spec.iterations_per_scoring // pieces))
 
     # Compiled as the experiment compiles them (the state donated to each program).
     start = time.perf_counter()
     state = init()
-    chunk = jax.jit(chunk, donate_argnums=0).lower(state).compile()
+    piece = jax.jit(piece, donate_argnums=0).lower(state).compile()
     score = jax.jit(jax.vmap(trainer.score_and_update), donate_argnums=0).lower(state).compile()
     compile_s = time.perf_counter() - start
     score_full = jax.jit(jax.vmap(endless.score_and_update), donate_argnums=0).lower(state).compile()
+
+    def chunk(state):  # one interval as the experiment trains it: its pieces queued at once
+        piece_metrics = []
+        for _ in range(pieces):
+            state, metrics = piece(state)
+            piece_metrics.append(metrics)
+        return state, jax.tree.map(lambda *parts: jax.numpy.concatenate(parts, axis=1), *piece_metrics)
 
     (state, _), first_chunk_s = timed(chunk, state)  # learning starts within it
     (state, metrics), chunk_s = timed(chunk, state)
