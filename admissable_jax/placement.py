@@ -136,6 +136,9 @@ class PairPlacement:
         """Pairs ``pairs`` (default: ``local_pairs``, all held by this process) of a
         pair-sharded pytree, as host arrays with that leading axis."""
         pairs = self.local_pairs if pairs is None else pairs
+        # Wait here, where Ctrl-C and SIGTERM are handled while the device works: NumPy's
+        # fetch below would hold them until it is done (minutes, for a scoring round on a CPU).
+        jax.block_until_ready(tree)
 
         def fetch(leaf: jax.Array) -> np.ndarray:
             by_pair = {}

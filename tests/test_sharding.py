@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import socket
 import subprocess
 import sys
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -108,6 +110,21 @@ def test_placement_pads_or_refuses_with_one_line(monkeypatch):
     values = placement.place(np.array([5, 6, 7]))
     assert values.shape == (3,) and placement.local_pairs == [0, 1, 2]
     np.testing.assert_array_equal(placement.local_rows({"v": values})["v"], [5, 6, 7])
+    # While it waits for the device, a signal (Ctrl-C, SIGTERM) is handled at once: the
+    # handler runs before the result is there, not after (as during NumPy's own fetch).
+    slow = jax.jit(lambda x: jax.lax.fori_loop(0, 800, lambda _, a: jnp.tanh(a @ a), x))
+    matrices = placement.place(np.full((3, 300, 300), 1e-3, np.float32))
+    slow(matrices).block_until_ready()
+    result_ready_when_handled = []
+    previous = signal.signal(signal.SIGALRM, lambda *_: result_ready_when_handled.append(result.is_ready()))
+    try:
+        result = slow(matrices)  # dispatched: the device works on for about a second
+        signal.setitimer(signal.ITIMER_REAL, 0.05)
+        placement.local_rows(result)
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+    assert result_ready_when_handled == [False]
     with pytest.raises(ValueError, match=f"devices must be 0 \\(all\\) or 1..{jax.device_count()} here"):
         PairPlacement.over(4, jax.device_count() + 1)
     monkeypatch.setenv("JAX_COORDINATOR_ADDRESS", "localhost:1")
