@@ -1,0 +1,72 @@
+"""How soon a running experiment answers a stop: SIGTERM (a job scheduler's stop; Ctrl-C's
+SIGINT alike) sent while a scoring interval trains.
+
+    python benchmarks/stop_latency.py [env=hopper] [seeds=1] [after=10]
+
+Starts ``python -m admissable_jax.experiment`` (modes adversarial and uniform, 10,000 env
+steps, learning from 1,000) with its progress bar on, waits until the bar says ``training``,
+then ``after`` seconds more, and sends SIGTERM. The record holds the seconds until the run
+said "SIGTERM: stopping at the end of this scoring interval" (its handler ran) and until it
+exited, having finished and checkpointed the interval, and its last line. Python runs signal
+handlers only between bytecodes, so a wait inside a long device call can hold them back.
+Appends to ``benchmarks/results/stop_latency.jsonl``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import select
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+
+from admissable_jax.cli import parse_args
+from common import append_record
+
+
+@dataclasses.dataclass
+class StopLatencyConfig:
+    env: str = dataclasses.field(default="hopper", metadata={"help": "the experiment's env"})
+    seeds: int = dataclasses.field(default=1, metadata={"help": "seeds per mode (2 modes)"})
+    after: float = dataclasses.field(default=10.0, metadata={"help": "seconds into training to send SIGTERM"})
+
+
+def measure(config: StopLatencyConfig) -> dict:
+    with tempfile.TemporaryDirectory() as directory:
+        command = [sys.executable, "-m", "admissable_jax.experiment", f"env={config.env}", f"seeds={config.seeds}",
+                   "modes=adversarial,uniform", "total_steps=10000", "learning_starts=1000",
+                   f"out={os.path.join(directory, 'run')}", "progress=true"]
+        run = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        said, sent, handled = b"", None, None
+        while run.poll() is None:
+            if select.select([run.stderr], [], [], 0.05)[0]:
+                said += os.read(run.stderr.fileno(), 1 << 16)
+            if sent is None and b"training:" in said:
+                time.sleep(config.after)
+                run.send_signal(signal.SIGTERM)
+                sent = time.perf_counter()
+            if sent is not None and handled is None and b"SIGTERM: stopping" in said:
+                handled = time.perf_counter() - sent
+        exited = time.perf_counter() - sent if sent is not None else None
+        said += run.stderr.read()
+    lines = said.decode().replace("\r", "\n").strip().splitlines()
+    return {"env": config.env, "pairs": 2 * config.seeds, "after_s": config.after,
+            "handled_s": None if handled is None else round(handled, 2),
+            "exited_s": None if exited is None else round(exited, 1), "exit_status": run.returncode,
+            "last_line": lines[-1] if lines else ""}
+
+
+def main(argv: list[str]) -> int:
+    record = measure(parse_args(StopLatencyConfig, argv, program="python benchmarks/stop_latency.py",
+                                summary="How soon a running experiment answers SIGTERM."))
+    print(f"SIGTERM handled after {record['handled_s']} s; exited after {record['exited_s']} s "
+          f"(status {record['exit_status']}): {record['last_line']}")
+    append_record("stop_latency", record)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
