@@ -154,14 +154,17 @@ def _one_line(error: OmegaConfBaseException) -> str:
     return f"bad value for {key!r}: {message}" if key else message
 
 
-def run_from_cli(function: Callable[[Any], Any], config: Any) -> tuple[Any, int]:
+def run_from_cli(function: Callable[[Any], Any], config: Any,
+                 interrupted: str = "interrupted before training started; nothing to resume from") -> tuple[Any, int]:
     """(result, exit status) of ``function(config)`` for a command line: bad settings (and a
     missing input file or directory) exit 2;
     a run that fails (:class:`~admissable_jax.errors.RunFailed`: a corrupt checkpoint, a
     diverged run, one too large for memory or for the physics buffers, an unusable run
     directory, Ctrl-C) exits with its own status; each prints one line on stderr, and
     finished work stays in the run directory. SIGTERM (a job scheduler's stop, ``kill``)
-    is taken as Ctrl-C, so the run ends the same way: its lock released, its loggers closed."""
+    is taken as Ctrl-C, so the run ends the same way: its lock released, its loggers closed.
+    A Ctrl-C that reaches this function (a training loop says more itself) prints
+    ``interrupted``: what the command leaves behind."""
     with _sigterm_as_ctrl_c():
         try:
             return function(config), 0
@@ -172,7 +175,7 @@ def run_from_cli(function: Callable[[Any], Any], config: Any) -> tuple[Any, int]
             print(f"{error.label}: {error}", file=sys.stderr)
             return None, error.exit_status
         except KeyboardInterrupt:
-            print("interrupted before training started; nothing to resume from", file=sys.stderr)
+            print(interrupted, file=sys.stderr)
             return None, INTERRUPTED
 
 

@@ -172,7 +172,7 @@ def main(argv: list[str]) -> int:
     config = parse_args(VideoConfig, argv, "admissable_jax.video",
                         "A video of a trained policy: nothing hidden beside the same start with u hidden.",
                         validate=check_video_config, positional="run_dir")
-    video, status = run_from_cli(render_video, config)
+    video, status = run_from_cli(render_video, config, interrupted="interrupted: no video written")
     if status:
         return status
     print(f"wrote {video.path}: {video.frames} frames of step {video.step}; nothing hidden: return "

@@ -156,25 +156,24 @@ def score_policy(env_id: str, policy: Callable[[np.ndarray], Any], k: int = 1, n
         resetting = np.zeros(num_envs, bool)  # next step is the vector env's autoreset of this slot
         obs, _ = envs.reset(seed=seed)
         loop_steps = 0
-        bar = tqdm(total=total, unit="episode", disable=not progress)
-        while (episode_of_slot < total).any():
-            masked = mask_observation(np.asarray(obs, np.float32), rows[np.minimum(episode_of_slot, total - 1) // n_episodes])
-            actions = policy(masked)
-            actions = np.asarray(actions[0] if isinstance(actions, tuple) else actions)
-            obs, reward, terminated, truncated, _ = envs.step(actions)
-            loop_steps += 1
-            counted = ~resetting & (episode_of_slot < total)
-            running_return[counted] += reward[counted]
-            running_length[counted] += 1
-            ended = counted & (terminated | truncated)
-            for slot in np.flatnonzero(ended):
-                row, repetition = divmod(int(episode_of_slot[slot]), n_episodes)
-                returns[row, repetition], lengths[row, repetition] = running_return[slot], running_length[slot]
-                episode_of_slot[slot], next_episode = next_episode, next_episode + 1
-            running_return[ended], running_length[ended] = 0.0, 0
-            resetting = terminated | truncated
-            bar.update(int(ended.sum()))
-        bar.close()
+        with tqdm(total=total, unit="episode", disable=not progress) as bar:  # closed before any error line
+            while (episode_of_slot < total).any():
+                masked = mask_observation(np.asarray(obs, np.float32), rows[np.minimum(episode_of_slot, total - 1) // n_episodes])
+                actions = policy(masked)
+                actions = np.asarray(actions[0] if isinstance(actions, tuple) else actions)
+                obs, reward, terminated, truncated, _ = envs.step(actions)
+                loop_steps += 1
+                counted = ~resetting & (episode_of_slot < total)
+                running_return[counted] += reward[counted]
+                running_length[counted] += 1
+                ended = counted & (terminated | truncated)
+                for slot in np.flatnonzero(ended):
+                    row, repetition = divmod(int(episode_of_slot[slot]), n_episodes)
+                    returns[row, repetition], lengths[row, repetition] = running_return[slot], running_length[slot]
+                    episode_of_slot[slot], next_episode = next_episode, next_episode + 1
+                running_return[ended], running_length[ended] = 0.0, 0
+                resetting = terminated | truncated
+                bar.update(int(ended.sum()))
     finally:
         envs.close()
     means = returns.mean(axis=1)

@@ -307,6 +307,16 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
         error = capfd.readouterr().err.strip().splitlines()
         assert status == 2 and len(error) == 1 and error[0].startswith(f"error: {message}"), error
     assert not (tmp_path / "never").exists() and not (tmp_path / "MUJOCO_LOG.TXT").exists()
+    # Ctrl-C while the policy runs: one line that says what was written, exit 130.
+    assert audit_main(["policy=test_audit:interrupted_policy", "gym=ConstantFeatures-v0", "episodes=2",
+                       f"out={tmp_path / 'stopped'}"]) == 130
+    assert capfd.readouterr().err.strip().splitlines()[-1] == ("interrupted: the audit in progress wrote nothing; audit "
+                                                              "folders finished before it are kept")
+    assert not list((tmp_path / "stopped").glob("*"))  # its folder, made before the rollout, stays empty
+
+
+def interrupted_policy(obs):
+    raise KeyboardInterrupt  # as a Ctrl-C does when it lands while the policy runs
 
 
 @pytest.fixture(scope="module")

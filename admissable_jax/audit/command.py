@@ -281,7 +281,8 @@ def main(argv: list[str]) -> int:
     experiment = bool(config.run_dir) and is_experiment(config.run_dir)
     command = (audit_python_policy if config.policy else audit_over_training if config.steps
                else audit_experiment if experiment else audit_run)
-    outcome, status = run_from_cli(command, config)
+    outcome, status = run_from_cli(command, config, interrupted="interrupted: the audit in progress wrote nothing; "
+                                                                "audit folders finished before it are kept")
     if status:
         return status
     results, written = outcome if experiment or config.steps else ([outcome[0]], outcome[1])
