@@ -4,6 +4,7 @@ audits that follow and where each one's files go."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import os
@@ -14,7 +15,7 @@ from admissable_jax.audit.report import compare_modes, comparison_chart, over_tr
 from admissable_jax.audit.sets import AuditResult, audit, audit_gymnasium, check_audit_size, check_search, \
     gymnasium_features, plan_size, shapley_plan
 from admissable_jax.cli import enable_compilation_cache, parse_args, reporting, run_from_cli, setting
-from admissable_jax.errors import make_directory
+from admissable_jax.errors import make_directory, remove_if_unused
 from admissable_jax.method import num_candidate_sets
 from admissable_jax.scoring import SCORE_ESTIMATORS
 from admissable_jax.scoring.attribution import MIN_ORDERS, ShapleyPlan
@@ -125,11 +126,27 @@ def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     ks = _ks(config.k)
     gymnasium_features(config.gym, ks)  # before anything is written
     out = config.out or f"audit-{config.gym}-{name}"
+    with _audit_folder(out):
+        with reporting(f"auditing {config.policy} on {config.gym} for k={config.k} ({_episodes_asked(config)})"):
+            result = audit_gymnasium(config.gym, policy, ks, config.episodes, num_envs=config.slots or 8,
+                                     seed=config.seed, shapley=_shapley(config.shapley), progress=True,
+                                     tell_apart=config.tell_apart)
+        return result, write_audit(result, out, config.top)
+
+
+@contextlib.contextmanager
+def _audit_folder(out: str):
+    """The audit folder ``out``, made before the rollout, so that an unusable path fails
+    first. If the audit stops (Ctrl-C, an error) before writing into a folder it made, the
+    folder goes too."""
+    made_here = not os.path.exists(out)
     make_directory(out, "audit folder")
-    with reporting(f"auditing {config.policy} on {config.gym} for k={config.k} ({_episodes_asked(config)})"):
-        result = audit_gymnasium(config.gym, policy, ks, config.episodes, num_envs=config.slots or 8, seed=config.seed,
-                                 shapley=_shapley(config.shapley), progress=True, tell_apart=config.tell_apart)
-    return result, write_audit(result, out, config.top)
+    try:
+        yield
+    except BaseException:
+        if made_here:
+            remove_if_unused(out, ())
+        raise
 
 
 def _episodes_asked(config: AuditConfig) -> str:
@@ -182,18 +199,18 @@ def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
     train = policy.config
     d = policy.observation_size
     check_audit_size(train.env, d, _ks(config.k), config.episodes, config.search, config.beam_width, _plan(config, d))
-    make_directory(out, "audit folder")  # before the rollout, not after it
-    with reporting(f"auditing checkpoint {policy.step} of {train.env} for k={config.k} ({config.search} search, "
-                   f"{_episodes_asked(config)}, {env.physics_name} physics on {jax.default_backend()}; "
-                   f"compiling included)"):
-        result = audit(env, trainer.policy, policy.actor_params, _ks(config.k), config.episodes, config.seed,
-                       _slots(config, policy), observation_names(train.env),
-                       {"run": os.path.abspath(config.run_dir), "checkpoint (env step)": policy.step,
-                        "mode": train.missingness, "seed": train.seed},
-                       config.score_estimator, trainer.critic_values, policy.critic_params,
-                       config.score_horizon, train.gamma, config.search, config.beam_width, config.ranker,
-                       _shapley(config.shapley), progress=True, tell_apart=config.tell_apart)
-    return result, write_audit(result, out, config.top)
+    with _audit_folder(out):
+        with reporting(f"auditing checkpoint {policy.step} of {train.env} for k={config.k} ({config.search} search, "
+                       f"{_episodes_asked(config)}, {env.physics_name} physics on {jax.default_backend()}; "
+                       f"compiling included)"):
+            result = audit(env, trainer.policy, policy.actor_params, _ks(config.k), config.episodes, config.seed,
+                           _slots(config, policy), observation_names(train.env),
+                           {"run": os.path.abspath(config.run_dir), "checkpoint (env step)": policy.step,
+                            "mode": train.missingness, "seed": train.seed},
+                           config.score_estimator, trainer.critic_values, policy.critic_params,
+                           config.score_horizon, train.gamma, config.search, config.beam_width, config.ranker,
+                           _shapley(config.shapley), progress=True, tell_apart=config.tell_apart)
+        return result, write_audit(result, out, config.top)
 
 
 def audit_over_training(config: AuditConfig) -> tuple[list[AuditResult], list[str]]:
