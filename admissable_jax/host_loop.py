@@ -68,6 +68,17 @@ def interval_pieces(iterations: int) -> int:
     return max(pieces for pieces in range(1, MAX_PIECES + 1) if iterations % pieces == 0)
 
 
+def queue_pieces(run_piece: Callable[[TrainState], tuple[TrainState, Any]], state: TrainState,
+                 pieces: int) -> tuple[TrainState, list[Any]]:
+    """``pieces`` calls of ``run_piece`` from ``state``, each queued without waiting for the
+    one before: the state after the last, and each call's metrics (still on the device)."""
+    piece_metrics = []
+    for _ in range(pieces):
+        state, metrics = run_piece(state)
+        piece_metrics.append(metrics)
+    return state, piece_metrics
+
+
 def take_pair(tree: Any, index: int) -> Any:
     """Run ``index``'s part of a pytree batched over runs (leading axis)."""
     return jax.tree.map(lambda leaf: leaf[index], tree)
@@ -248,10 +259,7 @@ class TrainingLoop:
         before the first is waited for; ``bar`` advances as each finishes. Returns the state
         and every iteration's metrics, on the host (``host_rows``)."""
         bar.set_description_str("training")
-        piece_metrics = []
-        for _ in range(self.pieces):
-            state, metrics = self.run_piece(state)
-            piece_metrics.append(metrics)
+        state, piece_metrics = queue_pieces(self.run_piece, state, self.pieces)
         for metrics in piece_metrics:
             jax.block_until_ready(metrics)
             bar.update(self.config.score_every // self.pieces)

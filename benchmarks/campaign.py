@@ -48,7 +48,7 @@ from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.cli import enable_compilation_cache, parse_args
 from admissable_jax.envs import env_spec, make_env, resolve_physics
 from admissable_jax.config import ExperimentConfig, pair_configs
-from admissable_jax.host_loop import interval_pieces, make_trainer, mode_flags
+from admissable_jax.host_loop import interval_pieces, make_trainer, mode_flags, queue_pieces
 from admissable_jax.training import Trainer
 from common import COMMITTED_RESULTS_DIR, RESULTS_DIR, append_record, environment_record, timed
 
@@ -96,10 +96,7 @@ def measure(config: MeasureConfig) -> int:
     score_full = jax.jit(jax.vmap(endless.score_and_update), donate_argnums=0).lower(state).compile()
 
     def chunk(state):  # one interval as the experiment trains it: its pieces queued at once
-        piece_metrics = []
-        for _ in range(pieces):
-            state, metrics = piece(state)
-            piece_metrics.append(metrics)
+        state, piece_metrics = queue_pieces(piece, state, pieces)
         return state, jax.tree.map(lambda *parts: jax.numpy.concatenate(parts, axis=1), *piece_metrics)
 
     (state, _), first_chunk_s = timed(chunk, state)  # learning starts within it
