@@ -30,6 +30,7 @@ from flax import struct
 from admissable_jax import replay
 from admissable_jax.adversary import update_p_miss, uniform_p_miss
 from admissable_jax.agent import SAC, SACBatch, SACState
+from admissable_jax.branching import lazy_cond
 from admissable_jax.envs import EnvState, reset_where_done
 from admissable_jax.missingness import candidate_sets, mask_observation, sample_set_indices
 from admissable_jax.run_spec import RunSpec
@@ -140,16 +141,17 @@ class Trainer:
         def one_update(sac_state, batch_and_key):
             return self.agent.update(sac_state, *batch_and_key)
 
-        def updates(sac_state):
+        def updates(sac_state, batches, update_keys):
             sac_state, metrics = jax.lax.scan(one_update, sac_state, (batches, update_keys))
             return sac_state, jax.tree.map(jnp.mean, metrics)
 
-        def skip(sac_state):
-            _, metrics = jax.eval_shape(updates, sac_state)
+        def skip(sac_state, batches, update_keys):
+            _, metrics = jax.eval_shape(updates, sac_state, batches, update_keys)
             return sac_state, jax.tree.map(lambda m: jnp.zeros(m.shape, m.dtype), metrics)
 
-        # As SB3: learn once more than learning_starts steps are collected.
-        return jax.lax.cond(self._learning(state), updates, skip, state.sac)
+        # As SB3: learn once more than learning_starts steps are collected. lazy_cond: vmapped
+        # pairs (an experiment) skip the updates too until one of them learns.
+        return lazy_cond(self._learning(state), updates, skip, state.sac, batches, update_keys)
 
     def _minibatch(self, state: TrainState, rng: jax.Array) -> SACBatch:
         """A uniform replay minibatch, masked with each transition's own missing set."""

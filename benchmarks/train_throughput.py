@@ -4,6 +4,7 @@
     python benchmarks/train_throughput.py env=hopper num_envs=8 iterations=50 seeds=5
     python benchmarks/train_throughput.py env=hopper num_envs=128 iterations=50 roofline=true
     python benchmarks/train_throughput.py env=hopper num_envs=8 iterations=100 breakdown=true
+    python benchmarks/train_throughput.py env=hopper num_envs=8 iterations=100 seeds=2 before_learning=true
 
 A warm-up chunk (which compiles) passes learning_starts; the timed chunk then runs
 ``iterations`` iterations in which every iteration learns (UTD as configured). With
@@ -14,7 +15,10 @@ roofline of this device in the same run (a square float32 matmul at the default
 precision), so the update's share of the device's matmul rate is measured, not guessed.
 With ``breakdown=true`` it also times the whole iteration and its parts alone, in turn
 (physics with resets, the iteration with learning switched off, the updates), and prints
-what is left over (one seed).
+what is left over (one seed). With ``before_learning=true`` the timed chunk instead runs
+before ``learning_starts`` (random actions, no gradient steps): the first 1% of a paper run
+(10k of 1M env steps), which costs only the env, the buffer and the set draws, vmapped over
+seeds or not.
 Prints env steps/s and gradient steps/s and appends a record to
 benchmarks/results/train_throughput.jsonl.
 """
@@ -49,6 +53,7 @@ class TrainBenchConfig:
     physics: str = dataclasses.field(default="auto", metadata={"help": "auto | jax | warp (the env's physics backend)"})
     roofline: bool = dataclasses.field(default=False, metadata={"help": "also time the SAC update alone against the matmul roofline"})
     breakdown: bool = dataclasses.field(default=False, metadata={"help": "also time the iteration and its parts alone, in turn, best of 3: physics, the iteration without learning, the updates (one seed)"})
+    before_learning: bool = dataclasses.field(default=False, metadata={"help": "time iterations before learning_starts instead (no gradient steps)"})
 
 
 def matmul_gflops(size: int = 4096, repeats: int = 10) -> float:
@@ -122,8 +127,8 @@ def iteration_breakdown(trainer: Trainer, state, iterations: int, rounds: int = 
 
 def main(argv: list[str]) -> None:
     bench = parse_args(TrainBenchConfig, argv, "benchmarks/train_throughput.py", __doc__.splitlines()[0])
-    learning_starts = max(bench.batch_size, bench.num_envs)
-    warmup_iterations = learning_starts // bench.num_envs + 1
+    learning_starts = 2**30 if bench.before_learning else max(bench.batch_size, bench.num_envs)
+    warmup_iterations = 1 if bench.before_learning else learning_starts // bench.num_envs + 1
     config = TrainConfig(
         env=bench.env, num_envs=bench.num_envs, utd=bench.utd, batch_size=bench.batch_size,
         learning_starts=learning_starts, score_every=bench.num_envs, buffer_size=bench.buffer_size, progress=False,
@@ -140,13 +145,14 @@ def main(argv: list[str]) -> None:
     compiled = run_chunk.lower(state, bench.iterations).compile()
     compile_s = time.perf_counter() - start
     (state, metrics), run_s = timed(compiled, state)
-    assert bool(metrics["learned"].all())
+    learned = metrics["learned"]
+    assert not learned.any() if bench.before_learning else learned.all()
     env_steps = bench.iterations * bench.num_envs * bench.seeds
-    grad_steps = bench.iterations * trainer.spec.updates_per_iteration * bench.seeds
+    grad_steps = int(learned.sum()) * trainer.spec.updates_per_iteration
     record = {
         "env": env.gymnasium_id, "physics": env.physics_name, "num_envs": bench.num_envs, "seeds": bench.seeds, "utd": bench.utd,
         "batch_size": bench.batch_size, "hidden_sizes": [config.hidden_size] * config.hidden_layers,
-        "buffer_size": trainer.spec.buffer_capacity, "iterations": bench.iterations,
+        "buffer_size": trainer.spec.buffer_capacity, "iterations": bench.iterations, "before_learning": bench.before_learning,
         "warmup_with_compile_s": round(warmup_s, 1), "compile_s": round(compile_s, 1), "run_s": round(run_s, 2),
         "env_steps_per_s": round(env_steps / run_s, 1), "grad_steps_per_s": round(grad_steps / run_s, 1),
         "peak_host_memory_mb": round(peak_host_memory_mb(), 1),

@@ -74,12 +74,13 @@ def test_pairs_over_devices_and_processes(tmp_path):
 
     # 4 devices (1 pair each) against 1 device (4 pairs): the same pairs, in the same
     # directories; the first scoring agrees to float round-off (a batch of 1 and one of 4
-    # compile to different code), later ones drift apart as SAC amplifies it.
+    # compile to different code) amplified by its 500 SAC updates (measured: 1.4e-4 relative
+    # at most), later ones drift further apart.
     for pair in PAIRS:
         rows_four, rows_one = _rows(four, pair)[:2], _rows(one, pair)
         assert [row["env_steps"] for row in rows_four] == [row["env_steps"] for row in rows_one] == [1000, 2000]
-        np.testing.assert_allclose(rows_four[0]["scores"], rows_one[0]["scores"], rtol=1e-5)
-        np.testing.assert_allclose(rows_four[0]["p_miss"], rows_one[0]["p_miss"], rtol=1e-5)
+        np.testing.assert_allclose(rows_four[0]["scores"], rows_one[0]["scores"], rtol=1e-3)
+        np.testing.assert_allclose(rows_four[0]["p_miss"], rows_one[0]["p_miss"], rtol=1e-3)
     assert _rows(four, "adversarial-s0")[0]["scores"] != _rows(four, "adversarial-s1")[0]["scores"]
 
     # Saved on 4 devices, restored onto 3 (padded to 6): every leaf of every pair bitwise.

@@ -469,27 +469,40 @@ def test_cli_help_lists_every_key():
 
 def test_train_step_vmaps_over_seeds_and_modes():
     """Two (seed, mode) pairs in one vmapped program give each pair's unbatched result
-    (scoring on a pool of 3 slots for the 10 episodes, so refills run under vmap too)."""
+    (scoring on a pool of 3 slots for the 10 episodes, so refills run under vmap too). The
+    second pair starts 64 env steps on, so for 16 iterations one pair learns and the other
+    does not; and the vmapped program still branches on learning_starts (branching.lazy_cond)
+    rather than computing every update for every pair."""
     env = make_env("point_mass", episode_length=20)
     config = dataclasses.replace(POINT_MASS, learning_starts=64, batch_size=32, episode_length=20, score_envs=3,
                                  score_episodes=2, hidden_size=32).resolved()
     trainer = Trainer(env, RunSpec.of(config))
 
-    def run(seed, adversarial):
-        state, _ = trainer.run_chunk(trainer.init(seed, adversarial, True), 40)
+    def run(seed, adversarial, head_start):
+        state = trainer.init(seed, adversarial, True)
+        state, _ = trainer.run_chunk(state.replace(env_steps=state.env_steps + head_start), 40)
         state, scores = trainer.score_and_update(state)
         return state, scores.scores
 
-    batched_state, batched_scores = jax.jit(jax.vmap(run))(jnp.array([0, 1]), jnp.array([True, False]))
-    unbatched = jax.jit(run)
-    for pair, (seed, adversarial) in enumerate([(0, True), (1, False)]):
-        state, scores = unbatched(jnp.asarray(seed), jnp.asarray(adversarial))
+    chunk = lambda state: trainer.run_chunk(state, 40)
+    state_shapes = jax.eval_shape(trainer.init, 0, True, True)
+    pair_shapes = jax.tree.map(lambda leaf: jax.ShapeDtypeStruct((2, *leaf.shape), leaf.dtype), state_shapes)
+    branches = [jax.jit(program).lower(shapes).as_text().count("stablehlo.case")
+                for program, shapes in ((chunk, state_shapes), (jax.vmap(chunk), pair_shapes))]
+    assert branches == [1, 1]  # learning_starts' branch, one run or two pairs
+
+    pairs = (jnp.array([0, 1]), jnp.array([True, False]), jnp.array([0, 64]))
+    batched, unbatched = jax.jit(jax.vmap(run)), jax.jit(run)
+    batched_state, batched_scores = batched(*pairs)
+    for pair, (seed, adversarial, head_start) in enumerate(zip(*pairs)):
+        state, scores = unbatched(seed, adversarial, head_start)
         np.testing.assert_allclose(batched_scores[pair], scores, rtol=1e-4, atol=1e-4)
         np.testing.assert_allclose(
             batched_state.sac.actor_params["params"]["Dense_0"]["kernel"][pair],
             state.sac.actor_params["params"]["Dense_0"]["kernel"], rtol=1e-4, atol=1e-5,
         )
         assert int(batched_state.grad_steps[pair]) == int(state.grad_steps) > 0
+    assert batched_state.grad_steps[0] < batched_state.grad_steps[1]  # the head start learned longer
     # The adversarial pair moved p_miss, the uniform one did not.
     assert not np.allclose(batched_state.p_miss[0], 0.25)
     np.testing.assert_allclose(batched_state.p_miss[1], 0.25)

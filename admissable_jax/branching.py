@@ -1,0 +1,51 @@
+"""A branch that stays a branch under ``jax.vmap``.
+
+``jax.lax.cond`` with a batched predicate (one per vmapped member) becomes a select: every
+member computes both branches. An experiment vmaps its (seed, mode) pairs, so its
+``learning_starts`` branch would compute (and throw away) a full set of SAC updates in every
+iteration before learning starts: measured on 2 cores, a vmapped Hopper iteration of 8 envs
+then costs about as much as one that learns, 4x one that skips the updates
+(``benchmarks/train_throughput.py before_learning=true``, record ``train_throughput.jsonl``).
+:func:`lazy_cond` branches on whether any member takes the expensive branch instead.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+from jax.custom_batching import custom_vmap
+
+
+def lazy_cond(predicate: jax.Array, true_fun: Callable[..., Any], false_fun: Callable[..., Any], *operands: Any) -> Any:
+    """``jax.lax.cond(predicate, true_fun, false_fun, *operands)``, and under ``vmap`` with a
+    batched predicate still a branch: ``true_fun`` runs (for every member) only when some
+    member's predicate holds, and each member keeps ``true_fun``'s result only where its own
+    holds, so the results equal ``lax.cond``'s member by member. Nested vmaps branch at every
+    level. The branch functions must close over no traced values: pass them as ``operands``."""
+
+    @custom_vmap
+    def branch(predicate, *operands):
+        return jax.lax.cond(predicate, true_fun, false_fun, *operands)
+
+    @branch.def_vmap
+    def branch_batched(axis_size: int, in_batched: list[Any], predicate, *operands):
+        predicate_batched, *operands_batched = in_batched
+        operands = [jax.tree.map(lambda leaf, batched: leaf if batched else jnp.broadcast_to(leaf, (axis_size, *jnp.shape(leaf))),
+                                 operand, batched)
+                    for operand, batched in zip(operands, operands_batched)]
+        true_batched, false_batched = jax.vmap(true_fun), jax.vmap(false_fun)
+        if not predicate_batched:
+            out = lazy_cond(predicate, true_batched, false_batched, *operands)
+        else:
+            def each_its_own(predicate, *operands):
+                taken, skipped = true_batched(*operands), false_batched(*operands)
+                per_member = lambda leaf: predicate.reshape(predicate.shape + (1,) * (jnp.ndim(leaf) - 1))
+                return jax.tree.map(lambda t, s: jnp.where(per_member(t), t, s), taken, skipped)
+
+            out = lazy_cond(jnp.any(predicate), each_its_own, lambda _, *operands: false_batched(*operands),
+                            predicate, *operands)
+        return out, jax.tree.map(lambda _: True, out)
+
+    return branch(predicate, *operands)
