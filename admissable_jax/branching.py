@@ -4,8 +4,8 @@
 member computes both branches. An experiment vmaps its (seed, mode) pairs, so its
 ``learning_starts`` branch would compute (and throw away) a full set of SAC updates in every
 iteration before learning starts: measured on 2 cores, a vmapped Hopper iteration of 8 envs
-then costs about as much as one that learns, 4x one that skips the updates
-(``benchmarks/train_throughput.py before_learning=true``, record ``train_throughput.jsonl``).
+then cost 80-85% of one that learns, 5-6x one that skips the updates
+(``benchmarks/train_throughput.py before_learning=true``, ``benchmarks/NOTES.md``).
 :func:`lazy_cond` branches on whether any member takes the expensive branch instead.
 """
 
