@@ -242,6 +242,41 @@ def test_audit_steps_as_many_envs_at_once_as_training_scores():
     assert _slots(AuditConfig(run_dir="run", k="1", episodes=50, shapley="exact", slots=100), point_mass) == 100
 
 
+def test_a_ctrl_c_stops_the_audits_rollout_at_its_next_report(monkeypatch, caplog):
+    """XLA:CPU runs a rollout that reports from inside on the calling thread, to its end; the
+    audit runs it on a worker (audit.watch), so a Ctrl-C is heard at once and the rollout's
+    next report ends the program, without JAX's traceback for the stop."""
+    import signal
+    import threading
+
+    from admissable_jax.audit import watch
+
+    reports = []
+    counted = watch._Watch.report
+    monkeypatch.setattr(watch._Watch, "report", lambda self, finished: reports.append(finished) or counted(self, finished))
+    steps = 200_000
+
+    @jax.jit
+    def rollout(x):
+        def step(carry):
+            i, x = carry
+            jax.debug.callback(watch.report_from_rollout, i)
+            return i + 1, jnp.sin(x)
+        return jax.lax.while_loop(lambda carry: carry[0] < steps, step, (0, x))
+
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    ctrl_c = threading.Timer(0.5, lambda: signal.pthread_kill(threading.main_thread().ident, signal.SIGINT))
+    try:
+        ctrl_c.start()
+        with pytest.raises(KeyboardInterrupt), caplog.at_level("ERROR"):
+            watch.watched_rollout(lambda: jax.block_until_ready(rollout(jnp.ones(4))), steps, draw=False)
+    finally:
+        ctrl_c.cancel()
+        signal.signal(signal.SIGINT, previous)
+    assert 0 < len(reports) < steps and not watch._WATCHES
+    assert not [record for record in caplog.records if record.name.startswith("jax")]
+
+
 def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
     """audit_gymnasium on tests/test_wrappers.py's ConstantFeatures env (observes 1, 2, 3;
     earns 5 · the sum it sees): hand-computed a_u for every set of 1 and 2 features, the worst,

@@ -5,14 +5,13 @@ The package's docstring says what is measured and why."""
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import functools
 from typing import Any
 
 import numpy as np
-from tqdm.auto import tqdm
 
+from admissable_jax.audit.watch import report_from_rollout, watched_rollout
 from admissable_jax.method import candidate_sets, num_candidate_sets
 from admissable_jax.scoring import SCORE_ESTIMATORS
 from admissable_jax.scoring.attribution import ShapleyAttribution, ShapleyPlan, plan_shapley, shapley_attribution
@@ -151,12 +150,18 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
     key = jax.random.key(seed)
 
     def score(rows: np.ndarray, how: str):
-        counted = progress and how == "rollout"  # the estimates run no episodes to count
-        with _episode_bar((len(rows) + 1) * n_episodes) if counted else contextlib.nullcontext():
-            scored = scorer(env, policy_fn, params, key, rows, n_episodes, None, num_slots, score_estimator=how,
+        def rollout(reports=None):
+            result = scorer(env, policy_fn, params, key, rows, n_episodes, None, num_slots, score_estimator=how,
                             critic_fn=critic_fn, critic_params=critic_params, score_horizon=horizon, gamma=gamma,
-                            progress=_advance_episode_bar if counted else None)
-            jax.effects_barrier()  # every report from inside the rollout made before the bar closes
+                            progress=reports)
+            jax.block_until_ready(result)
+            jax.effects_barrier()  # every report from inside the rollout made before its bar closes
+            return result
+
+        if how == "rollout":  # the estimates run no episodes to count, and take seconds
+            scored = watched_rollout(lambda: rollout(report_from_rollout), (len(rows) + 1) * n_episodes, progress)
+        else:
+            scored = rollout()
         if bool(scored.capacity_exceeded):
             raise ValueError(f"the physics ran out of contact buffers: {env.capacity_message()}")
         return scored
@@ -191,43 +196,6 @@ def _told_apart(audit_with, ks, n_episodes: int, seed: int, shapley: int | str, 
     final = audit_with(n_episodes=chosen, seed=seed + 1, shapley=shapley)
     return dataclasses.replace(final, pilot={"episodes": n_episodes, "seed": seed, "needed": needed,
                                              "chosen": chosen, "most": most})
-
-
-class _EpisodeBar:
-    """A bar over a rollout's ``total`` episodes, drawn from the first report from inside the
-    rollout on (so its clock and rate leave the compile out)."""
-
-    def __init__(self, total: int):
-        self.total, self.bar = total, None
-
-    def advance(self, finished: int) -> None:
-        if self.bar is None:
-            self.bar = tqdm(total=self.total, unit="episode")
-        self.bar.update(max(0, finished - self.bar.n))
-
-
-_OPEN_EPISODE_BARS: list[_EpisodeBar] = []  # the bar the running rollout advances (innermost last)
-
-
-@contextlib.contextmanager
-def _episode_bar(total: int):
-    """While open, :func:`_advance_episode_bar` advances a bar over ``total`` episodes."""
-    bar = _EpisodeBar(total)
-    _OPEN_EPISODE_BARS.append(bar)
-    try:
-        yield
-    finally:
-        _OPEN_EPISODE_BARS.remove(bar)
-        if bar.bar is not None:
-            bar.bar.close()
-
-
-def _advance_episode_bar(finished) -> None:
-    """Called from inside the jitted rollout with the episodes finished so far. One module
-    function, not a bar's own method, so that the rollout compiles once for every audit
-    (a new callable would be a new static argument)."""
-    if _OPEN_EPISODE_BARS:
-        _OPEN_EPISODE_BARS[-1].advance(int(finished))
 
 
 def shapley_plan(d: int, shapley: int | str, seed: int) -> ShapleyPlan | None:

@@ -1,0 +1,91 @@
+"""A rollout that draws its episode bar and that a Ctrl-C stops within a step.
+
+The rollout reports the episodes finished so far from inside the compiled program
+(``score_missingness``'s ``progress``). XLA:CPU runs a program with such host callbacks on
+the calling thread from start to end, and Python hears a Ctrl-C only when that call
+returns: a Hopper audit on 2 cores answered one after 29 s, when its rollout ended. So
+:func:`watched_rollout` makes the call on a worker thread while the main thread waits, where
+a Ctrl-C is heard at once; the rollout's next report then raises :class:`RolloutStopped`,
+which ends the program, and the Ctrl-C goes on up from the main thread.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import logging
+import threading
+from typing import Any, Callable
+
+from tqdm.auto import tqdm
+
+
+class RolloutStopped(Exception):
+    """Raised from a rollout's report to end its program (a Ctrl-C in the main thread)."""
+
+
+class _Watch:
+    """What the running rollout reports to: a bar over its ``total`` episodes (drawn from the
+    first report on, so that its clock and rate leave the compile out) and a stop flag."""
+
+    def __init__(self, total: int, draw: bool):
+        self.total, self.draw, self.bar = total, draw, None
+        self.stop = threading.Event()
+
+    def report(self, finished: int) -> None:
+        if self.stop.is_set():
+            raise RolloutStopped
+        if self.draw:
+            if self.bar is None:
+                self.bar = tqdm(total=self.total, unit="episode")
+            self.bar.update(max(0, finished - self.bar.n))
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+_WATCHES: list[_Watch] = []  # the running rollout's (innermost last)
+
+
+def report_from_rollout(finished) -> None:
+    """The rollout's ``progress``: the episodes finished so far, to the running rollout's
+    watch. One module function, not a watch's own method, so that the rollout compiles once
+    for every audit (a new callable would be a new static argument)."""
+    if _WATCHES:
+        _WATCHES[-1].report(int(finished))
+
+
+class _HideStops(logging.Filter):
+    """JAX logs a traceback for an exception raised in a callback; a stop is no error."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not (record.exc_info and isinstance(record.exc_info[1], RolloutStopped))
+
+
+def watched_rollout(rollout: Callable[[], Any], total: int, draw: bool) -> Any:
+    """``rollout()`` (a compiled rollout with ``progress=report_from_rollout``, waited for)
+    on a worker thread: its result, with a bar over its ``total`` episodes if ``draw``. A
+    Ctrl-C meanwhile stops the rollout at its next report, then raises KeyboardInterrupt."""
+    watch, quiet = _Watch(total, draw), _HideStops()
+    jax_debugging_log = logging.getLogger("jax._src.debugging")
+
+    def run() -> Any:
+        _WATCHES.append(watch)
+        try:
+            return rollout()
+        finally:
+            _WATCHES.remove(watch)
+            watch.close()
+
+    jax_debugging_log.addFilter(quiet)
+    pool = concurrent.futures.ThreadPoolExecutor(max_workers=1)
+    future = pool.submit(run)
+    try:
+        return future.result()
+    except KeyboardInterrupt:
+        watch.stop.set()
+        concurrent.futures.wait([future])  # the rollout's next report ends it
+        raise
+    finally:
+        pool.shutdown(wait=False)
+        jax_debugging_log.removeFilter(quiet)
