@@ -244,8 +244,8 @@ def test_audit_steps_as_many_envs_at_once_as_training_scores():
 
 def test_a_ctrl_c_stops_the_audits_rollout_at_its_next_report(monkeypatch, caplog):
     """XLA:CPU runs a rollout that reports from inside on the calling thread, to its end; the
-    audit runs it on a worker (audit.watch), so a Ctrl-C is heard at once and the rollout's
-    next report ends the program, without JAX's traceback for the stop."""
+    audit compiles it and runs it on workers (audit.watch), so a Ctrl-C is heard at once and
+    the rollout's next report ends the program, without JAX's traceback for the stop."""
     import signal
     import threading
 
@@ -264,12 +264,13 @@ def test_a_ctrl_c_stops_the_audits_rollout_at_its_next_report(monkeypatch, caplo
             return i + 1, jnp.sin(x)
         return jax.lax.while_loop(lambda carry: carry[0] < steps, step, (0, x))
 
+    compiled = watch.compiled_in_background(rollout.lower(jnp.ones(4)))
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     ctrl_c = threading.Timer(0.5, lambda: signal.pthread_kill(threading.main_thread().ident, signal.SIGINT))
     try:
         ctrl_c.start()
         with pytest.raises(KeyboardInterrupt), caplog.at_level("ERROR"):
-            watch.watched_rollout(lambda: jax.block_until_ready(rollout(jnp.ones(4))), steps, draw=False)
+            watch.watched_rollout(lambda: jax.block_until_ready(compiled(jnp.ones(4))), steps, draw=False)
     finally:
         ctrl_c.cancel()
         signal.signal(signal.SIGINT, previous)

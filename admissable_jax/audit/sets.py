@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from admissable_jax.audit.watch import report_from_rollout, watched_rollout
+from admissable_jax.audit.watch import compiled_in_background, report_from_rollout, watched_rollout
 from admissable_jax.method import candidate_sets, num_candidate_sets
 from admissable_jax.scoring import SCORE_ESTIMATORS
 from admissable_jax.scoring.attribution import ShapleyAttribution, ShapleyPlan, plan_shapley, shapley_attribution
@@ -150,18 +150,19 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
     key = jax.random.key(seed)
 
     def score(rows: np.ndarray, how: str):
-        def rollout(reports=None):
-            result = scorer(env, policy_fn, params, key, rows, n_episodes, None, num_slots, score_estimator=how,
-                            critic_fn=critic_fn, critic_params=critic_params, score_horizon=horizon, gamma=gamma,
-                            progress=reports)
-            jax.block_until_ready(result)
+        counted = how == "rollout"  # the estimates run no episodes to count, and take seconds
+        # Compiled and run where a Ctrl-C is heard (audit.watch); called with the arguments not static.
+        compiled = compiled_in_background(scorer.lower(
+            env, policy_fn, params, key, rows, n_episodes, None, num_slots, score_estimator=how, critic_fn=critic_fn,
+            critic_params=critic_params, score_horizon=horizon, gamma=gamma,
+            progress=report_from_rollout if counted else None))
+
+        def rollout():
+            result = jax.block_until_ready(compiled(params, key, rows, critic_params=critic_params))
             jax.effects_barrier()  # every report from inside the rollout made before its bar closes
             return result
 
-        if how == "rollout":  # the estimates run no episodes to count, and take seconds
-            scored = watched_rollout(lambda: rollout(report_from_rollout), (len(rows) + 1) * n_episodes, progress)
-        else:
-            scored = rollout()
+        scored = watched_rollout(rollout, (len(rows) + 1) * n_episodes, progress) if counted else rollout()
         if bool(scored.capacity_exceeded):
             raise ValueError(f"the physics ran out of contact buffers: {env.capacity_message()}")
         return scored

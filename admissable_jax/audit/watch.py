@@ -1,4 +1,5 @@
-"""A rollout that draws its episode bar and that a Ctrl-C stops within a step.
+"""Where the audit compiles and runs its rollout, so that a Ctrl-C is answered at once and
+the process exits cleanly.
 
 The rollout reports the episodes finished so far from inside the compiled program
 (``score_missingness``'s ``progress``). XLA:CPU runs a program with such host callbacks on
@@ -6,7 +7,10 @@ the calling thread from start to end, and Python hears a Ctrl-C only when that c
 returns: a Hopper audit on 2 cores answered one after 29 s, when its rollout ended. So
 :func:`watched_rollout` makes the call on a worker thread while the main thread waits, where
 a Ctrl-C is heard at once; the rollout's next report then raises :class:`RolloutStopped`,
-which ends the program, and the Ctrl-C goes on up from the main thread.
+which ends the program, and the Ctrl-C goes on up from the main thread. And XLA stops a
+compile on the main thread when a Ctrl-C comes, after which the process crashed at exit
+(SIGSEGV, in 5 of 5 tries); :func:`compiled_in_background` compiles on a worker instead,
+which the process waits for before it exits.
 """
 
 from __future__ import annotations
@@ -60,6 +64,17 @@ class _HideStops(logging.Filter):
 
     def filter(self, record: logging.LogRecord) -> bool:
         return not (record.exc_info and isinstance(record.exc_info[1], RolloutStopped))
+
+
+def compiled_in_background(lowered: Any) -> Any:
+    """``lowered.compile()`` (a ``jax.stages.Lowered``) on a worker thread, waited for where a
+    Ctrl-C is heard: it raises KeyboardInterrupt at once, and the compile ends in the
+    background before the process exits."""
+    pool = concurrent.futures.ThreadPoolExecutor(max_workers=1)
+    try:
+        return pool.submit(lowered.compile).result()
+    finally:
+        pool.shutdown(wait=False)
 
 
 def watched_rollout(rollout: Callable[[], Any], total: int, draw: bool) -> Any:
