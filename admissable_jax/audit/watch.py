@@ -84,15 +84,16 @@ def watched_rollout(rollout: Callable[[], Any], total: int, draw: bool) -> Any:
     watch, quiet = _Watch(total, draw), _HideStops()
     jax_debugging_log = logging.getLogger("jax._src.debugging")
 
-    def run() -> Any:
+    def run() -> Any:  # everything it sets up stays until the rollout ends, even if a second Ctrl-C leaves it
         _WATCHES.append(watch)
+        jax_debugging_log.addFilter(quiet)
         try:
             return rollout()
         finally:
+            jax_debugging_log.removeFilter(quiet)
             _WATCHES.remove(watch)
             watch.close()
 
-    jax_debugging_log.addFilter(quiet)
     pool = concurrent.futures.ThreadPoolExecutor(max_workers=1)
     future = pool.submit(run)
     try:
@@ -103,4 +104,3 @@ def watched_rollout(rollout: Callable[[], Any], total: int, draw: bool) -> Any:
         raise
     finally:
         pool.shutdown(wait=False)
-        jax_debugging_log.removeFilter(quiet)
