@@ -66,15 +66,21 @@ class _HideStops(logging.Filter):
         return not (record.exc_info and isinstance(record.exc_info[1], RolloutStopped))
 
 
+def _on_worker(call: Callable[[], Any]) -> concurrent.futures.Future:
+    """``call()`` started on a thread of its own. The process waits for it before exiting,
+    even if nobody waits for the future."""
+    pool = concurrent.futures.ThreadPoolExecutor(max_workers=1)
+    try:
+        return pool.submit(call)
+    finally:
+        pool.shutdown(wait=False)
+
+
 def compiled_in_background(lowered: Any) -> Any:
     """``lowered.compile()`` (a ``jax.stages.Lowered``) on a worker thread, waited for where a
     Ctrl-C is heard: it raises KeyboardInterrupt at once, and the compile ends in the
     background before the process exits."""
-    pool = concurrent.futures.ThreadPoolExecutor(max_workers=1)
-    try:
-        return pool.submit(lowered.compile).result()
-    finally:
-        pool.shutdown(wait=False)
+    return _on_worker(lowered.compile).result()
 
 
 def watched_rollout(rollout: Callable[[], Any], total: int, draw: bool) -> Any:
@@ -94,13 +100,10 @@ def watched_rollout(rollout: Callable[[], Any], total: int, draw: bool) -> Any:
             _WATCHES.remove(watch)
             watch.close()
 
-    pool = concurrent.futures.ThreadPoolExecutor(max_workers=1)
-    future = pool.submit(run)
+    future = _on_worker(run)
     try:
         return future.result()
     except KeyboardInterrupt:
         watch.stop.set()
         concurrent.futures.wait([future])  # the rollout's next report ends it
         raise
-    finally:
-        pool.shutdown(wait=False)
