@@ -30,7 +30,7 @@ import numpy as np
 from omegaconf import OmegaConf
 
 from admissable_jax.checkpointing import CheckpointError, Checkpoints
-from admissable_jax.cli import enable_compilation_cache, parse_args, run_from_cli
+from admissable_jax.cli import enable_compilation_cache, exit_with, parse_args, run_from_cli
 from admissable_jax.config import ExperimentConfig, TrainConfig, config_file_of, pair_configs
 from admissable_jax.errors import make_directory, remove_if_unused
 from admissable_jax.host_loop import TrainingLoop, make_trainer, mode_flags
@@ -155,4 +155,4 @@ def scored_up_to(run_dir: str, env_steps: int) -> bool:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))
+    exit_with(main(sys.argv[1:]))

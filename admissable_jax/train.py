@@ -16,7 +16,7 @@ from typing import Any
 import jax
 
 from admissable_jax.checkpointing import Checkpoints
-from admissable_jax.cli import enable_compilation_cache, parse_args, run_from_cli
+from admissable_jax.cli import enable_compilation_cache, exit_with, parse_args, run_from_cli
 from admissable_jax.config import TrainConfig, config_file_of
 from admissable_jax.host_loop import TrainingLoop, make_trainer, mode_flags
 from admissable_jax.run_directory import RunDirectory
@@ -90,4 +90,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))
+    exit_with(main(sys.argv[1:]))

@@ -24,7 +24,7 @@ import warnings  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from admissable_jax.cli import parse_args, run_from_cli, setting  # noqa: E402
+from admissable_jax.cli import exit_with, parse_args, run_from_cli, setting  # noqa: E402
 from admissable_jax.envs import observation_names, settotalmass_warning_dropped  # noqa: E402
 from admissable_jax.errors import RunFailed, make_directory  # noqa: E402
 from admissable_jax.method import candidate_sets, describe_set  # noqa: E402
@@ -182,4 +182,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))
+    exit_with(main(sys.argv[1:]))

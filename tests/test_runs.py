@@ -247,6 +247,49 @@ def test_ctrl_c_says_where_to_resume_and_exits_130(stop, on_chunk, tmp_path, mon
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # given back after the run
 
 
+# A command interrupted the way a second Ctrl-C leaves it: its line said (on stdout here,
+# which a pipe buffers), and device work it queued still running (for hours: each iteration
+# a 256 x 256 matmul, enough for XLA:CPU to run it asynchronously; a reference kept, as the
+# loop keeps its state).
+_INTERRUPTED_WITH_WORK_IN_FLIGHT = """
+import runpy, sys, types
+import jax, jax.numpy as jnp
+from admissable_jax import cli
+from admissable_jax.errors import INTERRUPTED
+
+in_flight = []
+
+def interrupted(function, config, interrupted="interrupted"):
+    endless = jax.jit(lambda x: jax.lax.fori_loop(0, 2**31 - 1, lambda i, x: jnp.tanh(x @ x), x))
+    in_flight.append(endless(jnp.ones((256, 256))))
+    print("interrupted: " + sys.argv[1])
+    return None, INTERRUPTED
+
+cli.run_from_cli = interrupted
+cli.parse_args = lambda *args, **kwargs: types.SimpleNamespace(run_dir="", policy=None, steps=0)
+runpy.run_module(sys.argv[1], run_name="__main__")
+"""
+
+
+def test_an_interrupted_command_ends_at_once_with_device_work_in_flight():
+    """After a second Ctrl-C the command's files are written and closed, but device work it
+    queued may run on for minutes, and Python's own exit would wait for it (freeing the
+    arrays it writes blocks). Every command ends at once instead, status 130, its output
+    flushed."""
+    commands = ("admissable_jax.train", "admissable_jax.experiment", "admissable_jax.audit", "admissable_jax.video")
+    buffered = {name: value for name, value in os.environ.items() if name != "PYTHONUNBUFFERED"}
+    running = [subprocess.Popen([sys.executable, "-c", _INTERRUPTED_WITH_WORK_IN_FLIGHT, command],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                env={**buffered, "JAX_PLATFORMS": "cpu"}) for command in commands]
+    try:
+        for command, process in zip(commands, running):
+            out, err = process.communicate(timeout=120)  # waiting for the work would take hours
+            assert (process.returncode, out) == (INTERRUPTED, f"interrupted: {command}\n"), err
+    finally:
+        for process in running:
+            process.kill()
+
+
 def test_resume_rules_corrupt_checkpoints_and_moved_directories(tmp_path, capsys):
     first = str(tmp_path / "first")
     straight = train_fn(dataclasses.replace(RUN, out=first))

@@ -3,5 +3,6 @@
 import sys
 
 from admissable_jax.audit.command import main
+from admissable_jax.cli import exit_with
 
-raise SystemExit(main(sys.argv[1:]))
+exit_with(main(sys.argv[1:]))
