@@ -242,18 +242,32 @@ def test_audit_steps_as_many_envs_at_once_as_training_scores():
     assert _slots(AuditConfig(run_dir="run", k="1", episodes=50, shapley="exact", slots=100), point_mass) == 100
 
 
-def test_a_ctrl_c_stops_the_audits_rollout_at_its_next_report(monkeypatch, caplog):
+@pytest.mark.parametrize("ctrl_cs", [1, 2])
+def test_a_ctrl_c_stops_the_audits_rollout_at_its_next_report(ctrl_cs, monkeypatch, caplog):
     """XLA:CPU runs a rollout that reports from inside on the calling thread, to its end; the
     audit compiles it and runs it on workers (audit.watch), so a Ctrl-C is heard at once and
-    the rollout's next report ends the program, without JAX's traceback for the stop."""
+    the rollout's next report ends the program, without JAX's traceback for the stop. A
+    second Ctrl-C while the rollout is still on its way to that report ends the wait at once
+    and ends the bar's line first (the command then exits at once), so that the command's
+    last line stands on a line of its own."""
     import signal
     import threading
+    import time
 
     from admissable_jax.audit import watch
 
-    reports = []
-    counted = watch._Watch.report
-    monkeypatch.setattr(watch._Watch, "report", lambda self, finished: reports.append(finished) or counted(self, finished))
+    reports, closed_in_main_thread = [], []
+    report, close = watch._Watch.report, watch._Watch.close
+
+    def slow_to_stop(self, finished):
+        reports.append(finished)
+        if self.stop.is_set() and ctrl_cs == 2:
+            time.sleep(1.0)  # a long step before the report that stops it
+        report(self, finished)
+
+    monkeypatch.setattr(watch._Watch, "report", slow_to_stop)
+    monkeypatch.setattr(watch._Watch, "close", lambda self: closed_in_main_thread.append(
+        threading.current_thread() is threading.main_thread()) or close(self))
     steps = 200_000
 
     @jax.jit
@@ -266,15 +280,27 @@ def test_a_ctrl_c_stops_the_audits_rollout_at_its_next_report(monkeypatch, caplo
 
     compiled = watch.compiled_in_background(rollout.lower(jnp.ones(4)))
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
-    ctrl_c = threading.Timer(0.5, lambda: signal.pthread_kill(threading.main_thread().ident, signal.SIGINT))
+    ctrl_c = [threading.Timer(0.5 + 0.2 * n, lambda: signal.pthread_kill(threading.main_thread().ident, signal.SIGINT))
+              for n in range(ctrl_cs)]
     try:
-        ctrl_c.start()
-        with pytest.raises(KeyboardInterrupt), caplog.at_level("ERROR"):
-            watch.watched_rollout(lambda: jax.block_until_ready(compiled(jnp.ones(4))), steps, draw=False)
+        for timer in ctrl_c:
+            timer.start()
+        with caplog.at_level("ERROR"):
+            with pytest.raises(KeyboardInterrupt):
+                watch.watched_rollout(lambda: jax.block_until_ready(compiled(jnp.ones(4))), steps, draw=True)
+            # One Ctrl-C waits for the worker, which closes the bar; after a second the worker is
+            # still on its way to stop, and the main thread has closed it.
+            assert closed_in_main_thread == [ctrl_cs == 2]
+            for _ in range(100):  # the worker stops by itself
+                if not watch._WATCHES:
+                    break
+                time.sleep(0.05)
     finally:
-        ctrl_c.cancel()
+        for timer in ctrl_c:
+            timer.cancel()
         signal.signal(signal.SIGINT, previous)
     assert 0 < len(reports) < steps and not watch._WATCHES
+    assert closed_in_main_thread == [True] * (ctrl_cs - 1) + [False]
     assert not [record for record in caplog.records if record.name.startswith("jax")]
 
 

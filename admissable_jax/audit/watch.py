@@ -9,8 +9,9 @@ returns: a Hopper audit on 2 cores answered one after 29 s, when its rollout end
 a Ctrl-C is heard at once; the rollout's next report then raises :class:`RolloutStopped`,
 which ends the program, and the Ctrl-C goes on up from the main thread. And XLA stops a
 compile on the main thread when a Ctrl-C comes, after which the process crashed at exit
-(SIGSEGV, in 5 of 5 tries); :func:`compiled_in_background` compiles on a worker instead,
-which the process waits for before it exits.
+(SIGSEGV, in 5 of 5 tries); :func:`compiled_in_background` compiles on a worker instead.
+The command line then ends at once (:func:`admissable_jax.cli.exit_with`); a Python caller's
+process waits for the worker before it exits.
 """
 
 from __future__ import annotations
@@ -78,8 +79,8 @@ def _on_worker(call: Callable[[], Any]) -> concurrent.futures.Future:
 
 def compiled_in_background(lowered: Any) -> Any:
     """``lowered.compile()`` (a ``jax.stages.Lowered``) on a worker thread, waited for where a
-    Ctrl-C is heard: it raises KeyboardInterrupt at once, and the compile ends in the
-    background before the process exits."""
+    Ctrl-C is heard: it raises KeyboardInterrupt at once, and the compile goes on in the
+    background (see the module's docstring)."""
     return _on_worker(lowered.compile).result()
 
 
@@ -104,6 +105,10 @@ def watched_rollout(rollout: Callable[[], Any], total: int, draw: bool) -> Any:
     try:
         return future.result()
     except KeyboardInterrupt:
-        watch.stop.set()
-        concurrent.futures.wait([future])  # the rollout's next report ends it
+        watch.stop.set()  # the rollout's next report ends it
+        try:
+            concurrent.futures.wait([future])
+        except KeyboardInterrupt:  # a second Ctrl-C: the rollout stops on its own; its bar's line ends here
+            watch.close()
+            raise
         raise
