@@ -7,6 +7,7 @@ key or a badly typed value ends the program with a one-line message and exit sta
 
 from __future__ import annotations
 
+import concurrent.futures
 import contextlib
 import dataclasses
 import os
@@ -23,6 +24,7 @@ from tqdm.auto import tqdm
 from admissable_jax.errors import INTERRUPTED, USAGE_ERROR, RunFailed
 
 ConfigT = TypeVar("ConfigT")
+T = TypeVar("T")
 
 
 def setting(default, help_text: str):
@@ -177,6 +179,19 @@ def run_from_cli(function: Callable[[Any], Any], config: Any,
         except KeyboardInterrupt:
             print(interrupted, file=sys.stderr)
             return None, INTERRUPTED
+
+
+def in_background(call: Callable[[], T]) -> concurrent.futures.Future[T]:
+    """``call()`` started on a thread of its own, for long work that a Ctrl-C should not have
+    to wait for (a compile): Python hears signals in the main thread only, and not inside a
+    long C call, so the main thread waits on the future instead, where a Ctrl-C raises
+    KeyboardInterrupt at once. The work goes on; a command then ends at once
+    (:func:`exit_with`), while a Python caller's process waits for it before exiting."""
+    pool = concurrent.futures.ThreadPoolExecutor(max_workers=1)
+    try:
+        return pool.submit(call)
+    finally:
+        pool.shutdown(wait=False)
 
 
 def exit_with(status: int) -> NoReturn:

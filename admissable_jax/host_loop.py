@@ -14,7 +14,6 @@ A batch of pairs runs where its :class:`~admissable_jax.placement.PairPlacement`
 
 from __future__ import annotations
 
-import concurrent.futures
 import os
 import shutil
 import time
@@ -25,7 +24,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from admissable_jax.checkpointing import Checkpoints
-from admissable_jax.cli import report, reporting, stop_at_next_boundary, ticking
+from admissable_jax.cli import in_background, report, reporting, stop_at_next_boundary, ticking
 from admissable_jax.config import TrainConfig
 from admissable_jax.envs import make_env
 from admissable_jax.errors import Interrupted, RunFailed
@@ -152,13 +151,14 @@ class TrainingLoop:
         where = f"{self.config.env} ({env.physics_name} physics) on {jax.devices()[0].platform}"
         shardings = {"in_shardings": self.placement.sharding, "out_shardings": self.placement.sharding} \
             if self.placement else {}
-        # Both programs are traced here, then compiled on two threads at once: XLA compiles
-        # outside Python's lock, so on two or more cores the compiles overlap.
+        # Both programs are traced here, then compiled on two threads at once (XLA compiles
+        # outside Python's lock, so on two or more cores the compiles overlap) while this
+        # thread waits, where a Ctrl-C is heard at once.
         lowered = [jax.jit(function, donate_argnums=0, **shardings).lower(abstract_state)
                    for function in (self._run_piece, self._score_and_update)]
         with reporting(f"compiling the training step and the scoring round for {where}"):
-            with concurrent.futures.ThreadPoolExecutor(max_workers=2) as pool:
-                self.run_piece, self.score_and_update = pool.map(lambda program: program.compile(), lowered)
+            compiling = [in_background(program.compile) for program in lowered]
+            self.run_piece, self.score_and_update = [program.result() for program in compiling]
         budget = memory_budget(abstract_state, self.run_piece, self.score_and_update, self.num_devices)
         if budget.needed_bytes > budget.available_bytes:
             raise MemoryBudgetExceeded(

@@ -14,7 +14,7 @@ import time
 import jax
 import jax.numpy as jnp
 
-from admissable_jax.cli import parse_args
+from admissable_jax.cli import exit_with, in_background, parse_args, run_from_cli
 from admissable_jax.envs import MjxEnv, canonical_env_name, make_env, reset_where_done, resolve_physics
 
 
@@ -56,26 +56,32 @@ def random_rollout(env: MjxEnv, num_envs: int, steps: int, rng: jax.Array):
     return states, total_reward
 
 
-def main(argv: list[str]) -> None:
-    config = parse_args(
-        RolloutConfig, argv, "admissable_jax.rollout", __doc__.strip().splitlines()[0], _validate
-    )
+def measure(config: RolloutConfig) -> str:
+    """Compile and run the rollout ``config`` describes; one line saying how fast."""
     env = make_env(config.env, physics=config.physics, max_batch=config.num_envs)
     rollout = jax.jit(random_rollout, static_argnums=(0, 1, 2))
     rng = jax.random.key(config.seed)
     start = time.perf_counter()
-    compiled = rollout.lower(env, config.num_envs, config.steps, rng).compile()
+    compiled = in_background(rollout.lower(env, config.num_envs, config.steps, rng).compile).result()
     compile_s = time.perf_counter() - start
     start = time.perf_counter()
     _, total_reward = jax.block_until_ready(compiled(rng))
     run_s = time.perf_counter() - start
     env_steps = config.num_envs * config.steps
-    print(
-        f"{env.gymnasium_id or env.name} on {jax.devices()[0].platform} ({env.physics_name} physics): {config.num_envs} envs x "
-        f"{config.steps} steps, compile {compile_s:.1f} s, run {run_s:.2f} s, "
-        f"{env_steps / run_s:,.0f} env steps/s, mean reward {float(total_reward) / env_steps:.3f}"
+    return (f"{env.gymnasium_id or env.name} on {jax.devices()[0].platform} ({env.physics_name} physics): "
+            f"{config.num_envs} envs x {config.steps} steps, compile {compile_s:.1f} s, run {run_s:.2f} s, "
+            f"{env_steps / run_s:,.0f} env steps/s, mean reward {float(total_reward) / env_steps:.3f}")
+
+
+def main(argv: list[str]) -> int:
+    config = parse_args(
+        RolloutConfig, argv, "admissable_jax.rollout", __doc__.strip().splitlines()[0], _validate
     )
+    line, status = run_from_cli(measure, config, interrupted="interrupted: nothing measured")
+    if not status:
+        print(line)
+    return status
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    exit_with(main(sys.argv[1:]))

@@ -15,6 +15,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import jax
@@ -247,6 +248,39 @@ def test_ctrl_c_says_where_to_resume_and_exits_130(stop, on_chunk, tmp_path, mon
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # given back after the run
 
 
+def test_a_ctrl_c_while_compiling_is_answered_at_once(tmp_path, monkeypatch, capsys):
+    """A Ctrl-C during the compile (a minute for Hopper on a small CPU, as long on a GPU) ends
+    the run at once: the loop compiles on worker threads and waits where a Ctrl-C is heard,
+    and leaves the compiles to end in the background."""
+    compiling, released, compiled = threading.Semaphore(0), threading.Event(), []
+
+    def slow_compile(lowered):
+        compiling.release()
+        released.wait(60)
+        compiled.append(lowered)
+
+    def ctrl_c_once_both_compile():
+        for _ in range(2):
+            compiling.acquire(timeout=60)
+        time.sleep(0.1)  # the loop waiting for them
+        signal.pthread_kill(threading.main_thread().ident, signal.SIGINT)
+
+    monkeypatch.setattr(jax.stages.Lowered, "compile", slow_compile)
+    ctrl_c = threading.Thread(target=ctrl_c_once_both_compile)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    out = tmp_path / "compiling"
+    try:
+        ctrl_c.start()
+        _, status = run_from_cli(train_fn, dataclasses.replace(RUN, out=str(out)))
+        assert (status, compiled) == (INTERRUPTED, [])  # answered while the compiles still ran
+    finally:
+        released.set()
+        ctrl_c.join()
+        signal.signal(signal.SIGINT, previous)
+    assert capsys.readouterr().err.strip().splitlines()[-1] == "interrupted before training started; nothing to resume from"
+    assert not out.exists()
+
+
 # A command interrupted the way a second Ctrl-C leaves it: its line said (on stdout here,
 # which a pipe buffers), and device work it queued still running (for hours: each iteration
 # a 256 x 256 matmul, enough for XLA:CPU to run it asynchronously; a reference kept, as the
@@ -276,7 +310,8 @@ def test_an_interrupted_command_ends_at_once_with_device_work_in_flight():
     queued may run on for minutes, and Python's own exit would wait for it (freeing the
     arrays it writes blocks). Every command ends at once instead, status 130, its output
     flushed."""
-    commands = ("admissable_jax.train", "admissable_jax.experiment", "admissable_jax.audit", "admissable_jax.video")
+    commands = ("admissable_jax.train", "admissable_jax.experiment", "admissable_jax.audit", "admissable_jax.video",
+                "admissable_jax.rollout")
     buffered = {name: value for name, value in os.environ.items() if name != "PYTHONUNBUFFERED"}
     running = [subprocess.Popen([sys.executable, "-c", _INTERRUPTED_WITH_WORK_IN_FLIGHT, command],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,

@@ -23,6 +23,8 @@ from typing import Any, Callable
 
 from tqdm.auto import tqdm
 
+from admissable_jax.cli import in_background
+
 
 class RolloutStopped(Exception):
     """Raised from a rollout's report to end its program (a Ctrl-C in the main thread)."""
@@ -67,21 +69,11 @@ class _HideStops(logging.Filter):
         return not (record.exc_info and isinstance(record.exc_info[1], RolloutStopped))
 
 
-def _on_worker(call: Callable[[], Any]) -> concurrent.futures.Future:
-    """``call()`` started on a thread of its own. The process waits for it before exiting,
-    even if nobody waits for the future."""
-    pool = concurrent.futures.ThreadPoolExecutor(max_workers=1)
-    try:
-        return pool.submit(call)
-    finally:
-        pool.shutdown(wait=False)
-
-
 def compiled_in_background(lowered: Any) -> Any:
     """``lowered.compile()`` (a ``jax.stages.Lowered``) on a worker thread, waited for where a
     Ctrl-C is heard: it raises KeyboardInterrupt at once, and the compile goes on in the
     background (see the module's docstring)."""
-    return _on_worker(lowered.compile).result()
+    return in_background(lowered.compile).result()
 
 
 def watched_rollout(rollout: Callable[[], Any], total: int, draw: bool) -> Any:
@@ -101,7 +93,7 @@ def watched_rollout(rollout: Callable[[], Any], total: int, draw: bool) -> Any:
             _WATCHES.remove(watch)
             watch.close()
 
-    future = _on_worker(run)
+    future = in_background(run)
     try:
         return future.result()
     except KeyboardInterrupt:
