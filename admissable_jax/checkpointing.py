@@ -18,11 +18,18 @@ import jax
 import jax.numpy as jnp
 import orbax.checkpoint as ocp
 
-from admissable_jax.errors import RunFailed
+from admissable_jax.errors import USAGE_ERROR, RunFailed
 
 
 class CheckpointError(RunFailed):
     """A checkpoint that is missing, unreadable or does not fit the run's state."""
+
+
+class NoSuchCheckpoint(CheckpointError):
+    """A checkpoint step asked for (``resume_step=``, ``step=``) that was never saved: a bad
+    setting, so it exits as one (status 2, as ``audit steps=`` does)."""
+
+    exit_status = USAGE_ERROR
 
 
 class Checkpoints:
@@ -73,7 +80,7 @@ class Checkpoints:
         if step is None:
             return max(steps)
         if step not in steps:
-            raise CheckpointError(f"no checkpoint {step} in {self.directory}; saved: {sorted(steps)}")
+            raise NoSuchCheckpoint(f"no checkpoint {step} in {self.directory}; saved: {sorted(steps)}")
         return step
 
     def restore(self, like, step: int | None = None, resizable_leading_axis: bool = False) -> tuple[int, object]:

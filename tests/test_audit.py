@@ -557,6 +557,7 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
     # Bad input: one line, exit status 2.
     for args, message in [(["steps=all", "step=200"], "steps= audits several checkpoints of one run"),
                           (["steps=300"], "no checkpoint at 300 in "), (["steps=two"], "steps must be 'all'"),
+                          (["step=300", f"out={tmp_path / 'at300'}"], "no checkpoint 300 in "),
                           (["k=1", "episodes=20000", "shapley=exact", f"out={tmp_path / 'big'}"],  # 4 + 16 sets
                            "auditing k=1 on point_mass is 20 sets x 20000 episodes in one rollout, over 200,000: lower "
                            "episodes=, drop the largest k, use search=beam or give shapley= fewer feature orders")]:
@@ -566,7 +567,7 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
             status = exit_info.code
         error = capsys.readouterr().err.strip().splitlines()
         assert status == 2 and len(error) == 1 and error[0].startswith(f"error: {message}"), error
-    assert not (tmp_path / "big").exists()  # refused before the folder is made
+    assert not (tmp_path / "big").exists() and not (tmp_path / "at300").exists()  # refused before the folder is made
     capsys.readouterr()  # (what the audits above said)
     with pytest.raises(SystemExit) as refused:  # a bad key stops the parser itself
         audit_main([short_run.run_dir, "k=0"])
