@@ -58,9 +58,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 from matplotlib.backend_bases import FigureCanvasBase  # noqa: E402
 import numpy as np  # noqa: E402
 
-from admissable_jax.cli import fail, parse_args  # noqa: E402
+from admissable_jax.cli import exit_with, fail, parse_args  # noqa: E402
 from admissable_jax.envs import ENV_SPECS  # noqa: E402
-from admissable_jax.errors import UnusableDirectory, make_directory  # noqa: E402
+from admissable_jax.errors import INTERRUPTED, UnusableDirectory, make_directory, remove_if_unused  # noqa: E402
 from admissable_jax.results import (  # noqa: E402
     Run, aligned, comparison_section, differing_settings, final_scores, find_runs, group_curves, load_run, load_runs,
     mean_and_interval, mode_differences, moving_average, shared_records, summary_table, trained_on, write_tables,
@@ -353,6 +353,7 @@ def main(argv: list[str]) -> int:
     config = parse_args(PlotConfig, options, "admissable_jax.plot RUN_DIR [RUN_DIR ...]", __doc__.splitlines()[0])
     if not paths:
         fail("give at least one run directory (or a folder of them)")
+    out_dir, made_out_dir = None, False
     try:
         formats = parse_formats(config.formats)
         runs = find_runs(paths)
@@ -369,6 +370,7 @@ def main(argv: list[str]) -> int:
             f"\n{env} runs differ in {', '.join(keys)}: each setting is its own curve and row, never seeds of one.\n"
             for env, keys in ((env, differing_settings(env_runs)) for env, env_runs in sorted(by_env.items())) if keys)
         out_dir = config.out or new_folder(os.path.join(paths[0], "figures"))
+        made_out_dir = not os.path.exists(out_dir)
         written = []  # one env's figures in out_dir, several envs' each in out_dir/<env>
         for env, env_runs in sorted(by_env.items()):
             written += plot_runs([run.path for run in env_runs], out_dir if len(by_env) == 1 else os.path.join(out_dir, env),
@@ -381,6 +383,12 @@ def main(argv: list[str]) -> int:
         provenance = trained_on(runs)
     except (ValueError, FileNotFoundError, KeyError, UnusableDirectory) as error:
         fail(str(error))
+    except KeyboardInterrupt:
+        if made_out_dir:  # left only if it holds a figure
+            remove_if_unused(out_dir, own_files=())
+        drawn = f"the figures drawn so far are in {out_dir}" if out_dir and os.path.isdir(out_dir) else "nothing written"
+        print(f"interrupted: {drawn}; the runs are untouched", file=sys.stderr)
+        return INTERRUPTED
     table += (f"\nFigures: {smoothing}. Table: the last "
               f"record itself (final) and the mean over all records (AUC), unsmoothed.\n{variants}"
               f"\n{provenance}\n" + (f"\n{comparison}" if comparison else ""))
@@ -393,4 +401,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))
+    exit_with(main(sys.argv[1:]))

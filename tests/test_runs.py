@@ -395,6 +395,24 @@ def test_faults_of_long_runs_cost_nothing_finished(tmp_path, monkeypatch, capsys
     said = capsys.readouterr().err
     assert f"warning: {os.path.join(paused_dir, 'scores.jsonl')}: the last line is cut off" in said
     assert said.strip().splitlines()[-1] == "error: cannot create the figures folder /dev/null/x: Not a directory"
+    # Ctrl-C while plot draws: one line saying where the figures drawn so far are; a folder
+    # it made and drew nothing into is gone.
+    import admissable_jax.plot
+
+    def ctrl_c(*args):
+        raise KeyboardInterrupt
+    for where, said in (("write_tables", f"the figures drawn so far are in {tmp_path / 'stopped'}"),  # after the figures
+                        ("draw_curves", "nothing written")):  # in the folder it made, before any figure
+        shutil.rmtree(tmp_path / "stopped", ignore_errors=True)
+        with monkeypatch.context() as patched:
+            patched.setattr(admissable_jax.plot, where, ctrl_c)
+            try:
+                status = plot_main([paused_dir, f"out={tmp_path / 'stopped'}", "formats=png"])
+            except KeyboardInterrupt:
+                status = "a traceback"
+        assert status == INTERRUPTED
+        assert capsys.readouterr().err.strip().splitlines()[-1] == f"interrupted: {said}; the runs are untouched"
+        assert (tmp_path / "stopped").exists() == (where == "write_tables")
     resumed = train_fn(dataclasses.replace(RUN, out=paused_dir, resume=True))
     assert resumed.finished and resumed.scores == straight.scores
     assert f"dropped the cut-off last line of {os.path.join(paused_dir, 'scores.jsonl')}" in capsys.readouterr().err
