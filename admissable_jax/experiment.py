@@ -32,7 +32,7 @@ from omegaconf import OmegaConf
 from admissable_jax.checkpointing import CheckpointError, Checkpoints
 from admissable_jax.cli import enable_compilation_cache, exit_with, parse_args, run_from_cli
 from admissable_jax.config import ExperimentConfig, TrainConfig, config_file_of, pair_configs
-from admissable_jax.errors import make_directory, remove_if_unused
+from admissable_jax.errors import INTERRUPTED, make_directory, remove_if_unused
 from admissable_jax.host_loop import TrainingLoop, make_trainer, mode_flags
 from admissable_jax.placement import PairPlacement, initialize_distributed
 from admissable_jax.results import comparison_section, mode_differences, summary_table
@@ -140,6 +140,10 @@ def main(argv: list[str]) -> int:
     except (ValueError, OSError) as error:  # the runs are written; only their summary failed
         print(f"warning: no summary of the pairs ({error}); python -m admissable_jax.plot {root} draws them",
               file=sys.stderr)
+    except KeyboardInterrupt:
+        print(f"interrupted: the runs are written; python -m admissable_jax.plot {root} summarises them",
+              file=sys.stderr)
+        return INTERRUPTED
     return 0
 
 

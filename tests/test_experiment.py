@@ -14,6 +14,7 @@ from nbclient import NotebookClient
 from admissable_jax import mask_observation
 from admissable_jax.config import ExperimentConfig, pair_configs
 from admissable_jax.envs import observation_names
+from admissable_jax.errors import INTERRUPTED
 from admissable_jax.experiment import main as experiment_main
 from admissable_jax.experiment import run_experiment, scored_up_to
 from admissable_jax.plot import plot_runs
@@ -131,6 +132,18 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
     assert experiment_main([*argv, "total_steps=3000", f"out={resumed_root}", "resume=true"]) == 0  # nothing left
     assert f"warning: no summary of the pairs (a torn scores.jsonl); python -m admissable_jax.plot {resumed_root}" \
         in capsys.readouterr().err
+    # Nor does a Ctrl-C during it: one line, status 130.
+    def ctrl_c(run_dirs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("admissable_jax.experiment.summary_table", ctrl_c)
+    try:
+        status = experiment_main([*argv, "total_steps=3000", f"out={resumed_root}", "resume=true"])
+    except KeyboardInterrupt:
+        status = "a traceback"
+    assert status == INTERRUPTED
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        f"interrupted: the runs are written; python -m admissable_jax.plot {resumed_root} summarises them")
     monkeypatch.undo()
 
     written = plot_runs(find_runs([resumed_root]), str(tmp_path / "figures"), window=2, formats=("png",))
