@@ -14,7 +14,7 @@ import time
 import jax
 import jax.numpy as jnp
 
-from admissable_jax.cli import exit_with, in_background, parse_args, run_from_cli
+from admissable_jax.cli import compiled_in_background, exit_with, parse_args, run_from_cli
 from admissable_jax.envs import MjxEnv, canonical_env_name, make_env, reset_where_done, resolve_physics
 
 
@@ -62,7 +62,7 @@ def measure(config: RolloutConfig) -> str:
     rollout = jax.jit(random_rollout, static_argnums=(0, 1, 2))
     rng = jax.random.key(config.seed)
     start = time.perf_counter()
-    compiled = in_background(rollout.lower(env, config.num_envs, config.steps, rng).compile).result()
+    compiled = compiled_in_background(rollout.lower(env, config.num_envs, config.steps, rng))
     compile_s = time.perf_counter() - start
     start = time.perf_counter()
     _, total_reward = jax.block_until_ready(compiled(rng))

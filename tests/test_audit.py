@@ -255,6 +255,7 @@ def test_a_ctrl_c_stops_the_audits_rollout_at_its_next_report(ctrl_cs, monkeypat
     import time
 
     from admissable_jax.audit import watch
+    from admissable_jax.cli import compiled_in_background
 
     reports, closed_in_main_thread = [], []
     report, close = watch._Watch.report, watch._Watch.close
@@ -278,7 +279,7 @@ def test_a_ctrl_c_stops_the_audits_rollout_at_its_next_report(ctrl_cs, monkeypat
             return i + 1, jnp.sin(x)
         return jax.lax.while_loop(lambda carry: carry[0] < steps, step, (0, x))
 
-    compiled = watch.compiled_in_background(rollout.lower(jnp.ones(4)))
+    compiled = compiled_in_background(rollout.lower(jnp.ones(4)))
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     ctrl_c = [threading.Timer(0.5 + 0.2 * n, lambda: signal.pthread_kill(threading.main_thread().ident, signal.SIGINT))
               for n in range(ctrl_cs)]

@@ -11,7 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from admissable_jax.audit.watch import compiled_in_background, report_from_rollout, watched_rollout
+from admissable_jax.audit.watch import report_from_rollout, watched_rollout
+from admissable_jax.cli import compiled_in_background
 from admissable_jax.method import candidate_sets, num_candidate_sets
 from admissable_jax.scoring import SCORE_ESTIMATORS
 from admissable_jax.scoring.attribution import ShapleyAttribution, ShapleyPlan, plan_shapley, shapley_attribution

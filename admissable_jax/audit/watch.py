@@ -9,9 +9,10 @@ returns: a Hopper audit on 2 cores answered one after 29 s, when its rollout end
 a Ctrl-C is heard at once; the rollout's next report then raises :class:`RolloutStopped`,
 which ends the program, and the Ctrl-C goes on up from the main thread. And XLA stops a
 compile on the main thread when a Ctrl-C comes, after which the process crashed at exit
-(SIGSEGV, in 5 of 5 tries); :func:`compiled_in_background` compiles on a worker instead.
-The command line then ends at once (:func:`admissable_jax.cli.exit_with`); a Python caller's
-process waits for the worker before it exits.
+(SIGSEGV, in 5 of 5 tries); the audit compiles on a worker instead
+(:func:`admissable_jax.cli.compiled_in_background`). The command line then ends at once
+(:func:`admissable_jax.cli.exit_with`); a Python caller's process waits for the worker before
+it exits.
 """
 
 from __future__ import annotations
@@ -67,13 +68,6 @@ class _HideStops(logging.Filter):
 
     def filter(self, record: logging.LogRecord) -> bool:
         return not (record.exc_info and isinstance(record.exc_info[1], RolloutStopped))
-
-
-def compiled_in_background(lowered: Any) -> Any:
-    """``lowered.compile()`` (a ``jax.stages.Lowered``) on a worker thread, waited for where a
-    Ctrl-C is heard: it raises KeyboardInterrupt at once, and the compile goes on in the
-    background (see the module's docstring)."""
-    return in_background(lowered.compile).result()
 
 
 def watched_rollout(rollout: Callable[[], Any], total: int, draw: bool) -> Any:
