@@ -32,8 +32,8 @@ import sys
 
 import numpy as np
 
-from admissable_jax.cli import fail, parse_args
-from admissable_jax.errors import UnusableDirectory
+from admissable_jax.cli import exit_with, fail, parse_args
+from admissable_jax.errors import INTERRUPTED, UnusableDirectory, remove_if_unused
 from admissable_jax.plot import new_folder, parse_formats, plot_envs_side_by_side, plot_runs
 from admissable_jax.results import (
     Difference, Run, differing_settings, find_runs, format_comparison, load_run, mean_and_interval, mode_differences,
@@ -142,8 +142,10 @@ def _cost_line(run_dirs: list[str]) -> str:
 
 
 def env_section(env: str, folder: str, window: int, out_file: str, formats: tuple[str, ...] = ("png", "pdf"),
-                per_seed: bool = False) -> tuple[str, list[str]]:
-    """(the env's Markdown section, one summary row per Difference for the top table)."""
+                per_seed: bool = False, made: list[str] | None = None) -> tuple[str, list[str]]:
+    """(the env's Markdown section, one summary row per Difference for the top table). The
+    figures folder it makes is appended to ``made`` first, so that a caller stopped midway
+    knows it."""
     run_dirs = find_runs([folder])
     if not run_dirs:
         raise ValueError(f"no run directories (config.yaml + scores.jsonl) under {folder}")
@@ -157,6 +159,8 @@ def env_section(env: str, folder: str, window: int, out_file: str, formats: tupl
                          "setting per env (plot draws each setting as its own curve)")
     steps = min(int(run.env_steps[-1]) for run in runs)
     figures = new_folder(os.path.join(folder, "figures"))
+    if made is not None:
+        made.append(figures)
     plot_runs(run_dirs, figures, window, formats, per_seed)
     curves_csv, scores_csv = (os.path.relpath(path, os.path.dirname(os.path.abspath(out_file)))
                               for path in write_tables(run_dirs, figures))
@@ -187,12 +191,12 @@ def main(argv: list[str]) -> int:
     folders = {env: getattr(config, env) for env in SB3_ZOO_SAC if getattr(config, env)}
     if not folders:
         fail("give at least one of hopper=DIR, walker2d=DIR, ant=DIR")
-    sections, rows = [], []
+    sections, rows, made = [], [], []
     out_folder = os.path.dirname(os.path.abspath(config.out))
     try:
         formats = parse_formats(f"png,{config.formats}")
         for env, folder in folders.items():
-            section, env_rows = env_section(env, folder, config.window, config.out, formats, config.per_seed)
+            section, env_rows = env_section(env, folder, config.window, config.out, formats, config.per_seed, made)
             sections.append(section)
             rows += env_rows
         # The paper's layout, beside FIGURE1.md: every env's min_u a_u in a panel of its own.
@@ -200,6 +204,13 @@ def main(argv: list[str]) -> int:
                                config.window, formats, config.per_seed)
     except (ValueError, FileNotFoundError, KeyError, UnusableDirectory) as error:
         fail(str(error))
+    except KeyboardInterrupt:  # as plot: one line, and no figures folder left empty
+        for figures in made:
+            remove_if_unused(figures, own_files=())
+        drawn = [figures for figures in made if os.path.isdir(figures)]
+        where = f"the figures drawn so far are in {', '.join(drawn)}" if drawn else "no figures written"
+        print(f"interrupted: {config.out} not written; {where}; the runs are untouched", file=sys.stderr)
+        return INTERRUPTED
     command = " ".join(["python", "benchmarks/figure1.py", *argv])
     text = "\n".join([
         "# Figure 1: adversarial against uniform missingness (min_u a_u)", "",
@@ -218,4 +229,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))
+    exit_with(main(sys.argv[1:]))

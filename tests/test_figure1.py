@@ -104,3 +104,24 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys, 
         f"error: the runs in {mixed} differ in score_episodes: Figure 1 compares the modes at one setting per env "
         "(plot draws each setting as its own curve)")
     assert not (tmp_path / "mixed.md").exists()
+
+    # Ctrl-C midway: one line, exit 130, FIGURE1.md not written; the figures folder stays if it
+    # holds a figure, and goes if it was made and holds none.
+    import admissable_jax.plot
+
+    def ctrl_c(*args):
+        raise KeyboardInterrupt
+    for module, where, said in ((figure1, "write_tables", f"the figures drawn so far are in {young / 'figures-2'}"),
+                                (admissable_jax.plot, "draw_curves", "no figures written")):  # in the folder, before any figure
+        shutil.rmtree(young / "figures-2", ignore_errors=True)
+        with monkeypatch.context() as patched:
+            patched.setattr(module, where, ctrl_c)
+            try:
+                status = _figure1(f"hopper={young}", f"out={tmp_path / 'stopped.md'}", "formats=png")
+            except KeyboardInterrupt:
+                status = "a traceback"
+        assert status == 130
+        assert capsys.readouterr().err.strip().splitlines()[-1] == (
+            f"interrupted: {tmp_path / 'stopped.md'} not written; {said}; the runs are untouched")
+        assert (young / "figures-2").exists() == (where == "write_tables")
+        assert not (tmp_path / "stopped.md").exists()
