@@ -14,7 +14,7 @@ import jax
 
 from admissable_jax.adversary import MODES
 from admissable_jax.cli import RUN_LOCATION, ConfigFile, setting
-from admissable_jax.envs import canonical_env_name, observation_size, resolve_physics
+from admissable_jax.envs import canonical_env_name, observation_size, resolve_physics, short_env_name
 from admissable_jax.loggers import parse_logger_names
 from admissable_jax.missingness import num_candidate_sets
 from admissable_jax.scoring import SCORE_ESTIMATORS
@@ -26,7 +26,8 @@ class RunSettings:
 
     # task and adversary (paper §3, Table of hyperparameters)
     env: str = setting("hopper", "hopper, walker2d or ant, the paper's (or Hopper-v5, Walker2d-v5, Ant-v5); "
-                                 "halfcheetah (HalfCheetah-v5); point_mass: a seconds-to-compile toy for smoke runs")
+                                 "halfcheetah (HalfCheetah-v5); point_mass: a seconds-to-compile toy for smoke runs; "
+                                 "package.module:Class: an env of your own (envs.ExternalEnv)")
     k: int = setting(1, "features hidden per episode (|u| = k)")
     include_empty_set: bool = setting(False, "also let the adversary pick 'nothing hidden'")
     score_every: int = setting(5000, "zeta: env steps (over all envs) between scorings")
@@ -111,7 +112,7 @@ class TrainConfig(RunSettings):
                 f"score_every ({config.score_every}) must be a multiple of num_envs ({config.num_envs})"
             )
         if not config.out:
-            config.out = f"runs/{config.env}-{config.missingness}-s{config.seed}"
+            config.out = f"runs/{short_env_name(config.env)}-{config.missingness}-s{config.seed}"
         return config
 
 
@@ -140,7 +141,7 @@ def pair_configs(config: ExperimentConfig) -> list[TrainConfig]:
     if config.seeds < 1 or config.first_seed < 0:
         raise ValueError(f"seeds must be >= 1 and first_seed >= 0, got seeds={config.seeds}, first_seed={config.first_seed}")
     shared = {field.name: getattr(config, field.name) for field in dataclasses.fields(RunSettings)}
-    out = config.out or f"runs/fig1-{canonical_env_name(config.env)}"
+    out = config.out or f"runs/fig1-{short_env_name(config.env)}"
     return [
         TrainConfig(**shared, missingness=mode, seed=seed, out=os.path.join(out, f"{mode}-s{seed}")).resolved()
         for mode in modes

@@ -1,7 +1,9 @@
 """MJX ports of Gymnasium's Hopper-v5, Walker2d-v5 and Ant-v5 (the paper's envs) and
 HalfCheetah-v5, and :func:`make_env`.
 
-``point_mass`` is a pure-JAX toy with the same interface, for tests and smoke runs. Which
+``point_mass`` is a pure-JAX toy with the same interface, for tests and smoke runs; an env of
+one's own, written in JAX on :class:`ExternalEnv`, is named by its import path
+(``package.module:Class``, :mod:`.external`). Which
 physics backend steps an env (MJX's JAX implementation or MuJoCo Warp) is decided here,
 from :class:`EnvOptions`; nothing outside this package needs to know.
 
@@ -23,9 +25,12 @@ from admissable_jax.envs.catalog import (
     EnvSpec,
     canonical_env_name,
     env_spec,
+    external_class,
+    is_external,
     observation_names,
     observation_size,
     settotalmass_warning_dropped,
+    short_env_name,
 )
 from admissable_jax.envs.options import MAX_EPISODE_STEPS, PHYSICS_CHOICES, EnvOptions, resolve_physics
 from admissable_jax.envs.state import EnvState, reset_where_done
@@ -34,7 +39,8 @@ if TYPE_CHECKING:
     from admissable_jax.envs.base import MjxEnv
 
 # The attributes imported on first use, and their modules.
-_LAZY = {"MjxEnv": "base", **{spec.home.split(".")[1]: spec.home.split(".")[0] for spec in ENV_SPECS.values()}}
+_LAZY = {"MjxEnv": "base", "ExternalEnv": "external",
+         **{spec.home.split(".")[1]: spec.home.split(".")[0] for spec in ENV_SPECS.values()}}
 
 
 def __getattr__(attribute: str) -> Any:
@@ -45,12 +51,14 @@ def __getattr__(attribute: str) -> Any:
 
 def env_class(name: str) -> type:
     """The class of env ``name`` (its module, and MJX for the MuJoCo envs, imported now)."""
+    if is_external(name):
+        return external_class(name)
     return __getattr__(env_spec(name).home.split(".")[1])
 
 
 def make_env(name: str, options: EnvOptions | None = None, **option_overrides) -> MjxEnv:
-    """The env called ``name`` (``hopper``, ``walker2d``, ``ant``, ``halfcheetah``, a Gymnasium id, or
-    ``point_mass``), built with ``options`` (an :class:`EnvOptions`; keyword arguments
+    """The env called ``name`` (``hopper``, ``walker2d``, ``ant``, ``halfcheetah``, a Gymnasium id,
+    ``point_mass``, or ``package.module:Class`` for an env of your own: :mod:`.external`), built with ``options`` (an :class:`EnvOptions`; keyword arguments
     override its fields), e.g. ``make_env("ant", physics="warp", max_batch=4096)``.
 
     The defaults reproduce Gymnasium v5 (the XML's solver settings, 1000-step episodes) on
@@ -71,6 +79,7 @@ __all__ = [
     "EnvOptions",
     "EnvSpec",
     "EnvState",
+    "ExternalEnv",
     "HalfCheetah",
     "Hopper",
     "MjxEnv",
@@ -85,4 +94,5 @@ __all__ = [
     "reset_where_done",
     "resolve_physics",
     "settotalmass_warning_dropped",
+    "short_env_name",
 ]

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import importlib
 import os
 import sys
 from typing import Callable, ClassVar
@@ -123,21 +124,74 @@ class CatalogEntry:
         return self.spec.observation_size
 
 
+# Envs of your own (:mod:`.external`), by import path, as each was first named in this process.
+_EXTERNAL: dict[str, tuple[EnvSpec, type]] = {}
+
+
+def _external(name: str) -> tuple[EnvSpec, type]:
+    """The catalog entry and class of the env ``package.module:Class``, imported now (its
+    module may import JAX: only an env of one's own is imported here). ValueError in one
+    line where the name does not lead to a usable class."""
+    if name in _EXTERNAL:
+        return _EXTERNAL[name]
+    module_name, _, class_name = name.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except Exception as error:  # the user's module: whatever it raises, said in one line
+        raise ValueError(f"env {name!r}: cannot import {module_name} ({type(error).__name__}: {error})") from None
+    cls = getattr(module, class_name, None)
+    if not isinstance(cls, type):
+        raise ValueError(f"env {name!r}: {module_name} has no class {class_name}")
+    if not all(callable(getattr(cls, method, None)) for method in ("reset", "step")):
+        raise ValueError(f"env {name!r}: {class_name} must define reset and step (subclass envs.ExternalEnv)")
+    size = getattr(cls, "observation_size", None)
+    if not isinstance(size, int) or isinstance(size, bool) or size < 1:
+        raise ValueError(f"env {name!r}: {class_name}.observation_size must be an int >= 1, got {size!r}")
+    names = [str(feature) for feature in getattr(cls, "feature_names", ())] or [f"obs {i}" for i in range(size)]
+    if len(names) != size:
+        raise ValueError(f"env {name!r}: {class_name}.feature_names has {len(names)} names for {size} observation entries")
+    spec = EnvSpec(name, None, None, size, name, lambda _: list(names))
+    cls.spec = spec
+    _EXTERNAL[name] = spec, cls
+    return spec, cls
+
+
+def is_external(name: str) -> bool:
+    """Whether ``name`` names an env of one's own (``package.module:Class``)."""
+    return ":" in name
+
+
+def external_class(name: str) -> type:
+    """The class of the env of one's own called ``name``."""
+    return _external(name)[1]
+
+
 def canonical_env_name(name: str) -> str:
-    """``"hopper"`` for ``"hopper"``, ``"Hopper-v5"``, ``"HOPPER"``; ValueError otherwise."""
+    """``"hopper"`` for ``"hopper"``, ``"Hopper-v5"``, ``"HOPPER"``; ``package.module:Class``
+    (an env of one's own, :mod:`.external`) as it is, once its class is found; ValueError
+    otherwise."""
     if not isinstance(name, str):
         raise TypeError(f"env name must be a string, got {type(name).__name__}")
+    if is_external(name):
+        return _external(name)[0].name
     key = name.lower()
     key = _ALIASES.get(key, key)
     if key not in ENV_SPECS:
         valid = ", ".join([*ENV_SPECS, *(spec.gymnasium_id for spec in ENV_SPECS.values() if spec.gymnasium_id)])
-        raise ValueError(f"unknown env {name!r}; valid names: {valid}")
+        raise ValueError(f"unknown env {name!r}; valid names: {valid}, or package.module:Class for an env of "
+                         "your own")
     return key
 
 
 def env_spec(name: str) -> EnvSpec:
     """The catalog entry of env ``name`` (any name :func:`canonical_env_name` takes)."""
-    return ENV_SPECS[canonical_env_name(name)]
+    return _external(name)[0] if is_external(name) else ENV_SPECS[canonical_env_name(name)]
+
+
+def short_env_name(name: str) -> str:
+    """A name for folders: the env's canonical name, or its class's for one of one's own
+    (``cartpole`` for ``my_envs.cartpole:CartPole``)."""
+    return name.rpartition(":")[2].lower() if is_external(name) else canonical_env_name(name)
 
 
 def observation_size(name: str) -> int:

@@ -1,0 +1,90 @@
+"""An env of one's own (``env=package.module:Class``, :mod:`admissable_jax.envs.external`):
+named by its import path, it trains, resumes in another process, is plotted and audited as
+ours are. The env is ``tests/reach_env.py``, the README's example; pure JAX, so seconds to
+compile."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import reach_env
+from admissable_jax import TrainConfig, make_env, train_fn
+from admissable_jax.audit import main as audit_main
+from admissable_jax.envs import observation_names
+from admissable_jax.plot import main as plot_main
+from admissable_jax.train import main as train_main
+
+NAME = "reach_env:Reach"
+SHORT = ["score_every=200", "num_envs=4", "learning_starts=200", "episode_length=20", "batch_size=32",
+         "hidden_size=32", "score_episodes=3", "checkpoint_every=1", "progress=false"]
+
+
+def test_the_readmes_env_is_the_one_tested():
+    """The README's example is ``tests/reach_env.py``'s code, word for word."""
+    readme = open(os.path.join(os.path.dirname(__file__), "..", "README.md")).read()
+    example = readme.split("### Your own env: `env=package.module:Class`")[1].split("```python\n")[1].split("```")[0]
+    assert example.strip() in open(reach_env.__file__).read()
+
+
+def test_an_env_of_ones_own_trains_resumes_plots_and_is_audited(tmp_path, capsys):
+    env = make_env(NAME, episode_length=20)
+    assert (env.name, env.observation_size, env.action_size, env.physics_name) == (NAME, 3, 1, "jax")
+    assert observation_names(NAME) == ["position", "velocity", "goal"]
+    assert TrainConfig(env=NAME).resolved().out == "runs/reach-adversarial-s0"
+    # The state the base class fills in: one step by hand, then truncation at episode_length.
+    start = env.reset(jax.random.key(1))
+    position, _, goal = np.asarray(start.obs)
+    after = env.step(start, jnp.ones(1))
+    np.testing.assert_allclose(after.obs, [position + 0.01, 0.1, goal], rtol=1e-6)
+    np.testing.assert_allclose(after.reward, np.exp(-(position + 0.01 - goal) ** 2), rtol=1e-6)
+    assert int(after.step_count) == 1 and not bool(after.done)
+    np.testing.assert_allclose(after.episode_metrics["return"], after.reward)
+    last = jax.lax.fori_loop(0, 20, lambda _, state: env.step(state, jnp.zeros(1)), start)
+    assert bool(last.truncated) and not bool(last.terminated) and int(last.step_count) == 20
+
+    # A command in a process of its own finds the class by its name (PYTHONPATH), trains and
+    # keeps the name in config.yaml; train_fn here resumes it from there.
+    out = str(tmp_path / "reach")
+    command = subprocess.run([sys.executable, "-m", "admissable_jax.train", f"env={NAME}", "total_steps=400",
+                              f"out={out}", *SHORT], capture_output=True, text=True,
+                             env={**os.environ, "PYTHONPATH": os.pathsep.join([os.path.dirname(__file__), *sys.path])})
+    assert command.returncode == 0, command.stderr
+    assert command.stdout.startswith(f"done: {NAME} adversarial seed 0, 400 env steps")
+    assert f"env: {NAME}\n" in open(os.path.join(out, "config.yaml")).read()
+    resumed = train_fn(TrainConfig(env=NAME, total_steps=600, out=out, resume=True, score_every=200, num_envs=4,
+                                   learning_starts=200, episode_length=20, batch_size=32, hidden_size=32,
+                                   score_episodes=3, progress=False))
+    assert [row["env_steps"] for row in resumed.scores] == [200, 400, 600]
+    for row in resumed.scores:
+        assert len(row["scores"]) == 3 and row["min_score"] == min(row["scores"])
+        assert row["argmin_set"] in ("{0}", "{1}", "{2}")
+
+    # plot and the audit name the features as the class does.
+    assert plot_main([out, f"out={tmp_path / 'figures'}", "formats=png"]) == 0
+    with open(tmp_path / "figures" / "scores.csv") as file:
+        assert {row["hidden"] for row in csv.DictReader(file)} == {"position", "velocity", "goal"}
+    assert audit_main([out, "episodes=4", f"out={tmp_path / 'audit'}"]) == 0
+    with open(tmp_path / "audit" / "audit.json") as file:
+        assert sorted(entry["names"][0] for entry in json.load(file)["sets"]["1"]) == ["goal", "position", "velocity"]
+    capsys.readouterr()
+
+
+@pytest.mark.parametrize("name, message", [
+    ("reach_env:Nope", "reach_env has no class Nope"),
+    ("no_such_module:Env", "cannot import no_such_module (ModuleNotFoundError: No module named 'no_such_module')"),
+    ("reach_env:Mass", "Mass must define reset and step (subclass envs.ExternalEnv)"),
+    ("reach_env:NoSize", "NoSize.observation_size must be an int >= 1, got None"),
+])
+def test_a_name_that_leads_to_no_env_is_one_line(name, message, tmp_path, capsys):
+    assert train_main([f"env={name}", f"out={tmp_path / 'x'}"]) == 2
+    assert capsys.readouterr().err.strip() == f"error: env {name!r}: {message}"
+    assert not (tmp_path / "x").exists()
