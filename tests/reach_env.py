@@ -1,4 +1,5 @@
-"""An env of one's own for the tests (``env=reach_env:Reach``), written as the README shows.
+"""Envs of one's own for the tests (``env=reach_env:Reach``, ``env=reach_env:BraxFast``), the
+README's example word for word, and two classes wrong on purpose.
 
 A mass on a line is pushed towards a goal drawn at each reset; it must see both its
 position and the goal to get there (its velocity helps it stop). Reward exp(−(x − g)²) per
@@ -9,7 +10,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from admissable_jax.envs import ExternalEnv
+from admissable_jax.envs import BraxEnv, ExternalEnv
 
 
 @struct.dataclass
@@ -38,6 +39,33 @@ class Reach(ExternalEnv):
 
     def _observation(self, mass):
         return jnp.stack([mass.position, mass.velocity, mass.goal])
+
+
+class BraxFast(BraxEnv):
+    """Brax's own test env ("fast"): position and velocity of a body pushed forward while
+    the action is positive; reward = position."""
+
+    brax_name = "fast"
+    observation_size = 2
+    action_size = 1
+    feature_names = ("position", "velocity")
+
+
+# Wrong on purpose: the tests' names that lead to no usable env.
+
+
+class WrongSize(BraxFast):
+    """States a size the Brax env does not have."""
+
+    observation_size = 3
+    feature_names = ()
+
+
+class WrongObservation(Reach):
+    """States one observation entry more than it gives."""
+
+    observation_size = 4
+    feature_names = ()
 
 
 class NoSize(Reach):

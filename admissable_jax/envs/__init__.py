@@ -2,7 +2,7 @@
 HalfCheetah-v5, and :func:`make_env`.
 
 ``point_mass`` is a pure-JAX toy with the same interface, for tests and smoke runs; an env of
-one's own, written in JAX on :class:`ExternalEnv`, is named by its import path
+one's own, written in JAX on :class:`ExternalEnv` (or a Brax env on :class:`BraxEnv`), is named by its import path
 (``package.module:Class``, :mod:`.external`). Which
 physics backend steps an env (MJX's JAX implementation or MuJoCo Warp) is decided here,
 from :class:`EnvOptions`; nothing outside this package needs to know.
@@ -39,7 +39,7 @@ if TYPE_CHECKING:
     from admissable_jax.envs.base import MjxEnv
 
 # The attributes imported on first use, and their modules.
-_LAZY = {"MjxEnv": "base", "ExternalEnv": "external",
+_LAZY = {"MjxEnv": "base", "ExternalEnv": "external", "BraxEnv": "external",
          **{spec.home.split(".")[1]: spec.home.split(".")[0] for spec in ENV_SPECS.values()}}
 
 
@@ -76,6 +76,7 @@ __all__ = [
     "MAX_EPISODE_STEPS",
     "PHYSICS_CHOICES",
     "Ant",
+    "BraxEnv",
     "EnvOptions",
     "EnvSpec",
     "EnvState",

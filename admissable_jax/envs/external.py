@@ -10,6 +10,10 @@ and ``step`` as pure functions of arrays, with :meth:`ExternalEnv.first_state` a
 truncation at ``episode_length``, the running return). Nothing above ``envs/`` changes: the
 trainer, scoring and audit see the same interface as for Hopper.
 
+An env with Brax's interface (any ``brax.envs`` env; MuJoCo Playground's have the same
+``reset``/``step``/``State``) takes part through :class:`BraxEnv`, which only needs its name
+and sizes.
+
 The candidate sets U are built from ``observation_size``; ``feature_names`` (optional) name
 the observation entries in figures and audit reports, as "torso z" names Hopper's first.
 The paper's l = 0 assumes returns above 0: an env whose returns can be negative wants a
@@ -21,7 +25,6 @@ from __future__ import annotations
 import abc
 from typing import Any, ClassVar
 
-import chex
 import jax
 import jax.numpy as jnp
 
@@ -77,22 +80,62 @@ class ExternalEnv(CatalogEntry, abc.ABC):
     def first_state(self, data: Any, obs: jax.Array) -> EnvState:
         """The state at an episode's start: ``data`` is whatever the env carries (a pytree of
         arrays), ``obs`` its observation."""
-        chex.assert_shape(obs, (self.observation_size,))
         zero = jnp.zeros((), jnp.float32)
-        return EnvState(data=data, obs=jnp.asarray(obs, jnp.float32), reward=zero, terminated=jnp.zeros((), bool),
+        return EnvState(data=data, obs=self._checked("observations", obs, (self.observation_size,)), reward=zero, terminated=jnp.zeros((), bool),
                         truncated=jnp.zeros((), bool), step_count=jnp.zeros((), jnp.int32), metrics={},
                         episode_metrics={"return": zero})
+
+    def _checked(self, what: str, value: jax.Array, shape: tuple[int, ...]) -> jax.Array:
+        """``value`` as float32, or ValueError in one line (at trace time, so before any run
+        starts) where its shape is not ``shape``: a user's env meets our batches here."""
+        value = jnp.asarray(value, jnp.float32)
+        if value.shape != shape:
+            raise ValueError(f"{type(self).__name__} gives {what} of shape {value.shape}, not {shape}"
+                             + (" (its observation_size)" if what == "observations" else ""))
+        return value
 
     def next_state(self, state: EnvState, data: Any, obs: jax.Array, reward: jax.Array,
                    terminated: jax.Array) -> EnvState:
         """The state after one step of ``state``: the step counted, truncated at
         ``episode_length`` (Gymnasium's TimeLimit), ``terminated`` only if the options allow
         it, the reward added to the episode's return."""
-        chex.assert_shape(obs, (self.observation_size,))
-        reward = jnp.asarray(reward, jnp.float32)
-        chex.assert_shape(reward, ())
+        reward = self._checked("rewards", reward, ())
         step_count = state.step_count + 1
-        return EnvState(data=data, obs=jnp.asarray(obs, jnp.float32), reward=reward,
+        return EnvState(data=data, obs=self._checked("observations", obs, (self.observation_size,)), reward=reward,
                         terminated=jnp.asarray(terminated, bool) & self.options.terminate_when_unhealthy,
                         truncated=step_count >= self.max_episode_steps, step_count=step_count, metrics={},
                         episode_metrics={"return": state.episode_metrics["return"] + reward})
+
+
+class BraxEnv(ExternalEnv):
+    """An env with Brax's interface, taking part as an env of one's own: a subclass names a
+    Brax env (``brax_name`` and ``brax_kwargs`` for ``brax.envs.get_environment``) or
+    overrides :meth:`build` to return any object with Brax's ``reset(rng) -> State`` and
+    ``step(state, action) -> State``, and states ``observation_size`` and ``action_size``
+    (checked against the env's own). The Brax state is the env's ``data``; Brax's ``done``
+    is the termination, and truncation at ``episode_length`` is ours, as for every env."""
+
+    brax_name: ClassVar[str] = ""
+    brax_kwargs: ClassVar[dict[str, Any]] = {}
+
+    def __init__(self, options: EnvOptions | None = None):
+        super().__init__(options)
+        self.brax_env = self.build()
+        sizes = (self.brax_env.observation_size, self.brax_env.action_size)
+        if sizes != (self.observation_size, self.action_size):
+            raise ValueError(f"{type(self).__name__} states observation_size {self.observation_size} and action_size "
+                             f"{self.action_size}; the env it builds has {sizes[0]} and {sizes[1]}")
+
+    def build(self) -> Any:
+        """The Brax env stepped (by default ``brax.envs.get_environment(brax_name, **brax_kwargs)``)."""
+        from brax import envs  # imported only when a Brax env is built: seconds
+
+        return envs.get_environment(self.brax_name, **self.brax_kwargs)
+
+    def reset(self, rng: jax.Array) -> EnvState:
+        brax_state = self.brax_env.reset(rng)
+        return self.first_state(brax_state, brax_state.obs)
+
+    def step(self, state: EnvState, action: jax.Array) -> EnvState:
+        brax_state = self.brax_env.step(state.data, action)
+        return self.next_state(state, brax_state, brax_state.obs, brax_state.reward, brax_state.done > 0)
