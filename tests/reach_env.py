@@ -68,6 +68,12 @@ class WrongObservation(Reach):
     feature_names = ()
 
 
+class OneName(Reach):
+    """Names one of its three observation entries."""
+
+    feature_names = ("position",)
+
+
 class NoSize(Reach):
     """Forgot to say its observation size."""
 

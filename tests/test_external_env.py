@@ -84,8 +84,11 @@ def test_an_env_of_ones_own_trains_resumes_plots_and_is_audited(tmp_path, capsys
                            "named 'no_such_module')"),
     ("reach_env:Mass", "env 'reach_env:Mass': Mass must define reset and step (subclass envs.ExternalEnv)"),
     ("reach_env:NoSize", "env 'reach_env:NoSize': NoSize.observation_size must be an int >= 1, got None"),
+    ("reach_env:OneName", "env 'reach_env:OneName': OneName.feature_names holds 1 names; its observations have "
+                          "3 entries"),
     # Found, but its observations are not as long as it says: seen when the programs are traced.
-    ("reach_env:WrongObservation", "WrongObservation gives observations of shape (3,), not (4,) (its observation_size)"),
+    ("reach_env:WrongObservation",
+     "WrongObservation gives observations of shape (3,), not (4,) (its observation_size)"),
 ])
 def test_a_name_that_leads_to_no_usable_env_is_one_line(name, said, tmp_path, capsys):
     assert train_main([f"env={name}", f"out={tmp_path / 'x'}", *SHORT]) == 2

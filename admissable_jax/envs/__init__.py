@@ -2,10 +2,10 @@
 HalfCheetah-v5, and :func:`make_env`.
 
 ``point_mass`` is a pure-JAX toy with the same interface, for tests and smoke runs; an env of
-one's own, written in JAX on :class:`ExternalEnv` (or a Brax env on :class:`BraxEnv`), is named by its import path
-(``package.module:Class``, :mod:`.external`). Which
-physics backend steps an env (MJX's JAX implementation or MuJoCo Warp) is decided here,
-from :class:`EnvOptions`; nothing outside this package needs to know.
+one's own, written in JAX on :class:`ExternalEnv` (or a Brax env on :class:`BraxEnv`), is
+named by its import path (``package.module:Class``, :mod:`.external`). Which physics backend
+steps an env (MJX's JAX implementation or MuJoCo Warp) is decided here, from
+:class:`EnvOptions`; nothing outside this package needs to know.
 
 Importing this package imports no MJX: names, sizes and feature names come from
 :mod:`.catalog`, and an env's class, with its physics, is imported when first asked for
@@ -58,8 +58,9 @@ def env_class(name: str) -> type:
 
 def make_env(name: str, options: EnvOptions | None = None, **option_overrides) -> MjxEnv:
     """The env called ``name`` (``hopper``, ``walker2d``, ``ant``, ``halfcheetah``, a Gymnasium id,
-    ``point_mass``, or ``package.module:Class`` for an env of your own: :mod:`.external`), built with ``options`` (an :class:`EnvOptions`; keyword arguments
-    override its fields), e.g. ``make_env("ant", physics="warp", max_batch=4096)``.
+    ``point_mass``, or ``package.module:Class`` for an env of your own: :mod:`.external`), built
+    with ``options`` (an :class:`EnvOptions`; keyword arguments override its fields), e.g.
+    ``make_env("ant", physics="warp", max_batch=4096)``.
 
     The defaults reproduce Gymnasium v5 (the XML's solver settings, 1000-step episodes) on
     the best backend for this machine (``physics="auto"``).

@@ -149,7 +149,8 @@ def _external(name: str) -> tuple[EnvSpec, type]:
         raise ValueError(f"env {name!r}: {class_name}.observation_size must be an int >= 1, got {size!r}")
     names = [str(feature) for feature in getattr(cls, "feature_names", ())] or [f"obs {i}" for i in range(size)]
     if len(names) != size:
-        raise ValueError(f"env {name!r}: {class_name}.feature_names has {len(names)} names for {size} observation entries")
+        raise ValueError(f"env {name!r}: {class_name}.feature_names holds {len(names)} names; its "
+                         f"observations have {size} entries")
     spec = EnvSpec(name, None, None, size, name, lambda _: list(names))
     cls.spec = spec
     _EXTERNAL[name] = spec, cls

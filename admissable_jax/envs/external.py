@@ -81,9 +81,9 @@ class ExternalEnv(CatalogEntry, abc.ABC):
         """The state at an episode's start: ``data`` is whatever the env carries (a pytree of
         arrays), ``obs`` its observation."""
         zero = jnp.zeros((), jnp.float32)
-        return EnvState(data=data, obs=self._checked("observations", obs, (self.observation_size,)), reward=zero, terminated=jnp.zeros((), bool),
-                        truncated=jnp.zeros((), bool), step_count=jnp.zeros((), jnp.int32), metrics={},
-                        episode_metrics={"return": zero})
+        return EnvState(data=data, obs=self._checked("observations", obs, (self.observation_size,)), reward=zero,
+                        terminated=jnp.zeros((), bool), truncated=jnp.zeros((), bool),
+                        step_count=jnp.zeros((), jnp.int32), metrics={}, episode_metrics={"return": zero})
 
     def _checked(self, what: str, value: jax.Array, shape: tuple[int, ...]) -> jax.Array:
         """``value`` as float32, or ValueError in one line (at trace time, so before any run
