@@ -59,7 +59,7 @@ class ExternalEnv(CatalogEntry, abc.ABC):
         return "jax"
 
     def __repr__(self) -> str:
-        return f"{type(self).__name__}({self.name}: obs {self.observation_size}, actions {self.action_size})"
+        return f"{type(self).__name__}(obs {self.observation_size}, actions {self.action_size})"
 
     def capacity_exceeded(self, state: EnvState) -> jax.Array:
         """Never: the env has no fixed-size physics buffers."""

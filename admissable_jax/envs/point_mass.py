@@ -12,8 +12,8 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from admissable_jax.envs.catalog import ENV_SPECS, CatalogEntry
-from admissable_jax.envs.options import EnvOptions
+from admissable_jax.envs.catalog import ENV_SPECS
+from admissable_jax.envs.external import ExternalEnv
 from admissable_jax.envs.state import EnvState
 
 _DT = 0.1
@@ -26,36 +26,14 @@ class PointMassData:
     velocity: jax.Array  # (2,)
 
 
-class PointMass(CatalogEntry):
+class PointMass(ExternalEnv):
+    """Written on :class:`~admissable_jax.envs.external.ExternalEnv`, as an env of one's own
+    would be; of :class:`EnvOptions` only ``episode_length`` and ``terminate_when_unhealthy``
+    apply: there is no MuJoCo model or solver."""
+
     spec = ENV_SPECS["point_mass"]
     reward_terms = ("reward_distance",)
     action_size = 2
-
-    def __init__(self, options: EnvOptions | None = None):
-        """Only ``options.episode_length`` and ``terminate_when_unhealthy`` apply: there is
-        no MuJoCo model or solver."""
-        self.options = options or EnvOptions()
-        self.dt = _DT
-        self.action_low = -jnp.ones(2, jnp.float32)
-        self.action_high = jnp.ones(2, jnp.float32)
-
-    @property
-    def max_episode_steps(self) -> int:
-        return self.options.episode_length
-
-    @property
-    def physics_name(self) -> str:
-        return "jax"  # pure JAX, no MuJoCo
-
-    def __repr__(self) -> str:
-        return "PointMass(obs 4, actions 2)"
-
-    def capacity_exceeded(self, state: EnvState) -> jax.Array:
-        """Never: the point mass has no fixed-size physics buffers."""
-        return jnp.zeros((), bool)
-
-    def capacity_message(self) -> str:
-        return "the point mass has no physics buffers"
 
     def _state(self, data: PointMassData, reward, terminated, step_count, episode_metrics) -> EnvState:
         return EnvState(
