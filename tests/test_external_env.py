@@ -96,6 +96,21 @@ def test_a_name_that_leads_to_no_usable_env_is_one_line(name, said, tmp_path, ca
     assert not (tmp_path / "x").exists()
 
 
+def test_the_benchmarks_distracted_reach_hides_its_signal_among_noise():
+    """benchmarks/toy_envs.py's DistractedReach (its runs: benchmarks/README.md): position,
+    velocity and goal as Reach's, then 17 features of fresh noise each step."""
+    env = make_env("toy_envs:DistractedReach", episode_length=20)  # benchmarks/ is on the tests' path
+    assert observation_names(env.name)[:4] == ["position", "velocity", "goal", "noise 0"] and env.observation_size == 20
+    start = env.reset(jax.random.key(2))
+    after = env.step(start, jnp.ones(1))
+    position, _, goal = np.asarray(start.obs[:3])
+    np.testing.assert_allclose(after.obs[:3], [position + 0.01, 0.1, goal], rtol=1e-6)
+    np.testing.assert_allclose(after.reward, np.exp(-(position + 0.01 - goal) ** 2), rtol=1e-6)
+    again = env.step(after, jnp.ones(1))
+    assert np.all(np.asarray(after.obs[3:]) != np.asarray(again.obs[3:]))  # the noise is drawn afresh
+    assert 0.5 < float(np.std(np.asarray(again.obs[3:]))) < 2.0
+
+
 def test_a_brax_env_takes_part_by_its_name_and_sizes(tmp_path, capsys):
     """Brax's test env "fast" through BraxEnv: one step by hand (velocity + 0.02 while the
     action is positive, position + 0.02 · velocity, reward = position), a short run scoring
