@@ -1,12 +1,14 @@
-"""Toy envs of our own (``env=toy_envs:DistractedReach``, with ``benchmarks/`` on PYTHONPATH):
-the paper's question in miniature, where a 2-core CPU answers it in minutes.
+"""Toy envs of our own (``env=toy_envs:Reach``, ``env=toy_envs:DistractedReach``, with
+``benchmarks/`` on PYTHONPATH): the README's example of an env of one's own, and the paper's
+question in miniature, where a 2-core CPU answers it in minutes (benchmarks/README.md).
 
-``DistractedReach``: a mass on a line pushed towards a goal drawn at each reset (reward
-exp(−(x − g)²) per step, in (0, 1] as l = 0 assumes; the episode ends when |x| > 3), seen
-beside 17 features of pure noise (fresh N(0, 1) each step): d = 20, and only the position
-and the goal are needed (the velocity helps to stop). Under uniform p_miss an episode hides
-one of those two in 2 of 20 episodes; the adversary can hide them far more often. With
-d = 4 (the point mass) uniform training meets every set in a quarter of its episodes.
+``Reach``: a mass on a line pushed towards a goal drawn at each reset; it must see its
+position and the goal to get there (its velocity helps it stop). Reward exp(−(x − g)²) per
+step, in (0, 1] as the paper's l = 0 assumes; the episode terminates when |x| > 3.
+``DistractedReach``: the same, seen beside 17 features of pure noise (fresh N(0, 1) each
+step): d = 20, of which two are needed. Under uniform p_miss an episode hides one of those two
+in 2 of 20 episodes; the adversary can hide them far more often. With d = 4 (the point mass)
+uniform training meets every set in a quarter of its episodes.
 """
 
 import jax
@@ -15,21 +17,20 @@ from flax import struct
 
 from admissable_jax.envs import ExternalEnv
 
-DISTRACTORS = 17
-
 
 @struct.dataclass
 class Mass:
     position: jax.Array
     velocity: jax.Array
     goal: jax.Array
-    rng: jax.Array  # draws the distractors
+    rng: jax.Array  # draws the noise features
 
 
-class DistractedReach(ExternalEnv):
-    observation_size = 3 + DISTRACTORS
+class Reach(ExternalEnv):
+    observation_size = 3
     action_size = 1
-    feature_names = ("position", "velocity", "goal", *(f"noise {i}" for i in range(DISTRACTORS)))
+    feature_names = ("position", "velocity", "goal")
+    noise_features = 0  # features of pure noise after these three
 
     def reset(self, rng):
         rng, draw = jax.random.split(rng)
@@ -40,11 +41,16 @@ class DistractedReach(ExternalEnv):
     def step(self, state, action):
         mass = state.data
         velocity = mass.velocity + 0.1 * jnp.clip(action[0], -1.0, 1.0)
-        rng, _ = jax.random.split(mass.rng)
-        mass = Mass(mass.position + 0.1 * velocity, velocity, mass.goal, rng)
+        mass = Mass(mass.position + 0.1 * velocity, velocity, mass.goal, jax.random.split(mass.rng)[0])
         reward = jnp.exp(-(mass.position - mass.goal) ** 2)
         return self.next_state(state, mass, self._observation(mass), reward, jnp.abs(mass.position) > 3.0)
 
     def _observation(self, mass):
-        noise = jax.random.normal(jax.random.fold_in(mass.rng, 1), (DISTRACTORS,))
+        noise = jax.random.normal(jax.random.fold_in(mass.rng, 1), (self.noise_features,))
         return jnp.concatenate([jnp.stack([mass.position, mass.velocity, mass.goal]), noise])
+
+
+class DistractedReach(Reach):
+    noise_features = 17
+    observation_size = 3 + noise_features
+    feature_names = (*Reach.feature_names, *(f"noise {i}" for i in range(noise_features)))

@@ -1,7 +1,7 @@
 """An env of one's own (``env=package.module:Class``, :mod:`admissable_jax.envs.external`):
 named by its import path, it trains, resumes in another process, is plotted and audited as
-ours are. The env is ``tests/reach_env.py``, the README's example; pure JAX, so seconds to
-compile."""
+ours are. The envs are the README's examples (``benchmarks/toy_envs.py``'s ``Reach`` and
+``tests/own_envs.py``'s ``BraxFast``); pure JAX, so seconds to compile."""
 
 from __future__ import annotations
 
@@ -16,23 +16,27 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import reach_env
+import own_envs
+import toy_envs  # benchmarks/ is on the tests' path (conftest.py)
 from admissable_jax import TrainConfig, make_env, train_fn
 from admissable_jax.audit import main as audit_main
 from admissable_jax.envs import observation_names
 from admissable_jax.plot import main as plot_main
 from admissable_jax.train import main as train_main
 
-NAME = "reach_env:Reach"
+NAME = "toy_envs:Reach"
 SHORT = ["score_every=200", "num_envs=4", "learning_starts=200", "episode_length=20", "batch_size=32",
          "hidden_size=32", "score_episodes=3", "checkpoint_every=1", "progress=false"]
 
 
-def test_the_readmes_env_is_the_one_tested():
-    """The README's example is ``tests/reach_env.py``'s code, word for word."""
+def test_the_readmes_envs_are_the_ones_tested():
+    """The README's two examples are ``benchmarks/toy_envs.py``'s code and ``BraxFast``'s,
+    word for word."""
     readme = open(os.path.join(os.path.dirname(__file__), "..", "README.md")).read()
-    example = readme.split("### Your own env: `env=package.module:Class`")[1].split("```python\n")[1].split("```")[0]
-    assert example.strip() in open(reach_env.__file__).read()
+    section = readme.split("### Your own env: `env=package.module:Class`")[1].split("\n## ")[0]
+    own, brax = (block.split("```")[0].strip() for block in section.split("```python\n")[1:3])
+    assert own in open(toy_envs.__file__).read() and "class DistractedReach(Reach)" in own
+    assert brax in open(own_envs.__file__).read() and brax.startswith("class BraxFast(BraxEnv)")
 
 
 def test_an_env_of_ones_own_trains_resumes_plots_and_is_audited(tmp_path, capsys):
@@ -79,15 +83,16 @@ def test_an_env_of_ones_own_trains_resumes_plots_and_is_audited(tmp_path, capsys
 
 
 @pytest.mark.parametrize("name, said", [
-    ("reach_env:Nope", "env 'reach_env:Nope': reach_env has no class Nope"),
+    ("own_envs:Nope", "env 'own_envs:Nope': own_envs has no class Nope"),
     ("no_such_module:Env", "env 'no_such_module:Env': cannot import no_such_module (ModuleNotFoundError: No module "
                            "named 'no_such_module')"),
-    ("reach_env:Mass", "env 'reach_env:Mass': Mass must define reset and step (subclass envs.ExternalEnv)"),
-    ("reach_env:NoSize", "env 'reach_env:NoSize': NoSize.observation_size must be an int >= 1, got None"),
-    ("reach_env:OneName", "env 'reach_env:OneName': OneName.feature_names holds 1 names; its observations have "
+    ("own_envs:NotAnEnv",
+     "env 'own_envs:NotAnEnv': NotAnEnv must define reset and step (subclass envs.ExternalEnv)"),
+    ("own_envs:NoSize", "env 'own_envs:NoSize': NoSize.observation_size must be an int >= 1, got None"),
+    ("own_envs:OneName", "env 'own_envs:OneName': OneName.feature_names holds 1 names; its observations have "
                           "3 entries"),
     # Found, but its observations are not as long as it says: seen when the programs are traced.
-    ("reach_env:WrongObservation",
+    ("own_envs:WrongObservation",
      "WrongObservation gives observations of shape (3,), not (4,) (its observation_size)"),
 ])
 def test_a_name_that_leads_to_no_usable_env_is_one_line(name, said, tmp_path, capsys):
@@ -115,16 +120,16 @@ def test_a_brax_env_takes_part_by_its_name_and_sizes(tmp_path, capsys):
     """Brax's test env "fast" through BraxEnv: one step by hand (velocity + 0.02 while the
     action is positive, position + 0.02 · velocity, reward = position), a short run scoring
     both features, and sizes stated wrong said in one line."""
-    env = make_env("reach_env:BraxFast", episode_length=20)
+    env = make_env("own_envs:BraxFast", episode_length=20)
     after = env.step(env.reset(jax.random.key(0)), jnp.ones(1))
     np.testing.assert_allclose(after.obs, [0.0004, 0.02], rtol=1e-6)
     np.testing.assert_allclose([after.reward, after.episode_metrics["return"]], [0.0004, 0.0004], rtol=1e-6)
     assert not bool(after.done) and int(after.step_count) == 1
-    run = train_fn(TrainConfig(env="reach_env:BraxFast", total_steps=400, out=str(tmp_path / "fast"), score_every=200,
+    run = train_fn(TrainConfig(env="own_envs:BraxFast", total_steps=400, out=str(tmp_path / "fast"), score_every=200,
                                num_envs=4, learning_starts=200, episode_length=20, batch_size=32, hidden_size=32,
                                score_episodes=3, progress=False))
     assert [len(row["scores"]) for row in run.scores] == [2, 2]
-    assert train_main(["env=reach_env:WrongSize", f"out={tmp_path / 'wrong'}"]) == 2
+    assert train_main(["env=own_envs:WrongSize", f"out={tmp_path / 'wrong'}"]) == 2
     assert capsys.readouterr().err.strip().splitlines()[-1] == (
         "error: WrongSize states observation_size 3 and action_size 1; the env it builds has 2 and 1")
     assert not (tmp_path / "wrong").exists()
