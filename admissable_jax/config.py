@@ -195,6 +195,8 @@ def validate(config: TrainConfig) -> None:
     """Raise ValueError/TypeError with a one-line message for any bad setting."""
     if not isinstance(config, TrainConfig):
         raise TypeError(f"expected a TrainConfig, got {type(config).__name__}")
+    if isinstance(config.env, type):  # a class of one's own, given as itself: its name is what runs keep
+        raise TypeError(f"env must be a name: env={config.env.__module__}:{config.env.__qualname__} names this class")
     for field in dataclasses.fields(TrainConfig):
         value = getattr(config, field.name)
         expected = {"int": int, "float": (int, float), "bool": bool, "str": str}[field.type]

@@ -44,6 +44,8 @@ def test_an_env_of_ones_own_trains_resumes_plots_and_is_audited(tmp_path, capsys
     assert (env.name, env.observation_size, env.action_size, env.physics_name) == (NAME, 3, 1, "jax")
     assert observation_names(NAME) == ["position", "velocity", "goal"]
     assert TrainConfig(env=NAME).resolved().out == "runs/reach-adversarial-s0"
+    with pytest.raises(TypeError, match="^env must be a name: env=toy_envs:Reach names this class$"):
+        TrainConfig(env=toy_envs.Reach).resolved()  # the class itself: its name is what a run keeps
     # The state the base class fills in: one step by hand, then truncation at episode_length.
     start = env.reset(jax.random.key(1))
     position, _, goal = np.asarray(start.obs)
