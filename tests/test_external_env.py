@@ -46,6 +46,8 @@ def test_an_env_of_ones_own_trains_resumes_plots_and_is_audited(tmp_path, capsys
     assert TrainConfig(env=NAME).resolved().out == "runs/reach-adversarial-s0"
     with pytest.raises(TypeError, match="^env must be a name: env=toy_envs:Reach names this class$"):
         TrainConfig(env=toy_envs.Reach).resolved()  # the class itself: its name is what a run keeps
+    with pytest.raises(TypeError, match="^env name must be a string, got int$"):
+        make_env(123)
     # The state the base class fills in: one step by hand, then truncation at episode_length.
     start = env.reset(jax.random.key(1))
     position, _, goal = np.asarray(start.obs)

@@ -158,8 +158,9 @@ def _external(name: str) -> tuple[EnvSpec, type]:
 
 
 def is_external(name: str) -> bool:
-    """Whether ``name`` names an env of one's own (``package.module:Class``)."""
-    return ":" in name
+    """Whether ``name`` names an env of one's own (``package.module:Class``); a name that is
+    no string is not, and :func:`canonical_env_name` says so."""
+    return isinstance(name, str) and ":" in name
 
 
 def external_class(name: str) -> type:
