@@ -32,6 +32,12 @@ class NoSuchCheckpoint(CheckpointError):
     exit_status = USAGE_ERROR
 
 
+class OtherStateLayout(CheckpointError):
+    """A checkpoint whose state holds other arrays than this version's
+    :class:`~admissable_jax.training.TrainState` (one written before a field was added):
+    every checkpoint of the run is alike, so no older one is offered."""
+
+
 class Checkpoints:
     def __init__(self, directory: str, max_to_keep: int = 2):
         self.directory = os.path.abspath(directory)
@@ -107,6 +113,8 @@ class Checkpoints:
         step = self.step_to_restore(step)
         try:
             return step, self._restore(like, step, resizable_leading_axis, part)
+        except OtherStateLayout:
+            raise
         except CheckpointError as error:
             older = sorted((s for s in self._manager.all_steps() if s < step), reverse=True)
             intact = next((s for s in older if self._readable(like, s, resizable_leading_axis, part)), None)
@@ -126,6 +134,7 @@ class Checkpoints:
             else:
                 saved = self._manager.restore(step, args=ocp.args.StandardRestore(abstract, strict=not resize))
         except Exception as error:  # orbax raises many types for unreadable data
+            self._check_layout(step, abstract)
             first_line = str(error).strip().splitlines()[0][:200] if str(error).strip() else type(error).__name__
             raise CheckpointError(
                 f"checkpoint {step} in {self.directory} is corrupt or does not fit this run ({first_line})"
@@ -150,6 +159,19 @@ class Checkpoints:
                                                               partial_restore=True))
         finally:
             reader.close()
+
+    def _check_layout(self, step: int, abstract: dict) -> None:
+        """OtherStateLayout where checkpoint ``step`` holds another number of arrays than
+        ``abstract`` (nothing where its metadata cannot be read: then it is corrupt)."""
+        try:
+            saved = len(self._manager.item_metadata(step))
+        except Exception:  # unreadable metadata: the caller's corrupt-checkpoint message says so
+            return
+        if saved != len(abstract):
+            raise OtherStateLayout(
+                f"checkpoint {step} in {self.directory} holds {saved} arrays where this version's training state has "
+                f"{len(abstract)}: another version of admissable_jax wrote it, so it cannot be resumed here (its "
+                "policy still loads: load_policy, audit, video)")
 
     def _differs_in_leading_axis_only(self, abstract: dict, step: int) -> bool:
         """Whether checkpoint ``step`` holds the same leaves as ``abstract`` with the same

@@ -124,6 +124,8 @@ class ExperimentConfig(RunSettings):
     seeds: int = setting(5, "seeds per mode: first_seed .. first_seed + seeds - 1")
     first_seed: int = setting(0, "the first seed")
     modes: str = setting("adversarial,uniform", "comma-separated missingness modes (adversarial, uniform, none)")
+    lower_bounds: str = setting("", "comma-separated values of l to sweep in one program: the adversarial seeds train "
+                                    "once per value (pairs adversarial-l<l>-s<seed>); '' = lower_bound alone")
     out: str = setting("", "experiment directory; '' = runs/fig1-<env>")
     devices: int = setting(0, "devices the pairs are spread over: 0 = every device (of every process under "
                               "jax.distributed), N = the first N")
@@ -131,7 +133,10 @@ class ExperimentConfig(RunSettings):
 
 
 def pair_configs(config: ExperimentConfig) -> list[TrainConfig]:
-    """One resolved TrainConfig per (mode, seed) pair, in the batch's order (modes outer)."""
+    """One resolved TrainConfig per pair, in the batch's order: modes outer, then (for the
+    adversarial mode with ``lower_bounds``) the values of l, then seeds. A pair's folder is
+    ``<mode>-s<seed>``, or ``adversarial-l<l>-s<seed>`` in a sweep of l; the other modes
+    never read l, so a sweep trains them once."""
     modes = [mode.strip() for mode in config.modes.split(",") if mode.strip()]
     unknown = [mode for mode in modes if mode not in MODES]
     if not modes or unknown:
@@ -140,13 +145,52 @@ def pair_configs(config: ExperimentConfig) -> list[TrainConfig]:
         raise ValueError(f"modes repeats a mode: {config.modes!r}")
     if config.seeds < 1 or config.first_seed < 0:
         raise ValueError(f"seeds must be >= 1 and first_seed >= 0, got seeds={config.seeds}, first_seed={config.first_seed}")
+    swept = swept_lower_bounds(config)
+    if swept and "adversarial" not in modes:
+        raise ValueError(f"lower_bounds sweeps the adversarial mode's l, and modes={config.modes!r} has no adversarial")
     shared = {field.name: getattr(config, field.name) for field in dataclasses.fields(RunSettings)}
     out = config.out or f"runs/fig1-{short_env_name(config.env)}"
+    curves = [(mode, bound) for mode in modes
+              for bound in (swept if swept and mode == "adversarial" else [shared["lower_bound"]])]
     return [
-        TrainConfig(**shared, missingness=mode, seed=seed, out=os.path.join(out, f"{mode}-s{seed}")).resolved()
-        for mode in modes
+        TrainConfig(**{**shared, "lower_bound": bound}, missingness=mode, seed=seed,
+                    out=os.path.join(out, f"{curve_name(mode, bound, bool(swept))}-s{seed}")).resolved()
+        for mode, bound in curves
         for seed in range(config.first_seed, config.first_seed + config.seeds)
     ]
+
+
+def curve_name(mode: str, lower_bound: float, swept: bool) -> str:
+    """The curve a run is a seed of among runs trained together: its mode, or for an
+    adversarial run where they sweep l, ``adversarial-l<l>`` (``adversarial-l50``)."""
+    return f"adversarial-l{number_text(lower_bound)}" if swept and mode == "adversarial" else mode
+
+
+def curve_names(modes_and_bounds: list[tuple[str, float]]) -> list[str]:
+    """:func:`curve_name` of each (mode, l) of runs trained together, which sweep l where
+    their adversarial runs differ in it."""
+    swept = len({bound for mode, bound in modes_and_bounds if mode == "adversarial"}) > 1
+    return [curve_name(mode, bound, swept) for mode, bound in modes_and_bounds]
+
+
+def number_text(value: float) -> str:
+    """A number as short text that reads back to it: ``50`` for 50.0, ``2.5``, ``1e-08``."""
+    return str(int(value)) if value.is_integer() and abs(value) < 1e15 else repr(value)
+
+
+def swept_lower_bounds(config: ExperimentConfig) -> list[float]:
+    """The values of ``lower_bounds`` (``"0,50"`` → [0.0, 50.0]); [] for ''. ValueError in one
+    line for a value that is no finite number, or a repeated one."""
+    texts = [text.strip() for text in str(config.lower_bounds).split(",") if text.strip()]
+    try:
+        bounds = [float(text) for text in texts]
+    except ValueError:
+        raise ValueError(f"lower_bounds must be a comma-separated list of numbers, got {config.lower_bounds!r}") from None
+    if not all(math.isfinite(bound) for bound in bounds):
+        raise ValueError(f"lower_bounds must be finite numbers, got {config.lower_bounds!r}")
+    if len(set(bounds)) != len(bounds):
+        raise ValueError(f"lower_bounds repeats a value: {config.lower_bounds!r}")
+    return bounds
 
 
 def config_file_of(cls: type) -> ConfigFile:

@@ -4,8 +4,11 @@
         total_steps=1000000 out=runs/fig1-hopper
 
 The missingness modes differ only in data (the ``adversarial`` and ``masking`` flags of the
-training state), not in code, so every pair's training state is stacked along a leading
-pair axis and the train chunk and the scoring round are ``jax.vmap``-ed over it. That axis
+training state), not in code, and so does the adversary's lower bound l, so every pair's
+training state is stacked along a leading pair axis and the train chunk and the scoring
+round are ``jax.vmap``-ed over it; ``lower_bounds=0,50`` sweeps l in the one program (the
+adversarial seeds once per value, ``<out>/adversarial-l<l>-s<seed>``; the other modes,
+which never read l, once). That axis
 is spread over every device (``devices=N``: the first N), and under ``jax.distributed``
 over every process's devices (:mod:`admissable_jax.placement`). Each pair writes its own
 run directory ``<out>/<mode>-s<seed>`` in the format of ``train`` (``config.yaml``,
@@ -26,14 +29,13 @@ import os
 import sys
 
 import jax
-import numpy as np
 from omegaconf import OmegaConf
 
 from admissable_jax.checkpointing import CheckpointError, Checkpoints
 from admissable_jax.cli import enable_compilation_cache, exit_with, parse_args, run_from_cli
 from admissable_jax.config import ExperimentConfig, TrainConfig, config_file_of, pair_configs
 from admissable_jax.errors import INTERRUPTED, make_directory, remove_if_unused
-from admissable_jax.host_loop import TrainingLoop, make_trainer, mode_flags
+from admissable_jax.host_loop import TrainingLoop, make_trainer, stacked_init_arguments
 from admissable_jax.placement import PairPlacement, initialize_distributed
 from admissable_jax.results import comparison_section, mode_differences, summary_table
 from admissable_jax.run_directory import RunDirectory, load_config, read_jsonl
@@ -44,7 +46,7 @@ def experiment_dir(pairs: list[TrainConfig]) -> str:
 
 
 def run_experiment(config) -> list[TrainResult]:
-    """Train every (seed, mode) pair of ``config`` in one program spread over the devices;
+    """Train every pair of ``config`` (seed, mode, and l in a sweep) in one program spread over the devices;
     one result per pair this process holds (every pair, in one process)."""
     initialize_distributed()
     pairs = pair_configs(config)
@@ -71,11 +73,9 @@ def run_experiment(config) -> list[TrainResult]:
         if jax.process_index() == 0:
             OmegaConf.save(OmegaConf.structured(config), experiment_yaml)
 
-        seeds = placement.place(np.array([pair.seed for pair in pairs], np.int32))
-        adversarial, masking = (placement.place(np.array(flags))
-                                for flags in zip(*(mode_flags(pair.missingness) for pair in pairs)))
+        arguments = [placement.place(column) for column in stacked_init_arguments(pairs)]
         spread_init = jax.jit(placement.spread(trainer.init), out_shardings=placement.sharding)
-        init = lambda: spread_init(seeds, adversarial, masking)
+        init = lambda: spread_init(*arguments)
         loop = TrainingLoop(trainer, first, runs, Checkpoints(checkpoint_dir, first.keep_checkpoints), init, placement)
         if config.budget_only:
             print(f"{len(pairs)} pairs x {first.num_envs} envs, {first.env}: {loop.compile().describe()}; "
@@ -94,12 +94,12 @@ def check_same_pairs(config, pairs: list[TrainConfig], experiment_yaml: str) -> 
     """A resumed experiment must have the pairs, in the order, that its checkpoint holds."""
     if not os.path.exists(experiment_yaml):
         raise CheckpointError(f"nothing to resume: {experiment_yaml} does not exist")
-    saved = [(pair.missingness, pair.seed) for pair in pair_configs(load_config(experiment_yaml, ExperimentConfig))]
-    wanted = [(pair.missingness, pair.seed) for pair in pairs]
-    if saved != wanted:
-        names = lambda listed: ", ".join(f"{mode}-s{seed}" for mode, seed in listed)
+    names = lambda listed: [os.path.basename(pair.out) for pair in listed]  # mode, l in a sweep, seed
+    saved = names(pair_configs(load_config(experiment_yaml, ExperimentConfig)))
+    if saved != names(pairs):
         raise ValueError(f"cannot resume with other pairs: the experiment in {experiment_dir(pairs)} has "
-                         f"{names(saved)}, this one {names(wanted)} (keep seeds, first_seed and modes)")
+                         f"{', '.join(saved)}, this one {', '.join(names(pairs))} (keep seeds, first_seed, modes "
+                         "and lower_bounds)")
 
 
 def report(run_dirs: list[str], root: str) -> str:

@@ -25,7 +25,7 @@ from tqdm.auto import tqdm
 
 from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.cli import in_background, report, reporting, stop_at_next_boundary, ticking
-from admissable_jax.config import TrainConfig
+from admissable_jax.config import TrainConfig, curve_names
 from admissable_jax.envs import make_env
 from admissable_jax.errors import Interrupted, RunFailed
 from admissable_jax.memory import MemoryBudget, MemoryBudgetExceeded, memory_budget
@@ -44,9 +44,18 @@ class PhysicsCapacityExceeded(RunFailed):
     """The env's physics ran out of a fixed-size buffer; the last checkpoint is kept."""
 
 
-def mode_flags(missingness: str) -> tuple[bool, bool]:
-    """(adversarial, masking) for a missingness mode."""
-    return missingness == "adversarial", missingness != "none"
+def init_arguments(config: TrainConfig) -> tuple[int, bool, bool, float]:
+    """What :meth:`Trainer.init` takes for a run, the parts of it that are data and not code:
+    (seed, adversarial, masking, lower bound l)."""
+    mode = config.missingness
+    return config.seed, mode == "adversarial", mode != "none", config.lower_bound
+
+
+def stacked_init_arguments(pairs: list[TrainConfig]) -> tuple[np.ndarray, ...]:
+    """:func:`init_arguments` of every pair, each stacked along the pair axis (a vmapped
+    :meth:`Trainer.init` takes them)."""
+    dtypes = (np.int32, bool, bool, np.float32)
+    return tuple(np.array(column, dtype) for column, dtype in zip(zip(*map(init_arguments, pairs)), dtypes))
 
 
 def make_trainer(config: TrainConfig, num_runs: int = 1) -> Trainer:
@@ -83,15 +92,16 @@ def take_pair(tree: Any, index: int) -> Any:
     return jax.tree.map(lambda leaf: leaf[index], tree)
 
 
-def progress_postfix(rows: list[dict[str, Any]], modes: list[str]) -> dict[str, str]:
+def progress_postfix(rows: list[dict[str, Any]], curves: list[str]) -> dict[str, str]:
     """The progress bar's latest scores: min_u a_u and the clean return, the mean over the
-    runs; with several missingness modes in one program (an experiment), min_u a_u per mode,
-    so adversarial and uniform can be watched side by side."""
+    runs; with several curves in one program (an experiment's modes, and the values of l in
+    a sweep: :func:`~admissable_jax.config.curve_names`), min_u a_u per curve, so that they
+    can be watched side by side."""
     mean = lambda key, picked: f"{np.mean([row[key] for row in picked]):.1f}"
-    if len(set(modes)) == 1:
+    if len(set(curves)) == 1:
         return {"min_a_u": mean("min_score", rows), "clean": mean("clean_score", rows)}
-    return {f"min_a_u_{mode}": mean("min_score", [row for row, of in zip(rows, modes) if of == mode])
-            for mode in dict.fromkeys(modes)}
+    return {f"min_a_u_{curve}": mean("min_score", [row for row, of in zip(rows, curves) if of == curve])
+            for curve in dict.fromkeys(curves)}
 
 
 class TrainingLoop:
@@ -116,6 +126,7 @@ class TrainingLoop:
         self.trainer, self.config, self.runs, self.checkpoints = trainer, config, runs, checkpoints
         self.init, self.placement = init, placement
         self.num_runs = placement.num_pairs if placement else 1
+        self.curves = curve_names([(run.config.missingness, run.config.lower_bound) for run in runs])
         self.num_devices = placement.num_devices if placement else 1
         self.pieces = interval_pieces(trainer.spec.iterations_per_scoring)
         run_piece = lambda state: trainer.run_chunk(state, trainer.spec.iterations_per_scoring // self.pieces)
@@ -238,7 +249,7 @@ class TrainingLoop:
                         self.checkpoints.save(env_steps, state)
                     bar.set_description_str("")
                     if rows:
-                        bar.set_postfix(progress_postfix(rows, [run.missingness for run in self.runs]),
+                        bar.set_postfix(progress_postfix(rows, self.curves),
                                         train_sps=f"{config.score_every * self.num_runs / train_seconds:.0f}")
                     if stopped:
                         raise self._interrupted()

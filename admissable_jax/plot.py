@@ -62,8 +62,9 @@ from admissable_jax.cli import exit_with, fail, parse_args  # noqa: E402
 from admissable_jax.envs import ENV_SPECS  # noqa: E402
 from admissable_jax.errors import INTERRUPTED, UnusableDirectory, make_directory, remove_if_unused  # noqa: E402
 from admissable_jax.results import (  # noqa: E402
-    Run, aligned, comparison_section, differing_settings, final_scores, find_runs, group_curves, load_run, load_runs,
-    mean_and_interval, mode_differences, moving_average, shared_records, summary_table, trained_on, write_tables,
+    ADVERSARY_SETTINGS, Run, aligned, comparison_section, differing_settings, final_scores, find_runs, group_curves,
+    load_run, load_runs, mean_and_interval, mode_differences, moving_average, shared_records,
+    summary_table, trained_on, write_tables,
 )
 
 MODE_COLORS = {"adversarial": "tab:blue", "uniform": "tab:red", "none": "tab:gray"}
@@ -322,6 +323,14 @@ def _final_scores_figure(env: str, names: list[str], group: list[list[Run]]):
     return figure
 
 
+def _differing_note(env: str, keys: list[str]) -> str:
+    """summary.md's line for an env whose runs differ in the settings ``keys``."""
+    adversary_only = sorted(ADVERSARY_SETTINGS & set(keys))
+    baseline = (f"; the uniform and none runs never read {', '.join(adversary_only)}, so each adversarial curve is "
+                "compared with the uniform curve of its other settings" if adversary_only else "")
+    return f"\n{env} runs differ in {', '.join(keys)}: each setting is its own curve and row, never seeds of one{baseline}.\n"
+
+
 def _file_name(variant: str) -> str:
     """A variant as part of a file name: "k=2, utd=0.5" -> "k=2_utd=0.5"."""
     return re.sub(r"[^A-Za-z0-9.=+-]+", "_", variant).strip("_")
@@ -366,9 +375,8 @@ def main(argv: list[str]) -> int:
         notes = {env: _window_note(env_runs, config.window) for env, env_runs in sorted(by_env.items())}
         smoothing = (f"mean over seeds of the {next(iter(notes.values()))}" if len(notes) == 1 else
                      "mean over seeds, smoothed per env (" + "; ".join(f"{env}: {note}" for env, note in notes.items()) + ")")
-        variants = "".join(
-            f"\n{env} runs differ in {', '.join(keys)}: each setting is its own curve and row, never seeds of one.\n"
-            for env, keys in ((env, differing_settings(env_runs)) for env, env_runs in sorted(by_env.items())) if keys)
+        variants = "".join(_differing_note(env, keys) for env, keys in
+                           ((env, differing_settings(env_runs)) for env, env_runs in sorted(by_env.items())) if keys)
         out_dir = config.out or new_folder(os.path.join(paths[0], "figures"))
         made_out_dir = not os.path.exists(out_dir)
         written = []  # one env's figures in out_dir, several envs' each in out_dir/<env>

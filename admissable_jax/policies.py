@@ -20,7 +20,7 @@ import numpy as np
 from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.config import TrainConfig
 from admissable_jax.config import ExperimentConfig, pair_configs
-from admissable_jax.host_loop import make_trainer, mode_flags, take_pair
+from admissable_jax.host_loop import init_arguments, make_trainer, stacked_init_arguments, take_pair
 from admissable_jax.method import hidden_row
 from admissable_jax.missingness import mask_observation
 from admissable_jax.run_directory import load_config
@@ -89,7 +89,7 @@ def load_policy(run_dir: str, step: int | None = None) -> TrainedPolicy:
     experiment_yaml = os.path.join(os.path.dirname(os.path.abspath(run_dir)), "experiment.yaml")
     if checkpoint_dir == os.path.join(run_dir, "checkpoints"):  # its own
         trainer = make_trainer(config)
-        like = jax.eval_shape(lambda: trainer.init(config.seed, *mode_flags(config.missingness)))
+        like = jax.eval_shape(lambda: trainer.init(*init_arguments(config)))
         pick = None
     elif os.path.isfile(experiment_yaml):
         experiment = load_config(experiment_yaml, ExperimentConfig)
@@ -98,9 +98,8 @@ def load_policy(run_dir: str, step: int | None = None) -> TrainedPolicy:
         names = [os.path.basename(pair.out) for pair in pairs]
         index = names.index(os.path.basename(os.path.abspath(run_dir)))
         trainer = make_trainer(pairs[0], num_runs=len(pairs))
-        seeds = jnp.array([pair.seed for pair in pairs])
-        flags = [jnp.array(flag) for flag in zip(*(mode_flags(pair.missingness) for pair in pairs))]
-        like = jax.eval_shape(lambda: jax.vmap(trainer.init)(seeds, *flags))
+        arguments = stacked_init_arguments(pairs)
+        like = jax.eval_shape(lambda: jax.vmap(trainer.init)(*arguments))
         pick = lambda tree: take_pair(tree, index)
     else:
         raise FileNotFoundError(f"{run_dir} has no checkpoints (no checkpoints/ and no experiment.yaml above it)")

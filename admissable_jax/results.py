@@ -45,6 +45,10 @@ from admissable_jax.scoring.worst_set import samples_to_separate
 NOT_SETTINGS = frozenset({"env", "missingness", "seed", "out", "resume", "resume_step", "progress", "logger",
                           "time_limit", "checkpoint_every", "keep_checkpoints", "total_steps", "score_envs",
                           "physics"})
+# Settings that only the adversarial mode reads (its p_miss update, paper §3; the pool's
+# exploration share): runs of the other modes that differ only in these are seeds of one
+# curve, the baseline of every adversarial curve that shares their other settings.
+ADVERSARY_SETTINGS = frozenset({"lower_bound", "epsilon", "pool_explore"})
 
 
 @dataclasses.dataclass
@@ -68,6 +72,7 @@ class Run:
     uniform_draws: bool = False  # p_miss stayed uniform at every scoring
     settings: dict[str, str] = dataclasses.field(default_factory=dict)  # config keys but NOT_SETTINGS, as text
     variant: str = ""  # the settings in which it differs from the other runs of its env (label_variants)
+    baseline_variant: str = ""  # the variant of the uniform curve it is compared with: variant less ADVERSARY_SETTINGS
 
     @property
     def curve(self) -> str:
@@ -116,22 +121,27 @@ def load_run(path: str) -> Run:
         clean_score=column("clean_score"), p_miss=p_miss, set_names=names, worst_sets=worst_sets,
         score_episodes=int(config.score_episodes), pooled=pooled, uniform_draws=uniform_draws,
         settings={key: str(value) for key, value in {**dataclasses.asdict(TrainConfig()), **config}.items()
-                  if key not in NOT_SETTINGS},
+                  if key not in NOT_SETTINGS
+                  and (key not in ADVERSARY_SETTINGS or config.missingness == "adversarial")},
     )
 
 
 def differing_settings(runs: list[Run]) -> list[str]:
-    """The settings (config keys but ``NOT_SETTINGS``) whose values differ between these runs."""
+    """The settings (config keys but ``NOT_SETTINGS``) whose values differ between the runs
+    that have them (a uniform run has no ``lower_bound``: :data:`ADVERSARY_SETTINGS`)."""
     keys = set().union(*(run.settings for run in runs))
-    return sorted(key for key in keys if len({run.settings.get(key) for run in runs}) > 1)
+    return sorted(key for key in keys if len({run.settings[key] for run in runs if key in run.settings}) > 1)
 
 
 def label_variants(runs: list[Run]) -> list[Run]:
     """The runs, each with its variant named: the settings in which the runs of its env
-    differ ("k=2, score_episodes=5"; "" where all agree). Runs that differ in a setting are
+    differ ("k=2, score_episodes=5"; "" where all agree), of those it has (a uniform run has
+    no ``lower_bound``: :data:`ADVERSARY_SETTINGS`). Runs that differ in a setting are
     separate curves, table rows and comparisons, never seeds of one."""
     keys = {env: differing_settings([run for run in runs if run.env == env]) for env in {run.env for run in runs}}
-    return [dataclasses.replace(run, variant=", ".join(f"{key}={run.settings.get(key)}" for key in keys[run.env]))
+    named = lambda run, names: ", ".join(f"{key}={run.settings[key]}" for key in names if key in run.settings)
+    return [dataclasses.replace(run, variant=named(run, keys[run.env]),
+                                baseline_variant=named(run, [key for key in keys[run.env] if key not in ADVERSARY_SETTINGS]))
             for run in runs]
 
 
@@ -313,15 +323,17 @@ class Difference:
 
 def mode_differences(run_dirs: list[str]) -> dict[str, list[Difference]]:
     """Per env (and variant, where runs differ in settings: "hopper, k=2") with both
-    adversarial and uniform runs: the paper's comparison (final and AUC min_u a_u), the
+    adversarial and uniform runs, each adversarial curve against the uniform curve of its
+    other settings (in a sweep of l, every value against the one uniform curve that l does
+    not touch): the paper's comparison (final and AUC min_u a_u), the
     average case (final mean_u a_u; not for runs with a pool) and the price of robustness
     (final clean return), adversarial − uniform. The paper's point is that the first may
     differ where the second does not: a weak spot averaged away."""
     curves = curves_of(run_dirs)
     differences = {}
-    for env, variant in sorted({(env, variant) for env, _, variant in curves}):
-        adversarial, uniform = curves.get((env, "adversarial", variant)), curves.get((env, "uniform", variant))
-        if not adversarial or not uniform:
+    for (env, mode, variant), adversarial in curves.items():
+        uniform = curves.get((env, "uniform", adversarial[0].baseline_variant))
+        if mode != "adversarial" or not uniform:
             continue
         # Both modes over the records all their runs share, so the AUCs cover the same steps.
         _, minimum = aligned(adversarial + uniform, "min_score")

@@ -127,7 +127,7 @@ class RunDirectory:
     whoever drives the run: the run's own ``checkpoints/`` or the experiment's)."""
 
     def __init__(self, config: TrainConfig, checkpoint_dir: str):
-        self.path, self.missingness = config.out, config.missingness
+        self.path, self.config = config.out, config
         config_path = os.path.join(self.path, "config.yaml")
         if config.resume and not os.path.exists(config_path):  # checked before anything is created
             raise CheckpointError(f"nothing to resume: {config_path} does not exist")

@@ -37,7 +37,6 @@ class RunSpec:
     buffer_capacity: int  # replay rows (a multiple of num_envs)
     learning_starts: int
     sac: SACHyperparams
-    lower_bound: float  # l
     epsilon: float  # ε
 
     @classmethod
@@ -71,7 +70,6 @@ class RunSpec:
                 learning_rate=config.learning_rate, gamma=config.gamma, tau=config.tau,
                 batch_size=config.batch_size, hidden_sizes=(config.hidden_size,) * config.hidden_layers,
             ),
-            lower_bound=config.lower_bound,
             epsilon=config.epsilon,
         )
 

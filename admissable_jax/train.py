@@ -18,7 +18,7 @@ import jax
 from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.cli import enable_compilation_cache, exit_with, parse_args, run_from_cli
 from admissable_jax.config import TrainConfig, config_file_of
-from admissable_jax.host_loop import TrainingLoop, make_trainer, mode_flags
+from admissable_jax.host_loop import TrainingLoop, init_arguments, make_trainer
 from admissable_jax.run_directory import RunDirectory
 from admissable_jax.training import Trainer, TrainState
 
@@ -68,7 +68,7 @@ def train_fn(config: TrainConfig) -> TrainResult:
     run = RunDirectory(config, checkpoint_dir)
     try:
         checkpoints = Checkpoints(checkpoint_dir, config.keep_checkpoints)
-        init = jax.jit(lambda: trainer.init(config.seed, *mode_flags(config.missingness)))
+        init = jax.jit(lambda: trainer.init(*init_arguments(config)))
         state = TrainingLoop(trainer, config, [run], checkpoints, init).run()
     finally:
         run.close()

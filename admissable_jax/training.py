@@ -17,7 +17,8 @@ episode draws its set from the pool by p_miss, or with probability ``pool_explor
 uniformly random set of all U, so the agent (and the critic that ranks the next search)
 keeps meeting sets outside the pool. Uniform mode draws uniformly from all U. Both are pure functions of
 :class:`TrainState`, so they jit, and vmap over seeds or over (seed, mode) pairs: the mode
-is data (``adversarial``, ``masking``), not code. The trainer reads a frozen
+is data (``adversarial``, ``masking``), not code, and so is the adversary's lower bound l
+(``lower_bound``), so that one program can sweep it. The trainer reads a frozen
 :class:`~admissable_jax.run_spec.RunSpec`, never the user's config.
 """
 
@@ -55,6 +56,7 @@ class TrainState:
     env_steps: jax.Array  # () int32, over all envs
     grad_steps: jax.Array  # () int32
     pool: jax.Array  # (P,) int32 indices into U of the sets scored and drawn by p_miss; (0,) = all of U
+    lower_bound: jax.Array  # () float32: l of the adversary's update (pairs of one program may differ)
 
 
 class Trainer:
@@ -70,8 +72,10 @@ class Trainer:
         self.agent = SAC(2 * env.observation_size, env.action_low, env.action_high, spec.sac)
 
     # --- construction -------------------------------------------------------------------
-    def init(self, seed: jax.Array, mode_adversarial: jax.Array, mode_masking: jax.Array) -> TrainState:
-        """A fresh run. ``seed`` is an int (traced: vmap over seeds works)."""
+    def init(self, seed: jax.Array, mode_adversarial: jax.Array, mode_masking: jax.Array,
+             lower_bound: jax.Array) -> TrainState:
+        """A fresh run. Every argument may be traced: vmap over seeds, modes and lower bounds
+        works (:func:`~admissable_jax.host_loop.init_arguments` gives them for a config)."""
         rng = jax.random.PRNGKey(seed)
         rng, agent_rng, env_rng, set_rng = jax.random.split(rng, 4)
         p_miss = uniform_p_miss(self.num_scored)
@@ -93,6 +97,7 @@ class Trainer:
             env_steps=jnp.zeros((), jnp.int32),
             grad_steps=jnp.zeros((), jnp.int32),
             pool=pool,
+            lower_bound=jnp.asarray(lower_bound, jnp.float32),
         )
 
     # --- pieces -------------------------------------------------------------------------
@@ -236,7 +241,7 @@ class Trainer:
             pool = self._search_pool(state, search_rng)
         scores = self._score(state, score_rng, self.scored_sets(pool), self.spec.score_estimator)
         p_miss = update_p_miss(
-            state.p_miss, scores.scores, state.adversarial, self.spec.lower_bound, self.spec.epsilon
+            state.p_miss, scores.scores, state.adversarial, state.lower_bound, self.spec.epsilon
         )
         return state.replace(p_miss=p_miss, pool=pool, rng=rng), scores
 

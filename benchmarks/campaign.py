@@ -48,7 +48,7 @@ from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.cli import enable_compilation_cache, parse_args
 from admissable_jax.envs import env_spec, make_env, resolve_physics
 from admissable_jax.config import ExperimentConfig, pair_configs
-from admissable_jax.host_loop import interval_pieces, make_trainer, mode_flags, queue_pieces
+from admissable_jax.host_loop import interval_pieces, make_trainer, queue_pieces, stacked_init_arguments
 from admissable_jax.training import Trainer
 from common import COMMITTED_RESULTS_DIR, RESULTS_DIR, append_record, environment_record, timed
 
@@ -81,9 +81,8 @@ def _experiment_trainer(config: ExperimentConfig) -> tuple[Trainer, list, Traine
 
 def measure(config: MeasureConfig) -> int:
     trainer, pairs, endless = _experiment_trainer(config)
-    seeds = jax.numpy.array([pair.seed for pair in pairs])
-    adversarial, masking = (jax.numpy.array(flags) for flags in zip(*(mode_flags(p.missingness) for p in pairs)))
-    init = jax.jit(lambda: jax.vmap(trainer.init)(seeds, adversarial, masking))
+    arguments = stacked_init_arguments(pairs)
+    init = jax.jit(lambda: jax.vmap(trainer.init)(*arguments))
     pieces = interval_pieces(trainer.spec.iterations_per_scoring)
     piece = jax.vmap(lambda state: trainer.run_chunk(state, trainer.spec.iterations_per_scoring // pieces))
 

@@ -44,6 +44,7 @@ from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.cli import parse_args
 from admissable_jax.config import TrainConfig, default_score_envs
 from admissable_jax.envs import make_env, observation_size
+from admissable_jax.host_loop import init_arguments
 from admissable_jax.missingness import mask_observation, num_candidate_sets
 from admissable_jax.run_spec import RunSpec
 from admissable_jax.scoring import score_missingness
@@ -107,13 +108,13 @@ def main(argv: list[str]) -> None:
     env = make_env(config.env, episode_length=bench.max_steps, physics=config.physics, max_batch=slots,
                    terminate_when_unhealthy=bench.terminate)
     trainer = Trainer(env, RunSpec.of(config))
-    state = jax.jit(trainer.init)(0, True, True)
+    state = jax.jit(trainer.init)(*init_arguments(config))
     label = "untrained actor"
     if bench.run:
         checkpoints = Checkpoints(f"{bench.run}/checkpoints")
         saved_config = TrainConfig(**{**dataclasses.asdict(config), **_saved_sizes(bench.run)}).resolved()
         trainer = Trainer(env, RunSpec.of(saved_config))
-        step, state = checkpoints.restore(jax.jit(trainer.init)(0, True, True))
+        step, state = checkpoints.restore(jax.jit(trainer.init)(*init_arguments(saved_config)))
         label = f"actor of {bench.run} at {step} env steps"
     result, compile_s, first_s, run_s = _compile_and_run(env, trainer.policy, state.sac.actor_params, bench,
                                                          trainer.hidden_sets, slots)

@@ -57,7 +57,8 @@ def measure(bench: ScalingBenchConfig, devices: int) -> dict:
                                        donate_argnums=0)
     init = jax.jit(placement.spread(trainer.init), out_shardings=placement.sharding)
     state = init(placement.place(np.arange(bench.pairs, dtype=np.int32)),
-                 placement.place(np.ones(bench.pairs, bool)), placement.place(np.ones(bench.pairs, bool)))
+                 placement.place(np.ones(bench.pairs, bool)), placement.place(np.ones(bench.pairs, bool)),
+                 placement.place(np.full(bench.pairs, config.lower_bound, np.float32)))
     warmup = sharded(placement.spread(lambda s: trainer.run_chunk(s, warmup_iterations)))
     chunk = sharded(placement.spread(lambda s: trainer.run_chunk(s, bench.iterations)))
     score = sharded(placement.spread(trainer.score_and_update))

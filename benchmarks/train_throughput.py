@@ -137,7 +137,7 @@ def main(argv: list[str]) -> None:
     trainer = make_trainer(config, num_runs=bench.seeds)
     env = trainer.env
     seeds = jnp.arange(bench.seeds)
-    state = jax.jit(jax.vmap(trainer.init, (0, None, None)))(seeds, True, True)
+    state = jax.jit(jax.vmap(trainer.init, (0, None, None, None)))(seeds, True, True, config.lower_bound)
     run_chunk = jax.jit(jax.vmap(trainer.run_chunk, (0, None)), static_argnums=1, donate_argnums=0)
 
     (state, _), warmup_s = timed(run_chunk, state, warmup_iterations)

@@ -12,15 +12,15 @@ import pytest
 from nbclient import NotebookClient
 
 from admissable_jax import mask_observation
-from admissable_jax.config import ExperimentConfig, pair_configs
+from admissable_jax.config import ExperimentConfig, curve_names, pair_configs
 from admissable_jax.envs import observation_names
 from admissable_jax.errors import INTERRUPTED
 from admissable_jax.experiment import main as experiment_main
 from admissable_jax.experiment import run_experiment, scored_up_to
 from admissable_jax.plot import plot_runs
-from admissable_jax.results import Difference, estimate, find_runs
+from admissable_jax.results import Difference, estimate, find_runs, mode_differences, summary_table
 from admissable_jax.memory import MemoryBudgetExceeded
-from admissable_jax.method import parse_set
+from admissable_jax.method import inverse_score_p_miss, parse_set
 from admissable_jax.audit import AuditConfig, audit_experiment, audit_run
 from admissable_jax.audit import main as audit_main  # the command line, in this process
 from admissable_jax.policies import load_policy
@@ -190,6 +190,10 @@ def test_experiment_refuses_what_does_not_fit_before_allocating(tmp_path, monkey
         (["seeds=0"], "seeds must be >= 1"),
         (["missingness=uniform"], "unknown key 'missingness'"),
         (["env=ant", "k=105"], "k must satisfy 1 <= k < d = 105"),
+        (["lower_bounds=0,x"], "lower_bounds must be a comma-separated list of numbers, got '0,x'"),
+        (["lower_bounds=0,50,0.0"], "lower_bounds repeats a value"),
+        (["modes=uniform", "lower_bounds=0,50"], "lower_bounds sweeps the adversarial mode's l, and modes='uniform' "
+                                                 "has no adversarial"),
     ],
 )
 def test_experiment_cli_rejects_bad_input_with_one_line(args, message, tmp_path, capsys):
@@ -213,6 +217,56 @@ def test_the_progress_bar_shows_min_score_per_mode():
     assert progress_postfix(rows, ["adversarial"] * 4) == {"min_a_u": "25.0", "clean": "65.0"}
     assert progress_postfix(rows, ["adversarial", "uniform", "adversarial", "uniform"]) == {
         "min_a_u_adversarial": "15.0", "min_a_u_uniform": "35.0"}
+    # A sweep of l: a curve per value (the uniform runs' l is never read, so never named).
+    curves = curve_names([("adversarial", 0.0), ("adversarial", 50.0), ("uniform", 0.0), ("uniform", 50.0)])
+    assert curves == ["adversarial-l0", "adversarial-l50", "uniform", "uniform"]
+    assert curve_names([("adversarial", 50.0), ("uniform", 0.0)]) == ["adversarial", "uniform"]
+    assert progress_postfix(rows, curves) == {"min_a_u_adversarial-l0": "10.0", "min_a_u_adversarial-l50": "30.0",
+                                              "min_a_u_uniform": "30.0"}
+
+
+def test_one_program_sweeps_the_lower_bound_and_each_value_meets_the_one_uniform_curve(tmp_path, capsys):
+    """``lower_bounds=0,15``: the adversarial seeds train once per l, the uniform seeds once,
+    all in one program; each pair's p_miss follows its own l (paper §3's update), and plot's
+    summary, the comparison and the audit set every l against the one uniform curve."""
+    root = str(tmp_path / "sweep")
+    results = run_experiment(ExperimentConfig(**{**EXPERIMENT, "seeds": 1}, lower_bounds="0,15", total_steps=2000,
+                                              out=root))
+    assert [os.path.basename(result.run_dir) for result in results] == [
+        "adversarial-l0-s0", "adversarial-l15-s0", "uniform-s0"]
+    assert [result.config.lower_bound for result in results] == [0.0, 15.0, 0.0]
+    assert results[0].metrics[-1]["runs_in_program"] == 3
+    for result in results[:2]:
+        for row in result.scores:
+            np.testing.assert_allclose(row["p_miss"], inverse_score_p_miss(
+                np.array(row["scores"]), result.config.lower_bound, result.config.epsilon), rtol=1e-5)
+    # One seed, so the first scoring's a_u agree; only l moved p_miss apart.
+    assert results[0].scores[0]["scores"] == results[1].scores[0]["scores"]
+    assert not np.allclose(results[0].scores[0]["p_miss"], results[1].scores[0]["p_miss"], rtol=1e-3)
+    np.testing.assert_allclose(results[2].scores[-1]["p_miss"], 0.25)
+
+    run_dirs = find_runs([root])
+    assert [row.split(" | ")[1:3] for row in summary_table(run_dirs).splitlines()[2:]] == [
+        ["adversarial, lower_bound=0.0", "1"], ["adversarial, lower_bound=15.0", "1"], ["uniform", "1"]]
+    differences = mode_differences(run_dirs)
+    assert list(differences) == ["point_mass, lower_bound=0.0", "point_mass, lower_bound=15.0"]
+    uniform_final = results[2].scores[-1]["min_score"]
+    for result, (label, rows) in zip(results, differences.items()):
+        assert rows[0].metric == "final min_u a_u"
+        np.testing.assert_allclose(rows[0].adversarial, [result.scores[-1]["min_score"]])
+        np.testing.assert_allclose(rows[0].uniform, [uniform_final])
+
+    # Resumed with other values: refused before anything runs, naming the pairs.
+    with pytest.raises(ValueError, match="has adversarial-l0-s0, adversarial-l15-s0, uniform-s0, this one "
+                                         "adversarial-l0-s0, adversarial-l20-s0, uniform-s0"):
+        run_experiment(ExperimentConfig(**{**EXPERIMENT, "seeds": 1}, lower_bounds="0,20", total_steps=3000,
+                                        out=root, resume=True))
+    audits, written = audit_experiment(AuditConfig(run_dir=root, k="1", episodes=2))
+    comparison = open(written[-1]).read()
+    for curve in ("adversarial-l0", "adversarial-l15", "uniform"):
+        assert f"| 1 | {curve} | 1 | " in comparison
+    for curve in ("adversarial-l0", "adversarial-l15"):
+        assert f"| 1 | worst a_u ({curve}) | " in comparison
 
 
 def test_pair_configs_name_one_directory_per_pair():

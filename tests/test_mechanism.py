@@ -10,7 +10,6 @@ start (|p| <= sqrt 2) is never beyond it.
 
 from __future__ import annotations
 
-import dataclasses
 
 import jax
 import jax.numpy as jnp
@@ -65,7 +64,7 @@ def k1(escape_radius):
         return jax.lax.scan(iteration, state, None, length=ITERATIONS)
 
     run = jax.jit(run)
-    start = trainer.init(0, True, True)
+    start = trainer.init(0, True, True, 0.0)
     spread = start.replace(p_miss=jnp.asarray(WEIGHTS))
     on_three = start.replace(p_miss=jnp.array([0.0, 0.0, 0.0, 1.0]), set_index=jnp.zeros(ENVS, jnp.int32))
     return trainer, {name: run(state) for name, state in
@@ -176,7 +175,7 @@ def test_the_next_chunk_draws_from_the_p_miss_the_scoring_just_set(escape_radius
     next, p_miss after the scoring puts all but ~1e-8 of its mass on {0}; every episode the
     following chunk starts must then hide x."""
     trainer = _trainer(num_envs=20, score_every=20, episode_length=5, learning_starts=10_000, epsilon=1e-8)
-    state = trainer.init(1, True, True)
+    state = trainer.init(1, True, True, 0.0)
     # The scores the trainer's scoring will see: its own rng split, env and slots.
     first = jax.jit(score_missingness, static_argnums=(0, 1, 5, 6, 7))(
         trainer.env, _controller, None, jax.random.split(state.rng)[1], trainer.hidden_sets,
@@ -184,7 +183,7 @@ def test_the_next_chunk_draws_from_the_p_miss_the_scoring_just_set(escape_radius
     scores = np.sort(np.asarray(first.scores))
     assert int(first.argmin) == 0 and scores[0] < scores[1] - 0.05
     lower_bound = float(scores[:2].mean())
-    trainer = Trainer(trainer.env, dataclasses.replace(trainer.spec, lower_bound=lower_bound))
+    state = state.replace(lower_bound=jnp.float32(lower_bound))  # l is the run's data
     trainer.policy = _controller
 
     def score_then_train(state):
@@ -207,7 +206,7 @@ def test_two_missing_features_and_the_empty_set_in_training_and_scoring(escape_r
     assert trainer.num_sets == 7 and float(trainer.hidden_sets[0].sum()) == 0
     trainer.agent.sample_action = lambda params, masked, rng: (_seen(masked), jnp.zeros(masked.shape[:-1]))
     trainer.policy = _controller
-    state = trainer.init(0, True, True).replace(p_miss=jnp.full(7, 1 / 7))
+    state = trainer.init(0, True, True, 0.0).replace(p_miss=jnp.full(7, 1 / 7))
 
     def run(state):
         state, _ = trainer.run_chunk(state, ITERATIONS)

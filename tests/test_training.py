@@ -26,8 +26,9 @@ import pytest
 from omegaconf import OmegaConf
 
 from admissable_jax import TrainConfig, candidate_sets, make_env, mask_observation, score_missingness, train_fn
-from admissable_jax.checkpointing import CheckpointError
+from admissable_jax.checkpointing import CheckpointError, Checkpoints, OtherStateLayout
 from admissable_jax.host_loop import TrainingDiverged
+from admissable_jax.method import inverse_score_p_miss
 from admissable_jax.policies import load_policy
 from admissable_jax.run_spec import RunSpec
 from admissable_jax.training import Trainer
@@ -200,7 +201,7 @@ def test_missing_set_fixed_within_episode_and_drawn_from_p_miss():
     config = dataclasses.replace(POINT_MASS, num_envs=20, episode_length=5, hidden_size=32).resolved()
     trainer = Trainer(env, RunSpec.of(config))
     p_miss = jnp.array([0.55, 0.25, 0.15, 0.05])
-    state = trainer.init(0, True, True).replace(p_miss=p_miss)
+    state = trainer.init(0, True, True, 0.0).replace(p_miss=p_miss)
 
     def record(state, _):
         state, _ = trainer.iteration(state)
@@ -236,7 +237,7 @@ def test_candidate_pool_for_k2_search_draws_and_records(tmp_path):
                                  out=str(tmp_path / "pool")).resolved()
     trainer = Trainer(make_env("point_mass", episode_length=5), RunSpec.of(config))
     pairs = [tuple(np.flatnonzero(row)) for row in np.asarray(trainer.hidden_sets)]
-    state = trainer.init(0, True, True)
+    state = trainer.init(0, True, True, 0.0)
     assert state.p_miss.shape == (3,) and len(set(np.asarray(state.pool).tolist())) == 3
 
     scored_state, scores = jax.jit(trainer.score_and_update)(state)
@@ -262,7 +263,7 @@ def test_candidate_pool_for_k2_search_draws_and_records(tmp_path):
     record_300 = jax.jit(lambda start: jax.lax.scan(record, start, jnp.arange(300))[1])  # both modes: one compile
 
     def draws(adversarial):
-        start = trainer.init(1, adversarial, True).replace(pool=pool, p_miss=p_miss)
+        start = trainer.init(1, adversarial, True, 0.0).replace(pool=pool, p_miss=p_miss)
         set_index, step_count = (np.asarray(values) for values in record_300(start))
         starts = step_count[1:] == 0
         assert not ((set_index[1:] != set_index[:-1]) & ~starts).any(), "u changed within an episode"
@@ -369,7 +370,7 @@ def test_corrupt_checkpoint_and_divergence_keep_finished_work(tmp_path):
     # Learning starts after the first scoring; a huge learning rate then blows up the losses.
     config = dataclasses.replace(
         POINT_MASS, total_steps=3000, score_every=500, learning_starts=600, learning_rate=1e6,
-        checkpoint_every=1, out=out, hidden_size=32,
+        checkpoint_every=1, out=out, hidden_size=32, logger="none",
     )
     with pytest.raises(TrainingDiverged, match="last checkpoint \\(step 500\\) kept"):
         train_fn(config)
@@ -383,6 +384,24 @@ def test_corrupt_checkpoint_and_divergence_keep_finished_work(tmp_path):
                 file.write(b"garbage")
     with pytest.raises(CheckpointError, match="checkpoint 500 .* is corrupt .*; no older checkpoint is intact"):
         train_fn(dataclasses.replace(config, resume=True))
+
+
+def test_a_checkpoint_of_an_older_state_layout_is_named_and_its_networks_still_read(tmp_path):
+    """A checkpoint written before TrainState gained a field (as ``lower_bound``) cannot be
+    resumed; the error says why, in one line, and offers no older checkpoint (all are alike)."""
+    checkpoints = Checkpoints(str(tmp_path / "checkpoints"))
+    written = {"sac": jnp.arange(3.0), "pool": jnp.zeros(2, jnp.int32)}
+    checkpoints.save(1000, written)
+    checkpoints.save(2000, written)
+    now = {**written, "z_added_last": jnp.zeros(())}  # leaves flatten in key order: the new one last
+    with pytest.raises(OtherStateLayout, match="^checkpoint 2000 in .* holds 2 arrays where this version's training "
+                                               "state has 3: another version of admissable_jax wrote it") as error:
+        checkpoints.restore(now)
+    assert "\n" not in str(error.value) and "intact" not in str(error.value)
+    step, sac = checkpoints.read(now, part=lambda state: state["sac"])
+    assert step == 2000
+    np.testing.assert_array_equal(sac, written["sac"])
+    checkpoints.close()
 
 
 @pytest.mark.parametrize(
@@ -468,34 +487,35 @@ def test_cli_help_lists_every_key():
 
 
 def test_train_step_vmaps_over_seeds_and_modes():
-    """Two (seed, mode) pairs in one vmapped program give each pair's unbatched result
+    """Three (seed, mode, l) pairs in one vmapped program give each pair's unbatched result
     (scoring on a pool of 3 slots for the 10 episodes, so refills run under vmap too). The
     second pair starts 64 env steps on, so for 16 iterations one pair learns and the other
     does not; and the vmapped program still branches on learning_starts (branching.lazy_cond)
-    rather than computing every update for every pair."""
+    rather than computing every update for every pair. The third is the first with another
+    lower bound l: the same scores, and p_miss by its own l (one program sweeps l)."""
     env = make_env("point_mass", episode_length=20)
     config = dataclasses.replace(POINT_MASS, learning_starts=64, batch_size=32, episode_length=20, score_envs=3,
                                  score_episodes=2, hidden_size=32).resolved()
     trainer = Trainer(env, RunSpec.of(config))
 
-    def run(seed, adversarial, head_start):
-        state = trainer.init(seed, adversarial, True)
+    def run(seed, adversarial, head_start, lower_bound):
+        state = trainer.init(seed, adversarial, True, lower_bound)
         state, _ = trainer.run_chunk(state.replace(env_steps=state.env_steps + head_start), 40)
         state, scores = trainer.score_and_update(state)
         return state, scores.scores
 
     chunk = lambda state: trainer.run_chunk(state, 40)
-    state_shapes = jax.eval_shape(trainer.init, 0, True, True)
+    state_shapes = jax.eval_shape(trainer.init, 0, True, True, 0.0)
     pair_shapes = jax.tree.map(lambda leaf: jax.ShapeDtypeStruct((2, *leaf.shape), leaf.dtype), state_shapes)
     branches = [jax.jit(program).lower(shapes).as_text().count("stablehlo.case")
                 for program, shapes in ((chunk, state_shapes), (jax.vmap(chunk), pair_shapes))]
     assert branches == [1, 1]  # learning_starts' branch, one run or two pairs
 
-    pairs = (jnp.array([0, 1]), jnp.array([True, False]), jnp.array([0, 64]))
+    pairs = (jnp.array([0, 1, 0]), jnp.array([True, False, True]), jnp.array([0, 64, 0]), jnp.array([0.0, 0.0, 9.0]))
     batched, unbatched = jax.jit(jax.vmap(run)), jax.jit(run)
     batched_state, batched_scores = batched(*pairs)
-    for pair, (seed, adversarial, head_start) in enumerate(zip(*pairs)):
-        state, scores = unbatched(seed, adversarial, head_start)
+    for pair, (seed, adversarial, head_start, lower_bound) in enumerate(zip(*pairs)):
+        state, scores = unbatched(seed, adversarial, head_start, lower_bound)
         np.testing.assert_allclose(batched_scores[pair], scores, rtol=1e-4, atol=1e-4)
         np.testing.assert_allclose(
             batched_state.sac.actor_params["params"]["Dense_0"]["kernel"][pair],
@@ -503,6 +523,11 @@ def test_train_step_vmaps_over_seeds_and_modes():
         )
         assert int(batched_state.grad_steps[pair]) == int(state.grad_steps) > 0
     assert batched_state.grad_steps[0] < batched_state.grad_steps[1]  # the head start learned longer
-    # The adversarial pair moved p_miss, the uniform one did not.
+    # The adversarial pairs moved p_miss, each by its own l (eq. of §3); the uniform one did not.
     assert not np.allclose(batched_state.p_miss[0], 0.25)
     np.testing.assert_allclose(batched_state.p_miss[1], 0.25)
+    np.testing.assert_array_equal(batched_scores[2], batched_scores[0])
+    for pair, lower_bound in ((0, 0.0), (2, 9.0)):
+        np.testing.assert_allclose(batched_state.p_miss[pair],
+                                   inverse_score_p_miss(batched_scores[pair], lower_bound, config.epsilon), rtol=1e-5)
+    assert not np.allclose(batched_state.p_miss[2], batched_state.p_miss[0], rtol=1e-3)

@@ -11,7 +11,7 @@ import os
 from typing import TYPE_CHECKING
 
 from admissable_jax.audit.report import compare_modes, comparison_chart, over_training_chart, over_training_table, \
-    shapley_order, write_audit
+    pair_curves, shapley_order, write_audit
 from admissable_jax.audit.sets import AuditResult, audit, audit_gymnasium, check_audit_size, check_search, \
     gymnasium_features, plan_size, shapley_plan
 from admissable_jax.cli import enable_compilation_cache, parse_args, reporting, run_from_cli, setting
@@ -206,7 +206,8 @@ def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
             result = audit(env, trainer.policy, policy.actor_params, _ks(config.k), config.episodes, config.seed,
                            _slots(config, policy), observation_names(train.env),
                            {"run": os.path.abspath(config.run_dir), "checkpoint (env step)": policy.step,
-                            "mode": train.missingness, "seed": train.seed},
+                            "mode": train.missingness, "seed": train.seed,
+                            **({"lower_bound": train.lower_bound} if train.missingness == "adversarial" else {})},
                            config.score_estimator, trainer.critic_values, policy.critic_params,
                            config.score_horizon, train.gamma, config.search, config.beam_width, config.ranker,
                            _shapley(config.shapley), progress=True, tell_apart=config.tell_apart)
@@ -303,8 +304,8 @@ def main(argv: list[str]) -> int:
     if status:
         return status
     results, written = outcome if experiment or config.steps else ([outcome[0]], outcome[1])
-    for result in results:
-        pair = (f"{result.source['mode']} seed {result.source['seed']}: " if experiment else
+    for result, curve in zip(results, pair_curves(results) if experiment else [""] * len(results)):
+        pair = (f"{curve} seed {result.source['seed']}: " if experiment else
                 f"step {result.source['checkpoint (env step)']}: " if config.steps else "")
         if result.pilot is not None:
             print(f"{pair}N = {result.pilot['chosen']} episodes per set, chosen by a pilot of {result.pilot['episodes']}")

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from admissable_jax.audit.sets import AuditResult, drop_below_clean
+from admissable_jax.config import curve_names
 from admissable_jax.results import Difference, estimate, mean_and_interval, seeds_sentence
 from admissable_jax.scoring.attribution import ShapleyAttribution
 
@@ -292,17 +293,23 @@ def over_training_chart(results: list[AuditResult], path: str) -> str:
     return path
 
 
+def pair_curves(results: list[AuditResult]) -> list[str]:
+    """The curve of each audited pair of an experiment: its mode, or ``adversarial-l<l>``
+    where the experiment's adversarial pairs sweep l (:func:`~admissable_jax.config.curve_names`)."""
+    return curve_names([(result.source["mode"], result.source.get("lower_bound", 0.0)) for result in results])
+
+
 def _worst_by_mode(results: list[AuditResult]) -> dict[str, dict[int, np.ndarray]]:
-    """Per mode and k: each pair's worst a_u (the lowest over the sets of that size)."""
+    """Per curve (mode) and k: each pair's worst a_u (the lowest over the sets of that size)."""
     return _per_pair_by_mode(results, lambda result, k: min(entry.score for entry in result.sets[k]))
 
 
 def _per_pair_by_mode(results: list[AuditResult], measure) -> dict[str, dict[int, np.ndarray]]:
-    """Per mode and k: ``measure(result, k)`` of each pair, in pair order."""
+    """Per curve (mode, :func:`pair_curves`) and k: ``measure(result, k)`` of each pair, in pair order."""
     by_mode: dict[str, dict[int, list[float]]] = {}
-    for result in results:
+    for result, curve in zip(results, pair_curves(results)):
         for k in result.sets:
-            by_mode.setdefault(result.source["mode"], {}).setdefault(k, []).append(measure(result, k))
+            by_mode.setdefault(curve, {}).setdefault(k, []).append(measure(result, k))
     return {mode: {k: np.array(values) for k, values in per_k.items()} for mode, per_k in by_mode.items()}
 
 
@@ -325,7 +332,7 @@ def comparison_chart(results: list[AuditResult], path: str) -> str:
         bounds = [mean_and_interval(worst[mode][k][:, None]) for k in ks]
         means = np.array([mean[0] for mean, _, _ in bounds])
         errors = np.array([[mean[0] - low[0] for mean, low, _ in bounds], [high[0] - mean[0] for mean, _, high in bounds]])
-        color = MODE_COLORS.get(mode, "black")
+        color = MODE_COLORS.get(mode.partition("-")[0], "black")  # a sweep's adversarial-l<l>: adversarial's
         ax.bar(x, means, width, yerr=errors, capsize=3, color=color, alpha=0.6,
                label=f"{mode} ({len(worst[mode][ks[0]])} seeds)")
         for position, k in zip(x, ks):
@@ -349,8 +356,8 @@ def compare_modes(results: list[AuditResult]) -> str:
     that would tell apart what these cannot (:func:`~admissable_jax.results.seeds_sentence`); where every pair
     was audited with ``shapley=``, each feature's Shapley value per mode."""
     by_mode: dict[str, list[AuditResult]] = {}
-    for result in results:
-        by_mode.setdefault(result.source["mode"], []).append(result)
+    for result, curve in zip(results, pair_curves(results)):
+        by_mode.setdefault(curve, []).append(result)
     first = results[0]
     lines = [f"# Robustness audit of an experiment: {first.env}, checkpoint {first.source['checkpoint (env step)']}", "",
              f"Each pair audited as its own report says ({episodes_per_set(results)}, `{first.estimator}`); "
@@ -369,12 +376,15 @@ def compare_modes(results: list[AuditResult]) -> str:
             lines.append(f"| {k} | {mode} | {len(group)} | {estimate(measures['worst a_u'][mode][k])} | "
                          f"{'—' if np.isnan(average).any() else estimate(average)} | {common} "
                          f"({names.count(common)} of {len(group)}) | {estimate(clean)} |")
-    if {"adversarial", "uniform"} <= set(by_mode):
+    adversarial = [curve for curve in by_mode if curve.partition("-")[0] == "adversarial"]  # several in a sweep of l
+    if adversarial and "uniform" in by_mode:
         lines += ["", "| k | measure | adversarial − uniform | 95% interval (Welch) | p (two-sided) | reading |",
                   "|---|---|---|---|---|---|"]
-        compared = [(k, name, Difference(f"k={k} {name}", per_mode["adversarial"][k], per_mode["uniform"][k]))
-                    for k in first.sets for name, per_mode in measures.items()
-                    if not np.isnan(per_mode["adversarial"][k]).any()]
+        swept = lambda curve: f" ({curve})" if curve != "adversarial" else ""
+        compared = [(k, name + swept(curve), Difference(f"k={k} {name}{swept(curve)}", per_mode[curve][k],
+                                                        per_mode["uniform"][k]))
+                    for curve in adversarial for k in first.sets for name, per_mode in measures.items()
+                    if not np.isnan(per_mode[curve][k]).any()]
         lines += [f"| {k} | {name} | {difference.cells()} |" for k, name, difference in compared]
         sentence = seeds_sentence([(difference.metric, difference) for _, _, difference in compared])
         if sentence:
