@@ -14,7 +14,7 @@ import jax
 
 from admissable_jax.adversary import MODES
 from admissable_jax.cli import RUN_LOCATION, ConfigFile, setting
-from admissable_jax.envs import canonical_env_name, observation_size, resolve_physics, short_env_name
+from admissable_jax.envs import canonical_env_name, env_physics, observation_size, short_env_name
 from admissable_jax.loggers import parse_logger_names
 from admissable_jax.missingness import num_candidate_sets
 from admissable_jax.scoring import SCORE_ESTIMATORS
@@ -43,7 +43,8 @@ class RunSettings:
     pool_ranker: str = setting("critic", "what ranks the pool search's candidates: critic | horizon | rollout")
     pool_explore: float = setting(0.1, "with pool_size > 0: share of adversarial episodes that hide a uniformly random "
                                        "set of all C(d, k) instead of one drawn from the pool by p_miss")
-    physics: str = setting("auto", "physics backend: auto (warp on an NVIDIA GPU with warp-lang, else jax) | jax | warp")
+    physics: str = setting("auto", "physics backend: auto (warp on an NVIDIA GPU with warp-lang, else jax) | jax | warp; "
+                                   "envs without a MuJoCo model step in JAX")
     lower_bound: float = setting(0.0, "l: return lower bound; scores below are clipped to it")
     epsilon: float = setting(1e-8, "eps in p_miss = 1/(a_u - l + eps), normalised")
     # run
@@ -99,7 +100,7 @@ class TrainConfig(RunSettings):
         config = dataclasses.replace(self)
         validate(config)
         config.env = canonical_env_name(config.env)
-        config.physics = resolve_physics(config.physics)
+        config.physics = env_physics(config.env, config.physics)
         check_pool(config)
         if config.score_envs == 0:
             num_sets = config.pool_size or num_candidate_sets(observation_size(config.env), config.k,
@@ -249,7 +250,7 @@ def validate(config: TrainConfig) -> None:
         if field.type == "float" and not math.isfinite(value):
             raise ValueError(f"{field.name} must be a finite number, got {value!r}")
     canonical_env_name(config.env)
-    resolve_physics(config.physics)
+    env_physics(config.env, config.physics)
     parse_logger_names(config.logger)
     if config.score_estimator not in SCORE_ESTIMATORS:
         raise ValueError(f"score_estimator must be one of {', '.join(SCORE_ESTIMATORS)}, got {config.score_estimator!r}")

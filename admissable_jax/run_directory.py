@@ -20,7 +20,7 @@ from omegaconf import OmegaConf
 from admissable_jax.checkpointing import CheckpointError, Checkpoints
 from admissable_jax.cli import report, yaml_problem
 from admissable_jax.config import TrainConfig
-from admissable_jax.envs import resolve_physics
+from admissable_jax.envs import env_physics
 from admissable_jax.errors import make_directory, remove_if_unused
 from admissable_jax.locks import RunLock
 from admissable_jax.loggers import Loggers
@@ -171,7 +171,7 @@ class RunDirectory:
     @staticmethod
     def _check_same_run(config: TrainConfig, config_path: str, checkpoint_dir: str) -> None:
         saved = load_config(config_path)
-        saved.physics = resolve_physics(saved.physics)  # runs saved before the key read "auto"
+        saved.physics = env_physics(saved.env, saved.physics)  # saved as "auto", or as warp for a JAX env
         for field in dataclasses.fields(TrainConfig):
             if field.name in RESUMABLE_CHANGES:
                 continue

@@ -105,6 +105,20 @@ def test_a_name_that_leads_to_no_usable_env_is_one_line(name, said, tmp_path, ca
     assert not (tmp_path / "x").exists()
 
 
+def test_a_run_records_the_physics_that_steps_its_env(monkeypatch):
+    """On a GPU with warp-lang, physics=auto is warp for a MuJoCo env; an env without a
+    MuJoCo model steps in JAX whatever is chosen, and its config says so (it said warp)."""
+    from admissable_jax.envs import options
+
+    monkeypatch.setattr(options, "_on_nvidia_gpu", lambda: True)
+    monkeypatch.setattr(options, "warp_installed", lambda: True)
+    assert TrainConfig(env="hopper").resolved().physics == "warp"
+    for env in ("point_mass", "own_envs:BraxFast"):
+        assert [TrainConfig(env=env, physics=physics).resolved().physics for physics in ("auto", "warp")] == ["jax"] * 2
+    with pytest.raises(ValueError, match="physics must be one of auto, jax, warp, got 'cuda'"):
+        TrainConfig(env="point_mass", physics="cuda").resolved()
+
+
 def test_the_benchmarks_distracted_reach_hides_its_signal_among_noise():
     """benchmarks/toy_envs.py's DistractedReach (its runs: benchmarks/README.md): position,
     velocity and goal as Reach's, then 17 features of fresh noise each step."""

@@ -56,6 +56,18 @@ def env_class(name: str) -> type:
     return __getattr__(env_spec(name).home.split(".")[1])
 
 
+def env_physics(name: str, physics: str) -> str:
+    """The backend env ``name`` steps on for a ``physics`` choice (auto, jax, warp): as
+    :func:`resolve_physics` says for a MuJoCo env; ``"jax"`` for an env without a MuJoCo
+    model (the point mass, an env of one's own), which steps in JAX whatever is asked, so
+    that a run's ``config.yaml`` records what ran."""
+    if env_spec(name).xml_file:
+        return resolve_physics(physics)
+    if physics not in PHYSICS_CHOICES:
+        resolve_physics(physics)  # its ValueError names the choices
+    return "jax"
+
+
 def make_env(name: str, options: EnvOptions | None = None, **option_overrides) -> MjxEnv:
     """The env called ``name`` (``hopper``, ``walker2d``, ``ant``, ``halfcheetah``, a Gymnasium id,
     ``point_mass``, or ``package.module:Class`` for an env of your own: :mod:`.external`), built
@@ -89,6 +101,7 @@ __all__ = [
     "Walker2d",
     "canonical_env_name",
     "env_class",
+    "env_physics",
     "env_spec",
     "make_env",
     "observation_names",
