@@ -50,6 +50,7 @@ import dataclasses
 import os
 import re
 import sys
+from typing import Any
 
 import matplotlib
 
@@ -63,14 +64,31 @@ from admissable_jax.envs import ENV_SPECS  # noqa: E402
 from admissable_jax.errors import INTERRUPTED, UnusableDirectory, make_directory, remove_if_unused  # noqa: E402
 from admissable_jax.results import (  # noqa: E402
     ADVERSARY_SETTINGS, Run, aligned, comparison_section, differing_settings, final_scores, find_runs, group_curves,
-    load_run, load_runs, mean_and_interval, mode_differences, moving_average, shared_records,
-    summary_table, trained_on, write_tables,
+    load_run, load_runs, mean_and_interval, mode_differences, moving_average, numbers_in_order,
+    shared_records, summary_table, trained_on, write_tables,
 )
 
 MODE_COLORS = {"adversarial": "tab:blue", "uniform": "tab:red", "none": "tab:gray"}
+MODE_COLORMAPS = {"adversarial": "Blues", "uniform": "Reds", "none": "Greys"}  # a mode's several curves: its shades
 # Figure 1's smoothing: "a moving average over 40 records" of a 1M-step run scored every ζ = 5000.
 PAPER_WINDOW, PAPER_RECORDS = 40, 200
 LINE_STYLES = ("-", "--", ":", "-.")
+
+
+def curve_colors(curves: list[tuple[str, str]]) -> dict[tuple[str, str], Any]:
+    """A colour per (mode, variant) curve: its mode's (``MODE_COLORS``), or where a mode has
+    several curves (a sweep of l, runs that differ in k) shades of it, light to dark as the
+    variants' numbers grow (l = 0, 25, 100), so that they stay apart without reading the
+    line styles."""
+    colors = {}
+    for mode in dict.fromkeys(mode for mode, _ in curves):
+        variants = sorted({variant for of, variant in curves if of == mode}, key=numbers_in_order)
+        if len(variants) == 1 or mode not in MODE_COLORMAPS:
+            colors.update({(mode, variant): MODE_COLORS.get(mode, "black") for variant in variants})
+        else:
+            shades = matplotlib.colormaps[MODE_COLORMAPS[mode]](np.linspace(0.5, 0.95, len(variants)))
+            colors.update({(mode, variant): shade for variant, shade in zip(variants, shades)})
+    return colors
 
 
 def effective_window(runs: list[Run], window: int) -> int:
@@ -179,11 +197,13 @@ def draw_curves(ax, runs: list[Run], attribute: str, window: int, per_seed: bool
     line (is one seed the outlier behind a wide band?)."""
     used = effective_window(runs, window)
     variants = sorted({run.variant for run in runs})
-    for (_, mode, variant), curve_runs in group_curves(runs).items():
+    curves = group_curves(runs)
+    colors = curve_colors([(mode, variant) for _, mode, variant in curves])
+    for (_, mode, variant), curve_runs in curves.items():
         steps, values = aligned(curve_runs, attribute)
         smoothed = moving_average(values, used)
         mean, low, high = mean_and_interval(smoothed)
-        color = MODE_COLORS.get(mode, "black")
+        color = colors[mode, variant]
         style = LINE_STYLES[variants.index(variant) % len(LINE_STYLES)]
         ax.plot(steps, mean, color=color, linestyle=style, label=f"{curve_runs[0].curve} ({_seeds(len(curve_runs))})")
         for seed_curve in smoothed if per_seed else ():
@@ -305,12 +325,13 @@ def _final_scores_figure(env: str, names: list[str], group: list[list[Run]]):
     names = [names[i] for i in shown]
     x, width = np.arange(len(names)), 0.8 / len(group)
     variants = sorted({curve_runs[0].variant for curve_runs in group})
+    colors = curve_colors([(curve_runs[0].mode, curve_runs[0].variant) for curve_runs in group])
     figure, ax = plt.subplots(figsize=(min(30.0, max(8.0, 0.25 * len(names) * len(group))), 4.5))
     for index, (curve_runs, (steps, mean, low, high)) in enumerate(zip(group, finals)):
         mean, low, high = mean[shown], low[shown], high[shown]
         run = curve_runs[0]
         ax.bar(x + (index - (len(group) - 1) / 2) * width, mean, width, yerr=[mean - low, high - mean],
-               capsize=1.5 if len(names) <= 40 else 0, color=MODE_COLORS.get(run.mode, "black"), alpha=0.75,
+               capsize=1.5 if len(names) <= 40 else 0, color=colors[run.mode, run.variant], alpha=0.75,
                hatch=("", "//", "..", "xx")[variants.index(run.variant) % 4],
                label=f"{run.curve} ({_seeds(len(curve_runs))}, {steps} env steps)")
     ax.set_xticks(x, names, rotation=60, ha="right", fontsize=7 if len(names) <= 40 else 5)

@@ -27,6 +27,7 @@ import csv
 import dataclasses
 import math
 import os
+import re
 import sys
 
 import numpy as np
@@ -146,11 +147,18 @@ def label_variants(runs: list[Run]) -> list[Run]:
 
 
 def group_curves(runs: list[Run]) -> dict[tuple[str, str, str], list[Run]]:
-    """The runs by (env, mode, variant): each group one curve, its runs the seeds."""
+    """The runs by (env, mode, variant): each group one curve, its runs the seeds; in the
+    order of env, mode and the variant's numbers (lower_bound=25 before lower_bound=100)."""
     curves: dict[tuple[str, str, str], list[Run]] = collections.defaultdict(list)
     for run in runs:
         curves[(run.env, run.mode, run.variant)].append(run)
-    return dict(sorted(curves.items()))
+    return dict(sorted(curves.items(), key=lambda item: (item[0][:2], numbers_in_order(item[0][2]))))
+
+
+def numbers_in_order(text: str) -> list[tuple[int, float | str]]:
+    """A sort key under which "l=25" comes before "l=100": the text's numbers as numbers."""
+    parts = re.split(r"(-?\d+(?:\.\d+)?(?:e-?\d+)?)", text)
+    return [(0, float(part)) if index % 2 else (1, part) for index, part in enumerate(parts)]
 
 
 def per_feature(rows: list[dict], num_features: int) -> tuple[np.ndarray, np.ndarray]:

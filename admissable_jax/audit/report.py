@@ -321,18 +321,19 @@ def comparison_chart(results: list[AuditResult], path: str) -> str:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from admissable_jax.plot import MODE_COLORS
+    from admissable_jax.plot import curve_colors
 
     worst = _worst_by_mode(results)
     ks, modes = list(results[0].sets), sorted(worst)
     width = 0.8 / len(modes)
+    colors = curve_colors([(mode.partition("-")[0], mode) for mode in modes])  # a sweep's adversarial-l<l>: shades
     figure, ax = plt.subplots(figsize=(max(5, 1.6 * len(ks) * len(modes)), 4))
     for offset, mode in enumerate(modes):
         x = np.arange(len(ks)) + (offset - (len(modes) - 1) / 2) * width
         bounds = [mean_and_interval(worst[mode][k][:, None]) for k in ks]
         means = np.array([mean[0] for mean, _, _ in bounds])
         errors = np.array([[mean[0] - low[0] for mean, low, _ in bounds], [high[0] - mean[0] for mean, _, high in bounds]])
-        color = MODE_COLORS.get(mode.partition("-")[0], "black")  # a sweep's adversarial-l<l>: adversarial's
+        color = colors[mode.partition("-")[0], mode]
         ax.bar(x, means, width, yerr=errors, capsize=3, color=color, alpha=0.6,
                label=f"{mode} ({len(worst[mode][ks[0]])} seeds)")
         for position, k in zip(x, ks):
