@@ -24,7 +24,7 @@ import numpy as np
 
 from admissable_jax.cli import parse_args
 from admissable_jax.config import TrainConfig
-from admissable_jax.host_loop import make_trainer
+from admissable_jax.host_loop import make_trainer, stacked_init_arguments
 from admissable_jax.placement import PairPlacement
 from common import append_record, timed
 
@@ -56,9 +56,8 @@ def measure(bench: ScalingBenchConfig, devices: int) -> dict:
     sharded = lambda function: jax.jit(function, in_shardings=placement.sharding, out_shardings=placement.sharding,
                                        donate_argnums=0)
     init = jax.jit(placement.spread(trainer.init), out_shardings=placement.sharding)
-    state = init(placement.place(np.arange(bench.pairs, dtype=np.int32)),
-                 placement.place(np.ones(bench.pairs, bool)), placement.place(np.ones(bench.pairs, bool)),
-                 placement.place(np.full(bench.pairs, config.lower_bound, np.float32)))
+    pairs = [dataclasses.replace(config, seed=seed) for seed in range(bench.pairs)]  # adversarial, as experiment's
+    state = init(*(placement.place(column) for column in stacked_init_arguments(pairs)))
     warmup = sharded(placement.spread(lambda s: trainer.run_chunk(s, warmup_iterations)))
     chunk = sharded(placement.spread(lambda s: trainer.run_chunk(s, bench.iterations)))
     score = sharded(placement.spread(trainer.score_and_update))

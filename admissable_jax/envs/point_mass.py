@@ -28,41 +28,25 @@ class PointMassData:
 
 class PointMass(ExternalEnv):
     """Written on :class:`~admissable_jax.envs.external.ExternalEnv`, as an env of one's own
-    would be; of :class:`EnvOptions` only ``episode_length`` and ``terminate_when_unhealthy``
-    apply: there is no MuJoCo model or solver."""
+    would be (its ``first_state``/``next_state`` count steps, truncate and sum the return);
+    of :class:`EnvOptions` only ``episode_length`` and ``terminate_when_unhealthy`` apply:
+    there is no MuJoCo model or solver."""
 
     spec = ENV_SPECS["point_mass"]
-    reward_terms = ("reward_distance",)
     action_size = 2
-
-    def _state(self, data: PointMassData, reward, terminated, step_count, episode_metrics) -> EnvState:
-        return EnvState(
-            data=data,
-            obs=jnp.concatenate([data.position, data.velocity]),
-            reward=reward,
-            terminated=terminated,
-            truncated=step_count >= self.max_episode_steps,
-            step_count=step_count,
-            metrics={"reward_distance": reward},
-            episode_metrics=episode_metrics,
-        )
 
     def reset(self, rng: jax.Array) -> EnvState:
         data = PointMassData(jax.random.uniform(rng, (2,), minval=-1.0, maxval=1.0), jnp.zeros(2))
-        zero = jnp.zeros((), jnp.float32)
-        return self._state(data, zero, jnp.zeros((), bool), jnp.zeros((), jnp.int32),
-                           {"reward_distance": zero, "return": zero})
+        return self.first_state(data, _observation(data))
 
     def step(self, state: EnvState, action: jax.Array) -> EnvState:
         action = jnp.clip(action, self.action_low, self.action_high)
         velocity = state.data.velocity + _DT * action
         position = state.data.position + _DT * velocity
-        reward = jnp.exp(-jnp.sum(position**2))
-        episode_return = state.episode_metrics["return"] + reward
-        return self._state(
-            PointMassData(position, velocity),
-            reward,
-            (jnp.linalg.norm(position) > _ESCAPE_RADIUS) & self.options.terminate_when_unhealthy,
-            state.step_count + 1,
-            {"reward_distance": episode_return, "return": episode_return},
-        )
+        data = PointMassData(position, velocity)
+        return self.next_state(state, data, _observation(data), jnp.exp(-jnp.sum(position**2)),
+                               jnp.linalg.norm(position) > _ESCAPE_RADIUS)
+
+
+def _observation(data: PointMassData) -> jax.Array:
+    return jnp.concatenate([data.position, data.velocity])
