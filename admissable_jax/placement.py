@@ -151,11 +151,18 @@ class PairPlacement:
         return jax.tree.map(fetch, tree)
 
     def pair_state(self, tree: Any, pair: int) -> Any:
-        """Pair ``pair``'s part of a pair-sharded pytree: on its device in one process, on the
-        host under ``jax.distributed`` (where only its own process can read it)."""
-        if jax.process_count() == 1:
-            return jax.tree.map(lambda leaf: leaf[pair], tree)
-        return jax.tree.map(lambda rows: rows[0], self.local_rows(tree, [pair]))
+        """Pair ``pair``'s part of a pair-sharded pytree, on the device that holds it, read from
+        that device's shard alone. (Indexing the global array instead compiles a gather in
+        which every device takes part in an all-reduce; XLA:CPU deadlocked once with a pytree's
+        worth of them in flight.) ValueError when no device of this process holds the pair."""
+        def row(leaf: jax.Array) -> jax.Array:
+            for shard in leaf.addressable_shards:
+                start, stop, _ = shard.index[0].indices(leaf.shape[0])
+                if start <= pair < stop:
+                    return shard.data[pair - start]
+            raise ValueError(f"pair {pair} is not on a device of process {jax.process_index()}")
+
+        return jax.tree.map(row, tree)
 
     def any_process(self, flag: bool) -> bool:
         """Whether ``flag`` holds in any process (every process gets the same answer, so

@@ -61,6 +61,9 @@ def main(out: str) -> None:
     report = {
         "refilled": np.asarray(placement.refill_padding(restored_padding)).ravel().tolist(),
         "restored_pairs": [f"{r.config.missingness}-s{r.config.seed}" for r in restored],
+        # Each pair's final state as the experiment returns it: on its own device alone.
+        "result_devices": [sorted({device.id for leaf in jax.tree.leaves(r.state) for device in leaf.devices()})
+                           for r in four],
         "restored_vs_saved": max(largest_difference(a.state, b.state) for a, b in zip(four, restored)),
         "resumed_steps": [[row["env_steps"] for row in r.scores] for r in resumed],
         "resumed_pairs": [f"{r.config.missingness}-s{r.config.seed}" for r in resumed],
