@@ -17,7 +17,7 @@ import jax
 
 from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.cli import enable_compilation_cache, exit_with, parse_args, run_from_cli
-from admissable_jax.config import TrainConfig, config_file_of
+from admissable_jax.config import TrainConfig, config_file_of, number_text
 from admissable_jax.host_loop import TrainingLoop, init_arguments, make_trainer
 from admissable_jax.run_directory import RunDirectory
 from admissable_jax.training import Trainer, TrainState
@@ -47,10 +47,14 @@ class TrainResult:
         return bool(self.scores) and self.scores[-1]["env_steps"] >= self.config.planned_steps
 
     def summary(self) -> str:
-        """One line: how far the run got, its last min_u a_u and clean return, where it is."""
+        """One line: how far the run got, its last min_u a_u and clean return, where it is
+        (an adversarial run's l where it is not the paper's 0)."""
         last = self.scores[-1]
         state = "done" if self.finished else f"paused ({self.config.planned_steps} planned; resume=true continues)"
-        return (f"{state}: {self.config.env} {self.config.missingness} seed {self.config.seed}, "
+        mode = self.config.missingness
+        if mode == "adversarial" and self.config.lower_bound != 0:
+            mode += f" (l = {number_text(float(self.config.lower_bound))})"
+        return (f"{state}: {self.config.env} {mode} seed {self.config.seed}, "
                 f"{last['env_steps']} env steps, min_u a_u {last['min_score']:.1f} (u = {last['argmin_set']}), "
                 f"clean {last['clean_score']:.1f}; run in {self.run_dir}")
 

@@ -236,6 +236,8 @@ def test_one_program_sweeps_the_lower_bound_and_each_value_meets_the_one_uniform
         "adversarial-l0-s0", "adversarial-l15-s0", "uniform-s0"]
     assert [result.config.lower_bound for result in results] == [0.0, 15.0, 0.0]
     assert results[0].metrics[-1]["runs_in_program"] == 3
+    assert [result.summary().split(" seed ")[0] for result in results] == [
+        "done: point_mass adversarial", "done: point_mass adversarial (l = 15)", "done: point_mass uniform"]
     for result in results[:2]:
         for row in result.scores:
             np.testing.assert_allclose(row["p_miss"], inverse_score_p_miss(
