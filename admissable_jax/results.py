@@ -32,7 +32,7 @@ import sys
 
 import numpy as np
 
-from admissable_jax.config import TrainConfig
+from admissable_jax.config import TrainConfig, number_text
 from admissable_jax.envs import observation_names
 from admissable_jax.method import candidate_sets, parse_set
 from admissable_jax.provenance import INVOCATIONS
@@ -121,10 +121,16 @@ def load_run(path: str) -> Run:
         env_steps=column("env_steps"), scores=scores, min_score=column("min_score"), mean_score=mean_score,
         clean_score=column("clean_score"), p_miss=p_miss, set_names=names, worst_sets=worst_sets,
         score_episodes=int(config.score_episodes), pooled=pooled, uniform_draws=uniform_draws,
-        settings={key: str(value) for key, value in {**dataclasses.asdict(TrainConfig()), **config}.items()
+        settings={key: setting_text(value) for key, value in {**dataclasses.asdict(TrainConfig()), **config}.items()
                   if key not in NOT_SETTINGS
                   and (key not in ADVERSARY_SETTINGS or config.missingness == "adversarial")},
     )
+
+
+def setting_text(value) -> str:
+    """A setting's value as a curve's label shows it: numbers as short as they read back
+    (``lower_bound=50``, as the sweep's folder ``adversarial-l50`` names it; ``1e-08``)."""
+    return number_text(value) if isinstance(value, float) else str(value)
 
 
 def differing_settings(runs: list[Run]) -> list[str]:

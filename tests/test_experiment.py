@@ -249,9 +249,9 @@ def test_one_program_sweeps_the_lower_bound_and_each_value_meets_the_one_uniform
 
     run_dirs = find_runs([root])
     assert [row.split(" | ")[1:3] for row in summary_table(run_dirs).splitlines()[2:]] == [
-        ["adversarial, lower_bound=0.0", "1"], ["adversarial, lower_bound=15.0", "1"], ["uniform", "1"]]
+        ["adversarial, lower_bound=0", "1"], ["adversarial, lower_bound=15", "1"], ["uniform", "1"]]
     differences = mode_differences(run_dirs)
-    assert list(differences) == ["point_mass, lower_bound=0.0", "point_mass, lower_bound=15.0"]
+    assert list(differences) == ["point_mass, lower_bound=0", "point_mass, lower_bound=15"]
     uniform_final = results[2].scores[-1]["min_score"]
     for result, (label, rows) in zip(results, differences.items()):
         assert rows[0].metric == "final min_u a_u"

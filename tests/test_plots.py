@@ -142,29 +142,32 @@ def test_runs_that_differ_in_settings_are_separate_curves(tmp_path, capsys):
 
 def test_a_sweep_of_l_sets_every_value_against_the_uniform_runs_which_l_does_not_touch(tmp_path):
     """Adversarial runs with l = 0, 25 and 100 are three curves, in that order and shaded
-    light to dark as l grows; uniform runs never read l, so two saved with other l are seeds of one curve, the
-    baseline of all three comparisons."""
+    light to dark as l grows (one config.yaml writes 25 as an integer: still a seed of l = 25);
+    uniform runs never read l, so two saved with other l are seeds of one curve, the baseline
+    of all three comparisons."""
     root = tmp_path / "runs"
     for bound in (0.0, 25.0, 100.0):
         for seed in range(2):
             _fake_run(str(root / f"l{bound:g}"), "adversarial", seed, lower_bound=bound)
     for seed, bound in ((0, 0.0), (1, 50.0)):
         _fake_run(str(root / f"u{seed}"), "uniform", seed, lower_bound=bound)
+    written_by_hand = root / "l25" / "adversarial-s1" / "config.yaml"  # l as an integer: the same l
+    written_by_hand.write_text(written_by_hand.read_text().replace("lower_bound: 25.0", "lower_bound: 25"))
     assert main([str(root), f"out={tmp_path / 'figures'}", "formats=png"]) == 0
     summary = (tmp_path / "figures" / "summary.md").read_text()
     assert [line.split(" | ")[1:3] for line in summary.splitlines() if line.startswith("| hopper | ")][:4] == [
-        ["adversarial, lower_bound=0.0", "2"], ["adversarial, lower_bound=25.0", "2"],
-        ["adversarial, lower_bound=100.0", "2"], ["uniform", "2"]]
+        ["adversarial, lower_bound=0", "2"], ["adversarial, lower_bound=25", "2"],
+        ["adversarial, lower_bound=100", "2"], ["uniform", "2"]]
     assert ("the uniform and none runs never read lower_bound, so each adversarial curve is compared with the "
             "uniform curve of its other settings") in summary
     differences = mode_differences(find_runs([str(root)]))
-    assert list(differences) == [f"hopper, lower_bound={bound}" for bound in ("0.0", "25.0", "100.0")]
+    assert list(differences) == [f"hopper, lower_bound={bound}" for bound in ("0", "25", "100")]
     uniform = [load_run(str(root / f"u{seed}" / f"uniform-s{seed}")).min_score[-1] for seed in range(2)]
     for rows in differences.values():
         np.testing.assert_allclose(rows[0].uniform, uniform)
-    colors = curve_colors([("adversarial", f"lower_bound={bound}") for bound in ("100.0", "0.0", "25.0")]
+    colors = curve_colors([("adversarial", f"lower_bound={bound}") for bound in ("100", "0", "25")]
                           + [("uniform", "")])
-    lightness = [sum(to_rgb(colors["adversarial", f"lower_bound={bound}"])) for bound in ("0.0", "25.0", "100.0")]
+    lightness = [sum(to_rgb(colors["adversarial", f"lower_bound={bound}"])) for bound in ("0", "25", "100")]
     assert lightness[0] > lightness[1] > lightness[2] and colors["uniform", ""] == "tab:red"
 
 
