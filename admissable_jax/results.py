@@ -36,7 +36,7 @@ from admissable_jax.config import TrainConfig, number_text
 from admissable_jax.envs import observation_names
 from admissable_jax.method import candidate_sets, parse_set
 from admissable_jax.provenance import INVOCATIONS
-from admissable_jax.run_directory import TornLine, load_config_yaml, read_jsonl
+from admissable_jax.run_directory import TornLine, load_config_yaml, read_jsonl, recorded_observation_names
 from admissable_jax.scoring.worst_set import samples_to_separate
 
 # Config keys that change neither what a run learns nor how it is scored: runs that differ
@@ -81,9 +81,8 @@ class Run:
         return f"{self.mode}, {self.variant}" if self.variant else self.mode
 
 
-def set_names(env: str, k: int, include_empty: bool) -> list[str]:
+def set_names(features: list[str], k: int, include_empty: bool) -> list[str]:
     """A name per candidate set u, in the runs' order: its hidden features' names."""
-    features = observation_names(env)
     rows = candidate_sets(len(features), k, include_empty)
     return [" + ".join(features[i] for i in np.flatnonzero(row)) or "nothing hidden" for row in rows]
 
@@ -103,14 +102,15 @@ def load_run(path: str) -> Run:
     scores, p_miss = column("scores"), column("p_miss")
     uniform_draws = bool(np.allclose(p_miss, 1.0 / p_miss.shape[-1]))
     pooled = "sets" in rows[0]
+    features = recorded_observation_names(path) or observation_names(str(config.env))
     if pooled:  # per feature; at each scoring the pool's set of lowest a_u, named
-        names = observation_names(str(config.env))
+        names = features
         scores, p_miss = per_feature(rows, len(names))
         mean_score = np.full(len(rows), np.nan)
-        worst_sets = [" + ".join(names[i] for i in parse_set(row["sets"][int(np.argmin(row["scores"]))]))
+        worst_sets = [" + ".join(features[i] for i in parse_set(row["sets"][int(np.argmin(row["scores"]))]))
                       for row in rows]
     else:
-        names = set_names(str(config.env), int(config.k), bool(config.include_empty_set))
+        names = set_names(features, int(config.k), bool(config.include_empty_set))
         if scores.ndim != 2 or scores.shape[1] != len(names) or p_miss.shape != scores.shape:
             raise ValueError(f"{scores_path}: each row must hold {len(names)} scores and p_miss values (one per set "
                              f"of {config.env} with k={config.k}), got {scores.shape[1:]} and {p_miss.shape[1:]}")

@@ -1,8 +1,10 @@
 """A run's directory: its files, their row formats, and the rules for starting and resuming.
 
-``config.yaml`` (the resolved config), ``scores.jsonl`` (one row per scoring),
-``metrics.jsonl`` (one row of training curves per scoring interval); checkpoints are kept
-by whoever drives the run. One process owns the directory at a time (:mod:`.locks`).
+``config.yaml`` (the resolved config), ``observation_names.json`` (the names of the d
+features u hides, as the env names them, so that a run is read back without its env's
+code), ``scores.jsonl`` (one row per scoring), ``metrics.jsonl`` (one row of training
+curves per scoring interval); checkpoints are kept by whoever drives the run. One process
+owns the directory at a time (:mod:`.locks`).
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from omegaconf import OmegaConf
 from admissable_jax.checkpointing import CheckpointError, Checkpoints
 from admissable_jax.cli import report, yaml_problem
 from admissable_jax.config import TrainConfig
-from admissable_jax.envs import env_physics
+from admissable_jax.envs import env_physics, observation_names
 from admissable_jax.errors import make_directory, remove_if_unused
 from admissable_jax.locks import RunLock
 from admissable_jax.loggers import Loggers
@@ -33,6 +35,27 @@ from admissable_jax.scoring import MissingnessScores
 # out is wherever the run directory is now (it may have been moved or copied).
 RESUMABLE_CHANGES = ("resume", "resume_step", "total_steps", "progress", "checkpoint_every", "keep_checkpoints",
                      "score_envs", "out", "time_limit", "logger")
+
+
+OBSERVATION_NAMES = "observation_names.json"
+# What a run writes before its first scoring: a folder holding only these is removed again.
+SETTINGS_FILES = ("config.yaml", OBSERVATION_NAMES)
+
+
+def recorded_observation_names(run_dir: str) -> list[str] | None:
+    """The feature names a run recorded (``observation_names.json``); None for a run from
+    before the file was written, whose env's code names them."""
+    path = os.path.join(run_dir, OBSERVATION_NAMES)
+    try:
+        with open(path) as file:
+            names = json.load(file)
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError) as error:
+        raise ValueError(f"{path} cannot be read ({error})") from None
+    if not isinstance(names, list) or not all(isinstance(name, str) for name in names):
+        raise ValueError(f"{path} must hold a JSON list of feature names")
+    return names
 
 
 class TornLine(ValueError):
@@ -123,8 +146,9 @@ def metrics_row(env_steps, grad_steps, chunk, train_seconds, score_seconds, conf
 
 
 class RunDirectory:
-    """A run's folder: config.yaml, scores.jsonl, metrics.jsonl (checkpoints are kept by
-    whoever drives the run: the run's own ``checkpoints/`` or the experiment's)."""
+    """A run's folder: config.yaml, observation_names.json, scores.jsonl, metrics.jsonl
+    (checkpoints are kept by whoever drives the run: the run's own ``checkpoints/`` or the
+    experiment's)."""
 
     def __init__(self, config: TrainConfig, checkpoint_dir: str):
         self.path, self.config = config.out, config
@@ -155,10 +179,12 @@ class RunDirectory:
             for note in self.set_aside_rows_after(0):
                 report(note)
         OmegaConf.save(OmegaConf.structured(config), config_path)
+        with open(os.path.join(self.path, OBSERVATION_NAMES), "w") as file:
+            json.dump(observation_names(config.env), file)
 
     def close(self) -> None:
         """Give the directory back (close the logger, remove the lock). A folder this run
-        made and wrote nothing into but its config.yaml (it stopped before its first scoring:
+        made and wrote nothing into but its settings (it stopped before its first scoring:
         refused for memory, ``budget_only``, interrupted while compiling) is removed again."""
         self.loggers.close()
         self.lock.release()
@@ -166,7 +192,7 @@ class RunDirectory:
 
     def _remove_if_unused(self) -> None:
         if self.made_here:
-            remove_if_unused(self.path, ("config.yaml",))
+            remove_if_unused(self.path, SETTINGS_FILES)
 
     @staticmethod
     def _check_same_run(config: TrainConfig, config_path: str, checkpoint_dir: str) -> None:

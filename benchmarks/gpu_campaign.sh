@@ -225,10 +225,11 @@ mkdir -p "$out"
 out=$(cd "$out" && pwd)
 pidfile=$state/$step.pid statusfile=$state/$step.status shownfile=$state/$step.shown
 
-pack() {  # what exists so far, for the trip back: jsonl, yaml, logs, records
+pack() {  # what exists so far, for the trip back: jsonl, yaml, the runs' feature names, logs, records
   local tarball=$out/campaign-$step.tar.gz
   kernel_report > "$dir/warp-kernels.log"
-  (cd "$dir" && find . \( -name '*.jsonl' -o -name '*.yaml' -o -name '*.log' -o -path './state/*' \) \
+  (cd "$dir" && find . \( -name '*.jsonl' -o -name '*.yaml' -o -name observation_names.json -o -name '*.log' \
+      -o -path './state/*' \) \
       -not -path './out/*' -print0 | tar --null -czf "$tarball" -T -)
   local bytes; bytes=$(stat -c %s "$tarball")
   echo "packed $(tar -tzf "$tarball" | wc -l) files, $bytes bytes, into $tarball; $(cat "$dir/warp-kernels.log")"

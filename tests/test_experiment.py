@@ -45,7 +45,8 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
     assert [(r.config.missingness, r.config.seed) for r in straight] == [
         ("adversarial", 0), ("adversarial", 1), ("uniform", 0), ("uniform", 1)]
     for result in straight:
-        assert sorted(os.listdir(result.run_dir)) == ["config.yaml", "invocations.jsonl", "metrics.jsonl", "scores.jsonl"]
+        assert sorted(os.listdir(result.run_dir)) == [
+            "config.yaml", "invocations.jsonl", "metrics.jsonl", "observation_names.json", "scores.jsonl"]
         (invocation,) = [json.loads(line) for line in open(os.path.join(result.run_dir, "invocations.jsonl"))]
         assert invocation["runs_in_program"] == 4 and invocation["from_env_steps"] == 0
         assert [row["env_steps"] for row in result.scores] == [1000, 2000, 3000]

@@ -8,6 +8,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import shutil
 import subprocess
 import sys
 
@@ -83,6 +84,15 @@ def test_an_env_of_ones_own_trains_resumes_plots_and_is_audited(tmp_path, capsys
     assert audit_main([out, "episodes=4", f"out={tmp_path / 'audit'}"]) == 0
     with open(tmp_path / "audit" / "audit.json") as file:
         assert sorted(entry["names"][0] for entry in json.load(file)["sets"]["1"]) == ["goal", "position", "velocity"]
+    # Read back where the env's code is not (its module named away): plot names the features
+    # as the run recorded them (observation_names.json).
+    elsewhere = tmp_path / "elsewhere"
+    shutil.copytree(out, elsewhere, ignore=shutil.ignore_patterns("checkpoints"))
+    config_yaml = elsewhere / "config.yaml"
+    config_yaml.write_text(config_yaml.read_text().replace(f"env: {NAME}\n", "env: gone_envs:Reach\n"))
+    assert plot_main([str(elsewhere), f"out={tmp_path / 'figures_elsewhere'}", "formats=png"]) == 0
+    with open(tmp_path / "figures_elsewhere" / "scores.csv") as file:
+        assert {row["hidden"] for row in csv.DictReader(file)} == {"position", "velocity", "goal"}
     capsys.readouterr()
 
 

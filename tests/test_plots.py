@@ -12,6 +12,7 @@ from matplotlib.image import imread
 from omegaconf import OmegaConf
 
 from admissable_jax.config import TrainConfig
+from admissable_jax.envs import observation_names
 from admissable_jax.plot import _cell_edges, _heatmap, _seeds, curve_colors, draw_curves, effective_window, main, \
     plot_runs
 from admissable_jax.results import (
@@ -98,7 +99,7 @@ def _check_tables(folder, run_dirs):
     expected_curves, expected_sets = [], []
     for path in sorted(run_dirs):
         config = OmegaConf.load(os.path.join(path, "config.yaml"))
-        names = set_names(config.env, 1, False)
+        names = set_names(observation_names(config.env), 1, False)
         with open(os.path.join(path, "scores.jsonl")) as file:
             for row in map(json.loads, file):
                 key = (config.env, config.missingness, str(config.seed), str(row["env_steps"]))
@@ -198,7 +199,7 @@ def test_summary_table_reports_final_and_auc_per_mode(tmp_path):
     # final: mean(40, 60) = 50, sd 14.142 → ± 127.1; AUC: mean(25, 40) = 32.5, sd 10.607 → ± 95.3;
     # final mean_u a_u: mean(90, 110) = 100 ± 127.1; clean: mean(100, 120) = 110 ± 127.1.
     # The last column: where the mode is weak at the end (set 0, the lowest in every row here).
-    worst = set_names("hopper", 1, False)[0]
+    worst = set_names(observation_names("hopper"), 1, False)[0]
     assert cells(adversarial) == ["hopper", "adversarial", "2", "20000", "50.0 ± 127.1", "32.5 ± 95.3", "100.0 ± 127.1",
                                   "110.0 ± 127.1", f"{worst} (2 of 2)"]
     # One seed: the values alone, no interval (AUC: mean(5, 6, 7, 8) = 6.5; mean_u a_u: 8 + 5 · 30 = 158).
@@ -277,7 +278,7 @@ def test_plots_say_what_they_show(tmp_path, capsys, monkeypatch):
     # set hides the feature) names the rows it draws, and a full one every third row.
     import matplotlib.pyplot as plt
 
-    names = set_names("ant", 1, False)
+    names = set_names(observation_names("ant"), 1, False)
     pooled = np.full((3, 105), np.nan)
     pooled[:, [28, 29, 31]] = [[-1.0, -2.0, -3.0]] * 3
     for values, rows in ((pooled, [28, 29, 31]), (np.zeros((3, 105)), list(range(0, 105, 3)))):
@@ -287,8 +288,8 @@ def test_plots_say_what_they_show(tmp_path, capsys, monkeypatch):
         plt.close(figure)
     # Rows carry Gymnasium's observation names; one seed is "1 seed".
     assert runs[0].set_names[:3] == ["torso z", "torso angle", "thigh joint angle"]
-    assert set_names("hopper", 2, True)[:2] == ["nothing hidden", "torso z + torso angle"]
-    assert set_names("ant", 1, False)[27:30] == ["torso contact torque x", "torso contact torque y", "torso contact torque z"]
+    assert set_names(observation_names("hopper"), 2, True)[:2] == ["nothing hidden", "torso z + torso angle"]
+    assert set_names(observation_names("ant"), 1, False)[27:30] == ["torso contact torque x", "torso contact torque y", "torso contact torque z"]
     assert _seeds(1) == "1 seed" and _seeds(5) == "5 seeds"
     # per_seed: each seed's own moving average, thin, after the mean's line (here one curve of 2 seeds).
     for per_seed in (False, True):

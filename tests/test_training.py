@@ -27,6 +27,7 @@ from omegaconf import OmegaConf
 
 from admissable_jax import TrainConfig, candidate_sets, make_env, mask_observation, score_missingness, train_fn
 from admissable_jax.checkpointing import CheckpointError, Checkpoints, OtherStateLayout
+from admissable_jax.envs import observation_names
 from admissable_jax.host_loop import TrainingDiverged
 from admissable_jax.method import inverse_score_p_miss
 from admissable_jax.policies import load_policy
@@ -78,7 +79,10 @@ def test_sac_learns_point_mass(point_mass_run):
 def test_run_directory_contents(point_mass_run):
     run_dir = point_mass_run.run_dir
     assert sorted(os.listdir(run_dir)) == ["checkpoints", "config.yaml", "invocations.jsonl", "metrics.jsonl",
-                                           "scores.jsonl", "tensorboard", "wandb", "wandb_run_id"]
+                                           "observation_names.json", "scores.jsonl", "tensorboard", "wandb",
+                                           "wandb_run_id"]
+    with open(os.path.join(run_dir, "observation_names.json")) as file:
+        assert json.load(file) == observation_names("point_mass")
     # What produced the run: this command, from step 0, on this machine's device and packages.
     (invocation,) = [json.loads(line) for line in open(os.path.join(run_dir, "invocations.jsonl"))]
     assert invocation["from_env_steps"] == 0 and invocation["physics"] == "jax" and invocation["runs_in_program"] == 1
@@ -227,7 +231,6 @@ def test_candidate_pool_for_k2_search_draws_and_records(tmp_path):
     pair when the pool changes under it. End to end, scores.jsonl lists each row's pool and
     plot draws per-feature heatmaps."""
     from admissable_jax.plot import plot_runs
-    from admissable_jax.envs import observation_names
     from admissable_jax.method import parse_set
     from admissable_jax.results import load_run, summary_table, write_tables
     from admissable_jax.scoring import beam_search_worst_sets
