@@ -167,6 +167,11 @@ def curve_name(mode: str, lower_bound: float, swept: bool) -> str:
     return f"adversarial-l{number_text(lower_bound)}" if swept and mode == "adversarial" else mode
 
 
+def curve_mode(curve: str) -> str:
+    """The mode of a :func:`curve_name` (``adversarial`` for ``adversarial-l50``)."""
+    return curve.partition("-")[0]
+
+
 def curve_names(modes_and_bounds: list[tuple[str, float]]) -> list[str]:
     """:func:`curve_name` of each (mode, l) of runs trained together, which sweep l where
     their adversarial runs differ in it."""

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from admissable_jax.audit.sets import AuditResult, drop_below_clean
-from admissable_jax.config import curve_names
+from admissable_jax.config import curve_mode, curve_names
 from admissable_jax.results import Difference, estimate, mean_and_interval, seeds_sentence
 from admissable_jax.scoring.attribution import ShapleyAttribution
 
@@ -326,14 +326,14 @@ def comparison_chart(results: list[AuditResult], path: str) -> str:
     worst = _worst_by_mode(results)
     ks, modes = list(results[0].sets), sorted(worst)
     width = 0.8 / len(modes)
-    colors = curve_colors([(mode.partition("-")[0], mode) for mode in modes])  # a sweep's adversarial-l<l>: shades
+    colors = curve_colors([(curve_mode(mode), mode) for mode in modes])  # a sweep's adversarial-l<l>: shades
     figure, ax = plt.subplots(figsize=(max(5, 1.6 * len(ks) * len(modes)), 4))
     for offset, mode in enumerate(modes):
         x = np.arange(len(ks)) + (offset - (len(modes) - 1) / 2) * width
         bounds = [mean_and_interval(worst[mode][k][:, None]) for k in ks]
         means = np.array([mean[0] for mean, _, _ in bounds])
         errors = np.array([[mean[0] - low[0] for mean, low, _ in bounds], [high[0] - mean[0] for mean, _, high in bounds]])
-        color = colors[mode.partition("-")[0], mode]
+        color = colors[curve_mode(mode), mode]
         ax.bar(x, means, width, yerr=errors, capsize=3, color=color, alpha=0.6,
                label=f"{mode} ({len(worst[mode][ks[0]])} seeds)")
         for position, k in zip(x, ks):
@@ -377,7 +377,7 @@ def compare_modes(results: list[AuditResult]) -> str:
             lines.append(f"| {k} | {mode} | {len(group)} | {estimate(measures['worst a_u'][mode][k])} | "
                          f"{'—' if np.isnan(average).any() else estimate(average)} | {common} "
                          f"({names.count(common)} of {len(group)}) | {estimate(clean)} |")
-    adversarial = [curve for curve in by_mode if curve.partition("-")[0] == "adversarial"]  # several in a sweep of l
+    adversarial = [curve for curve in by_mode if curve_mode(curve) == "adversarial"]  # several in a sweep of l
     if adversarial and "uniform" in by_mode:
         lines += ["", "| k | measure | adversarial − uniform | 95% interval (Welch) | p (two-sided) | reading |",
                   "|---|---|---|---|---|---|"]
