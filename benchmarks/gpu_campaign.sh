@@ -30,9 +30,11 @@
 # failure the next call starts a new worker: finished benchmark stages are skipped and a run
 # resumes from its last checkpoint.
 #
-# On a lent GPU (device tool), from the repository root, after `bash ../shared/device/pack.sh`
-# and `python benchmarks/warp_kernels.py` (MuJoCo Warp's CUDA modules, built on the CPU: Warp
-# loads them instead of compiling them in a run's first chunk; the packs report how many):
+# On a lent GPU (device tool), from the repository root, after `python benchmarks/warp_kernels.py`
+# (MuJoCo Warp's CUDA modules, built on the CPU: Warp loads them instead of compiling them in a
+# run's first chunk; the packs report how many) and `python benchmarks/device_pack.py` (runs
+# ../shared/device/pack.sh, then splits its packages so that each call below fits one transfer
+# with the working tree; it refuses, before any device time is spent, where they cannot):
 #   run(command="bash .dev/a/stage.sh", carry=[".dev/a", ".dev/kernels"])
 #   run(command="bash .dev/b/finish.sh && CAMPAIGN_DEADLINE=<device s left> bash benchmarks/gpu_campaign.sh speed", carry=[".dev/b"])
 #   run(command="bash benchmarks/gpu_campaign.sh speed")  # while it exits 75
@@ -96,7 +98,7 @@ install() {  # the packages ../shared/device/pack.sh packs, into /tmp/site (devi
   [ -f .dev/a/stage.sh ] && bash .dev/a/stage.sh
   [ -f .dev/b/finish.sh ] && bash .dev/b/finish.sh
   $py -c "$check" 2>/dev/null && return 0
-  echo "packages missing: run 'bash ../shared/device/pack.sh' here, then the two calls its header names" \
+  echo "packages missing: run 'python benchmarks/device_pack.py' here, then the two calls this script's header names" \
        "(.dev/a/stage.sh carrying .dev/a, then .dev/b/finish.sh && this script, carrying .dev/b)" >&2
   exit 4
 }

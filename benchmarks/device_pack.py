@@ -1,0 +1,187 @@
+"""The GPU campaign's packages, packed so that each of its first two device calls fits one transfer.
+
+    python benchmarks/device_pack.py [pack=true] [margin_mb=0.25]
+
+``../shared/device/pack.sh`` packs what a device machine lacks into ``.dev/a`` (the wheels and
+warp-lang's first part, 60 MB) and ``.dev/b`` (warp-lang's rest, 64.1 MB on 2026-12-03). A
+device call carries the working tree as well, and tree and carried folders together may
+not pass 64 MiB (67.1 MB). With the 5.0 MB tree of 2026-12-03 the second call would carry
+69.1 MB, and the device would refuse it with the machine already started by the first.
+
+So this runs ``pack.sh`` (keeping ``.dev/kernels``, which ``pack.sh`` deletes with the rest
+of ``.dev``), repacks warp-lang without its test suite (never imported at run time) at
+``xz -9e`` (79.3 MB instead of 84.2), and splits it anew: warp-lang's first part fills the
+first call (``.dev/a`` with ``.dev/kernels``, as ``gpu_campaign.sh`` carries them) up to the
+limit less the tree and ``margin_mb``, and the rest goes in ``.dev/b``. ``pack.sh``'s own
+``stage.sh`` and ``finish.sh`` join the two parts as before. When the two calls cannot hold
+it all, it says by how much in one line and exits 2, before any device time is spent.
+
+It writes what it packed to ``benchmarks/results/device_pack.json``; ``tests/test_device_pack.py``
+checks from that record that the tree as committed still leaves room for the packs.
+``pack=false`` repacks and splits the ``.dev`` there is (after ``warp_kernels.py`` rebuilt the
+kernels, say) without downloading again.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import json
+import os
+import shlex
+import shutil
+import subprocess
+import sys
+import tempfile
+
+TRANSFER_LIMIT = 64 * 2**20  # bytes one device call may carry: the working tree and its carried folders
+FIRST_PART, REST = "a/warp.part0", "b/warp.part1"  # pack.sh's names, which its stage.sh and finish.sh join
+KERNELS = "kernels"  # benchmarks/warp_kernels.py's archive, carried with .dev/a
+UNUSED_AT_RUN_TIME = ("warp/tests",)
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+RECORD = os.path.join(REPO, "benchmarks", "results", "device_pack.json")
+
+
+@dataclasses.dataclass
+class DevicePackConfig:
+    pack: bool = dataclasses.field(default=True, metadata={"help": "run ../shared/device/pack.sh first (downloads)"})
+    margin_mb: float = dataclasses.field(default=0.25, metadata={"help": "MB left free in each call"})
+
+
+def _validate(config: DevicePackConfig) -> None:
+    if not 0 <= config.margin_mb < 10:
+        raise ValueError(f"margin_mb must be in [0, 10), got {config.margin_mb}")
+
+
+def folder_bytes(path: str) -> int:
+    """The bytes of the files under ``path`` (0 where it does not exist)."""
+    return sum(os.path.getsize(os.path.join(root, name)) for root, _, names in os.walk(path) for name in names)
+
+
+def tree_bytes(repo: str = REPO) -> int:
+    """The bytes of the working tree a device call takes: tracked files and untracked ones git does not ignore."""
+    listed = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"], cwd=repo,
+                            capture_output=True, check=True).stdout.split(b"\0")
+    paths = {os.path.join(repo, os.fsdecode(path)) for path in listed if path}
+    return sum(os.lstat(path).st_size for path in paths if os.path.lexists(path))
+
+
+@dataclasses.dataclass(frozen=True)
+class Payload:
+    """What the first two device calls carry besides the tree, in bytes."""
+
+    first_call_fixed: int  # .dev/a without warp-lang's first part, and .dev/kernels
+    second_call_fixed: int  # .dev/b without warp-lang's rest
+    warp: int  # warp-lang's archive, both parts
+
+
+def room_for_tree(payload: Payload, margin: int) -> int:
+    """The largest tree with which both calls fit: each carries the tree, and together they carry the payload."""
+    both = 2 * (TRANSFER_LIMIT - margin) - payload.first_call_fixed - payload.second_call_fixed - payload.warp
+    first_alone = TRANSFER_LIMIT - margin - payload.first_call_fixed
+    return min(both // 2, first_alone)
+
+
+def split_point(payload: Payload, tree: int, margin: int) -> int:
+    """Bytes of warp-lang's archive in the first call: as many as fit, so the second carries the least.
+
+    Raises ``ValueError`` (one line, by how much) when the two calls cannot hold everything.
+    """
+    room = room_for_tree(payload, margin)
+    if tree > room:
+        raise ValueError(f"the working tree ({tree / 1e6:.2f} MB) leaves too little room for the device packs: "
+                         f"both calls fit with a tree of at most {room / 1e6:.2f} MB; commit less (or smaller) results")
+    return min(payload.warp, TRANSFER_LIMIT - margin - tree - payload.first_call_fixed)
+
+
+def _bash(command: str, stdout=None) -> None:
+    subprocess.run(["bash", "-o", "pipefail", "-c", command], stdout=stdout, check=True)
+
+
+def slim_warp(dev: str, scratch: str) -> str:
+    """warp-lang's archive from ``pack.sh``'s two parts, without what it never imports at run time, at ``xz -9e``.
+
+    Parts already slimmed (a second run) are joined as they are.
+    """
+    parts = " ".join(shlex.quote(os.path.join(dev, part)) for part in (FIRST_PART, REST))
+    unpacked = os.path.join(scratch, "warp")
+    os.makedirs(unpacked)
+    _bash(f"cat {parts} | xz -d | tar -x -C {shlex.quote(unpacked)}")
+    archive = os.path.join(scratch, "warp.tar.xz")
+    unused = [os.path.join(unpacked, path) for path in UNUSED_AT_RUN_TIME if os.path.exists(os.path.join(unpacked, path))]
+    with open(archive, "wb") as out:
+        if not unused:
+            _bash(f"cat {parts}", stdout=out)
+            return archive
+        for path in unused:
+            shutil.rmtree(path)
+        # The paths as pack.sh archives them (./warp/...), for its finish.sh's tar -x.
+        _bash(f"tar -C {shlex.quote(unpacked)} -cf - . | xz -T0 -9e", stdout=out)
+    return archive
+
+
+def repack(dev: str, tree: int, margin: int) -> dict:
+    """Rewrite ``dev``'s two warp-lang parts (slimmed, split at :func:`split_point`); returns the record."""
+    for part in (FIRST_PART, REST):
+        if not os.path.isfile(os.path.join(dev, part)):
+            raise ValueError(f"{os.path.join(dev, part)} is missing: run ../shared/device/pack.sh (or pack=true)")
+    with tempfile.TemporaryDirectory() as scratch:
+        archive = slim_warp(dev, scratch)
+        payload = Payload(
+            first_call_fixed=folder_bytes(os.path.join(dev, "a")) - os.path.getsize(os.path.join(dev, FIRST_PART))
+            + folder_bytes(os.path.join(dev, KERNELS)),
+            second_call_fixed=folder_bytes(os.path.join(dev, "b")) - os.path.getsize(os.path.join(dev, REST)),
+            warp=os.path.getsize(archive),
+        )
+        first = split_point(payload, tree, margin)
+        with open(archive, "rb") as source:
+            for part, size in ((FIRST_PART, first), (REST, None)):
+                with open(os.path.join(dev, part), "wb") as out:
+                    out.write(source.read(size if size is not None else -1))
+    return {
+        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "transfer_limit": TRANSFER_LIMIT, "margin": margin, "tree": tree,
+        **dataclasses.asdict(payload),
+        "first_call": tree + folder_bytes(os.path.join(dev, "a")) + folder_bytes(os.path.join(dev, KERNELS)),
+        "second_call": tree + folder_bytes(os.path.join(dev, "b")),
+        "room_for_tree": room_for_tree(payload, margin),
+    }
+
+
+def _run_pack_sh(dev: str) -> None:
+    """``pack.sh`` from the repository root, with ``.dev/kernels`` kept across its ``rm -rf .dev``."""
+    kernels = os.path.join(dev, KERNELS)
+    with tempfile.TemporaryDirectory() as keep:
+        if os.path.isdir(kernels):
+            shutil.move(kernels, os.path.join(keep, KERNELS))
+        try:
+            subprocess.run(["bash", os.path.join(REPO, "..", "shared", "device", "pack.sh")], cwd=REPO, check=True)
+        finally:
+            if os.path.isdir(os.path.join(keep, KERNELS)):
+                os.makedirs(dev, exist_ok=True)
+                shutil.move(os.path.join(keep, KERNELS), kernels)
+
+
+def main(argv: list[str]) -> None:
+    from admissable_jax.cli import fail, parse_args
+
+    config = parse_args(DevicePackConfig, argv, "benchmarks/device_pack.py", __doc__.strip().splitlines()[0], _validate)
+    dev = os.path.join(REPO, ".dev")
+    if config.pack:
+        _run_pack_sh(dev)
+    try:
+        record = repack(dev, tree_bytes(), int(config.margin_mb * 1e6))
+    except ValueError as error:
+        fail(str(error))
+    with open(RECORD, "w") as file:
+        json.dump(record, file, indent=1)
+        file.write("\n")
+    kernels = "" if os.path.isdir(os.path.join(dev, KERNELS)) else " (no .dev/kernels: run benchmarks/warp_kernels.py, then this with pack=false)"
+    print(f"first call (.dev/a, .dev/kernels and the tree) {record['first_call'] / 1e6:.2f} MB{kernels}, second "
+          f"(.dev/b and the tree) {record['second_call'] / 1e6:.2f} MB, of {TRANSFER_LIMIT / 1e6:.2f} MB each; "
+          f"the tree is {record['tree'] / 1e6:.2f} MB and may grow to {record['room_for_tree'] / 1e6:.2f} MB; "
+          f"record {os.path.relpath(RECORD, REPO)}")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

@@ -1,0 +1,86 @@
+"""The GPU campaign's first two device calls each fit one transfer (benchmarks/device_pack.py)."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import subprocess
+import tarfile
+
+import pytest
+
+import device_pack
+
+MB = 10**6
+
+
+def _fake_pack_sh(dev, warp_so: bytes, tests: bytes, wheels: int, first_part: int) -> None:
+    """A .dev as ../shared/device/pack.sh leaves it: wheels and warp-lang's first part in a/, the rest in b/."""
+    os.makedirs(dev / "a" / "whl")
+    os.makedirs(dev / "b")
+    (dev / "a" / "whl" / "mujoco.whl").write_bytes(os.urandom(wheels))
+    (dev / "a" / "stage.sh").write_text("staged\n")
+    (dev / "b" / "finish.sh").write_text("finished\n")
+    buffer = io.BytesIO()
+    with tarfile.open(fileobj=buffer, mode="w") as tar:
+        for name, data in (("./warp/bin/warp.so", warp_so), ("./warp/tests/test_all.py", tests), ("./warp/__init__.py", b"")):
+            info = tarfile.TarInfo(name)
+            info.size = len(data)
+            tar.addfile(info, io.BytesIO(data))
+    archive = subprocess.run(["xz", "-0"], input=buffer.getvalue(), capture_output=True, check=True).stdout
+    (dev / "a" / "warp.part0").write_bytes(archive[:first_part])
+    (dev / "b" / "warp.part1").write_bytes(archive[first_part:])
+
+
+def _joined(dev) -> dict[str, bytes]:
+    """warp-lang as finish.sh unpacks it: the two parts joined, decompressed, untarred."""
+    data = subprocess.run(f"cat {dev}/a/warp.part0 {dev}/b/warp.part1 | xz -d", shell=True, capture_output=True, check=True).stdout
+    with tarfile.open(fileobj=io.BytesIO(data)) as tar:
+        return {member.name: tar.extractfile(member).read() for member in tar.getmembers() if member.isfile()}
+
+
+def test_packs_are_slimmed_and_split_so_that_each_call_fits_with_the_tree(tmp_path, monkeypatch):
+    """Small sizes for 64 MiB: a 1 MB limit, a 0.3 MB tree, 0.3 MB of wheels, 0.1 MB of kernels,
+    warp-lang 0.8 MB (incompressible) and its test suite 0.3 MB, whose first part pack.sh left
+    small, as it does."""
+    monkeypatch.setattr(device_pack, "TRANSFER_LIMIT", 1 * MB)
+    dev = tmp_path / ".dev"
+    warp_so, tests = os.urandom(800_000), os.urandom(300_000)
+    _fake_pack_sh(dev, warp_so, tests, wheels=300_000, first_part=100_000)
+    os.makedirs(dev / "kernels")
+    (dev / "kernels" / "warp-kernels.tar.xz").write_bytes(os.urandom(100_000))
+    margin, tree = 10_000, 300_000
+    # As pack.sh split it, the second call would be over.
+    assert tree + device_pack.folder_bytes(dev / "b") > 1 * MB
+
+    record = device_pack.repack(str(dev), tree, margin)
+    # warp-lang as finish.sh unpacks it: all of it but the test suite, never imported at run time.
+    assert _joined(dev) == {"./warp/bin/warp.so": warp_so, "./warp/__init__.py": b""}
+    # The first call (.dev/a and .dev/kernels) is filled to the limit less the margin; the rest goes second.
+    assert record["first_call"] == 1 * MB - margin
+    assert record["second_call"] <= 1 * MB - margin
+    assert record["second_call"] == tree + device_pack.folder_bytes(dev / "b")
+    # A second run over what the first wrote changes nothing but the record's date.
+    again = device_pack.repack(str(dev), tree, margin)
+    assert {**again, "date": None} == {**record, "date": None}
+
+    # A tree with which the two calls cannot hold it all: refused in one line, nothing rewritten.
+    before = _joined(dev)
+    with pytest.raises(ValueError, match=r"^the working tree \(0\.41 MB\) leaves too little room for the device packs: "
+                                         r"both calls fit with a tree of at most 0\.3\d MB") as refused:
+        device_pack.repack(str(dev), 410_000, margin)
+    assert "\n" not in str(refused.value)
+    assert _joined(dev) == before
+
+
+def test_the_committed_tree_leaves_room_for_the_recorded_packs():
+    """The tree that travels with every device call, against what device_pack.py last packed
+    (its record): results committed too large would stop the GPU campaign's second call."""
+    with open(device_pack.RECORD) as file:
+        record = json.load(file)
+    payload = device_pack.Payload(**{field: record[field] for field in ("first_call_fixed", "second_call_fixed", "warp")})
+    room = device_pack.room_for_tree(payload, record["margin"])
+    tree = device_pack.tree_bytes()
+    assert tree <= room, (f"the tree ({tree / MB:.2f} MB) is over the {room / MB:.2f} MB the device packs leave "
+                          "(benchmarks/results/device_pack.json): commit results smaller")
