@@ -102,9 +102,34 @@ class PairPlacement:
 
     def spread(self, per_pair: Callable[..., Any]) -> Callable[..., Any]:
         """``per_pair`` vmapped over each device's own pairs, on every device of the mesh.
-        Every argument and result has the (padded) pair axis first."""
-        return jax.shard_map(jax.vmap(per_pair), mesh=self.mesh, in_specs=PartitionSpec(PAIR_AXIS),
-                             out_specs=PartitionSpec(PAIR_AXIS), check_vma=False)
+        Every argument and result has the (padded) pair axis first.
+
+        Arrays with no elements (the candidate pool of a run that scores all of U) go around
+        the ``shard_map``, not through it: they hold nothing, and jaxlib 0.11.2's Shardy
+        crashes (a segfault) compiling a ``shard_map`` over two or more devices that passes
+        one beside other arrays."""
+        batched = jax.vmap(per_pair)
+
+        def spread_call(*args: Any) -> Any:
+            leaves, args_tree = jax.tree.flatten(args)
+            traced: dict[str, Any] = {}  # the results' tree and the global shape of each empty one
+
+            def per_device(*held: jax.Array) -> list[jax.Array]:
+                held_leaves = iter(held)
+                local = [next(held_leaves) if leaf.size else jnp.zeros((self.pairs_per_device, *leaf.shape[1:]), leaf.dtype)
+                         for leaf in leaves]
+                results, traced["tree"] = jax.tree.flatten(batched(*jax.tree.unflatten(args_tree, local)))
+                traced["empty"] = [None if result.size else jax.ShapeDtypeStruct((self.padded_pairs, *result.shape[1:]),
+                                                                               result.dtype) for result in results]
+                return [result for result in results if result.size]
+
+            sharded = jax.shard_map(per_device, mesh=self.mesh, in_specs=PartitionSpec(PAIR_AXIS),
+                                    out_specs=PartitionSpec(PAIR_AXIS), check_vma=False)
+            held_results = iter(sharded(*[leaf for leaf in leaves if leaf.size]))
+            return jax.tree.unflatten(traced["tree"], [next(held_results) if empty is None else jnp.zeros(empty.shape, empty.dtype)
+                                                       for empty in traced["empty"]])
+
+        return spread_call
 
     def place(self, values: np.ndarray) -> jax.Array:
         """A per-pair host array (``num_pairs`` first) as a global array on the mesh, padded

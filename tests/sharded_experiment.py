@@ -3,7 +3,8 @@
 starts): one point-mass experiment of 4 pairs on 4 devices and on 1, then its checkpoint
 read back onto 3 devices (4 pairs padded to 6) and trained on there; the padding slots
 that such a restore leaves, refilled with the last pair; and one pair's policy read from
-that padded checkpoint.
+that padded checkpoint; and a function spread over the devices whose arguments and results
+hold an empty array.
 
     python tests/sharded_experiment.py OUT
 
@@ -58,7 +59,15 @@ def main(out: str) -> None:
     # What a restore onto a larger padded mesh leaves in the padding slots (zeros), refilled.
     placement = PairPlacement.over(3, 2)
     restored_padding = jax.device_put(np.array([[0.0], [1.0], [2.0], [0.0]]), placement.sharding)
+    # An empty leaf (a run's candidate pool when all of U is scored) goes around the
+    # shard_map: jaxlib 0.11.2 crashes compiling one that passes it beside other arrays.
+    spread = placement.spread(lambda tree: {"pool": tree["pool"], "doubled": 2 * tree["x"]})
+    tree = jax.device_put({"pool": np.zeros((4, 0), np.int32), "x": np.arange(4.0)}, placement.sharding)
+    (shard_map,) = [eqn for eqn in jax.make_jaxpr(spread)(tree).eqns if eqn.primitive.name == "shard_map"]
+    spread_out = jax.jit(spread)(tree)
     report = {
+        "shard_map_operand_sizes": [var.aval.size for var in [*shard_map.invars, *shard_map.outvars]],
+        "spread_out": {name: [list(leaf.shape), np.asarray(leaf).ravel().tolist()] for name, leaf in spread_out.items()},
         "refilled": np.asarray(placement.refill_padding(restored_padding)).ravel().tolist(),
         "restored_pairs": [f"{r.config.missingness}-s{r.config.seed}" for r in restored],
         # Each pair's final state as the experiment returns it: on its own device alone.
