@@ -10,7 +10,7 @@ not pass 64 MiB (67.1 MB). With the 5.0 MB tree of 2026-12-03 the second call wo
 
 So this runs ``pack.sh`` (keeping ``.dev/kernels``, which ``pack.sh`` deletes with the rest
 of ``.dev``), repacks warp-lang without its test suite (never imported at run time) at
-``xz -9e`` (79.3 MB instead of 84.2), and splits it anew: warp-lang's first part fills the
+``xz -9e`` (79.4 MB instead of 84.2), and splits it anew: warp-lang's first part fills the
 first call (``.dev/a`` with ``.dev/kernels``, as ``gpu_campaign.sh`` carries them) up to the
 limit less the tree and ``margin_mb``, and the rest goes in ``.dev/b``. ``pack.sh``'s own
 ``stage.sh`` and ``finish.sh`` join the two parts as before. When the two calls cannot hold
@@ -124,7 +124,7 @@ def repack(dev: str, tree: int, margin: int) -> dict:
     """Rewrite ``dev``'s two warp-lang parts (slimmed, split at :func:`split_point`); returns the record."""
     for part in (FIRST_PART, REST):
         if not os.path.isfile(os.path.join(dev, part)):
-            raise ValueError(f"{os.path.join(dev, part)} is missing: run ../shared/device/pack.sh (or pack=true)")
+            raise ValueError(f"{os.path.join(dev, part)} is missing: run this with pack=true (it runs ../shared/device/pack.sh first)")
     with tempfile.TemporaryDirectory() as scratch:
         archive = slim_warp(dev, scratch)
         payload = Payload(
@@ -167,10 +167,12 @@ def main(argv: list[str]) -> None:
 
     config = parse_args(DevicePackConfig, argv, "benchmarks/device_pack.py", __doc__.strip().splitlines()[0], _validate)
     dev = os.path.join(REPO, ".dev")
-    if config.pack:
-        _run_pack_sh(dev)
     try:
+        if config.pack:
+            _run_pack_sh(dev)
         record = repack(dev, tree_bytes(), int(config.margin_mb * 1e6))
+    except subprocess.CalledProcessError as error:
+        fail(f"{' '.join(map(str, error.cmd)) if isinstance(error.cmd, list) else error.cmd} exited with status {error.returncode}")
     except ValueError as error:
         fail(str(error))
     with open(RECORD, "w") as file:
