@@ -12,7 +12,8 @@ So this runs ``pack.sh`` (keeping ``.dev/kernels``, which ``pack.sh`` deletes wi
 of ``.dev``), repacks warp-lang without its test suite (never imported at run time) at
 ``xz -9e`` (79.4 MB instead of 84.2), and splits it anew: warp-lang's first part fills the
 first call (``.dev/a`` with ``.dev/kernels``, as ``gpu_campaign.sh`` carries them) up to the
-limit less the tree and ``margin_mb``, and the rest goes in ``.dev/b``. ``pack.sh``'s own
+limit less the tree and ``margin_mb`` (every size as a tar archive of the files would take
+it: :func:`archived_bytes`), and the rest goes in ``.dev/b``. ``pack.sh``'s own
 ``stage.sh`` and ``finish.sh`` join the two parts as before. When the two calls cannot hold
 it all, it says by how much in one line and exits 2, before any device time is spent.
 
@@ -38,6 +39,7 @@ TRANSFER_LIMIT = 64 * 2**20  # bytes one device call may carry: the working tree
 FIRST_PART, REST = "a/warp.part0", "b/warp.part1"  # pack.sh's names, which its stage.sh and finish.sh join
 KERNELS = "kernels"  # benchmarks/warp_kernels.py's archive, carried with .dev/a
 UNUSED_AT_RUN_TIME = ("warp/tests",)
+BLOCK, ARCHIVE_END = 512, 10240  # tar's block, and the most its end takes
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RECORD = os.path.join(REPO, "benchmarks", "results", "device_pack.json")
 
@@ -53,32 +55,62 @@ def _validate(config: DevicePackConfig) -> None:
         raise ValueError(f"margin_mb must be in [0, 10), got {config.margin_mb}")
 
 
-def folder_bytes(path: str) -> int:
-    """The bytes of the files under ``path`` (0 where it does not exist)."""
-    return sum(os.path.getsize(os.path.join(root, name)) for root, _, names in os.walk(path) for name in names)
+def entry_bytes(name: str, size: int) -> int:
+    """What one file (or, with size 0, a folder) takes in a tar archive: a 512-byte header
+    (two more blocks for a name of over 99 characters) and its data in 512-byte blocks."""
+    return BLOCK * (1 + (2 if len(name) > 99 else 0) + -(-size // BLOCK))
+
+
+def archived_bytes(root: str, files: list[str]) -> int:
+    """The tar entries of ``files`` (paths relative to ``root``) and of the folders that hold them.
+
+    How the device counts what a call carries is not written down; a tar archive's size
+    bounds the plain bytes and any compressed form, so the packs are sized by it."""
+    folders = set()
+    for name in files:
+        folder = os.path.dirname(name)
+        while folder and folder not in folders:
+            folders.add(folder)
+            folder = os.path.dirname(folder)
+    return (sum(entry_bytes(name, os.lstat(os.path.join(root, name)).st_size) for name in files)
+            + sum(entry_bytes(folder + "/", 0) for folder in folders))
+
+
+def folder_bytes(path: str, root: str = REPO) -> int:
+    """:func:`archived_bytes` of a folder under ``root`` (0 where it does not exist)."""
+    files = [os.path.relpath(os.path.join(folder, name), root) for folder, _, names in os.walk(path) for name in names]
+    return archived_bytes(root, files) if os.path.isdir(path) else 0
 
 
 def tree_bytes(repo: str = REPO) -> int:
-    """The bytes of the working tree a device call takes: tracked files and untracked ones git does not ignore."""
+    """:func:`archived_bytes` of the working tree a device call takes: tracked files and
+    untracked ones git does not ignore."""
     listed = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"], cwd=repo,
                             capture_output=True, check=True).stdout.split(b"\0")
-    paths = {os.path.join(repo, os.fsdecode(path)) for path in listed if path}
-    return sum(os.lstat(path).st_size for path in paths if os.path.lexists(path))
+    return archived_bytes(repo, sorted({os.fsdecode(name) for name in listed
+                                        if name and os.path.lexists(os.path.join(repo, os.fsdecode(name)))}))
 
 
 @dataclasses.dataclass(frozen=True)
 class Payload:
-    """What the first two device calls carry besides the tree, in bytes."""
+    """What the first two device calls carry besides the tree, as archived bytes."""
 
     first_call_fixed: int  # .dev/a without warp-lang's first part, and .dev/kernels
     second_call_fixed: int  # .dev/b without warp-lang's rest
-    warp: int  # warp-lang's archive, both parts
+    warp: int  # warp-lang's archive, both parts (plain bytes)
+
+
+def _usable(margin: int) -> int:
+    """A call's bytes for its entries: the limit less the margin and a tar archive's end (two
+    zero blocks, padded to tar's 10,240-byte record)."""
+    return TRANSFER_LIMIT - margin - ARCHIVE_END
 
 
 def room_for_tree(payload: Payload, margin: int) -> int:
-    """The largest tree with which both calls fit: each carries the tree, and together they carry the payload."""
-    both = 2 * (TRANSFER_LIMIT - margin) - payload.first_call_fixed - payload.second_call_fixed - payload.warp
-    first_alone = TRANSFER_LIMIT - margin - payload.first_call_fixed
+    """The largest tree with which both calls fit: each carries the tree, and together they carry
+    the payload (the two parts' entries take at most 4 blocks more than warp-lang's archive)."""
+    both = 2 * _usable(margin) - payload.first_call_fixed - payload.second_call_fixed - payload.warp - 4 * BLOCK
+    first_alone = _usable(margin) - payload.first_call_fixed - BLOCK
     return min(both // 2, first_alone)
 
 
@@ -91,7 +123,8 @@ def split_point(payload: Payload, tree: int, margin: int) -> int:
     if tree > room:
         raise ValueError(f"the working tree ({tree / 1e6:.2f} MB) leaves too little room for the device packs: "
                          f"both calls fit with a tree of at most {room / 1e6:.2f} MB; commit less (or smaller) results")
-    return min(payload.warp, TRANSFER_LIMIT - margin - tree - payload.first_call_fixed)
+    first_part_entry = _usable(margin) - tree - payload.first_call_fixed
+    return min(payload.warp, (first_part_entry // BLOCK - 1) * BLOCK)
 
 
 def _bash(command: str, stdout=None) -> None:
@@ -121,16 +154,20 @@ def slim_warp(dev: str, scratch: str) -> str:
 
 
 def repack(dev: str, tree: int, margin: int) -> dict:
-    """Rewrite ``dev``'s two warp-lang parts (slimmed, split at :func:`split_point`); returns the record."""
+    """Rewrite ``dev``'s two warp-lang parts (slimmed, split at :func:`split_point`); returns the
+    record. Sizes count as archived (:func:`archived_bytes`), names relative to ``dev``'s parent."""
+    root = os.path.dirname(os.path.abspath(dev))
     for part in (FIRST_PART, REST):
         if not os.path.isfile(os.path.join(dev, part)):
             raise ValueError(f"{os.path.join(dev, part)} is missing: run this with pack=true (it runs ../shared/device/pack.sh first)")
     with tempfile.TemporaryDirectory() as scratch:
         archive = slim_warp(dev, scratch)
+        part_entry = lambda part: entry_bytes(os.path.relpath(os.path.join(dev, part), root),
+                                              os.path.getsize(os.path.join(dev, part)))
         payload = Payload(
-            first_call_fixed=folder_bytes(os.path.join(dev, "a")) - os.path.getsize(os.path.join(dev, FIRST_PART))
-            + folder_bytes(os.path.join(dev, KERNELS)),
-            second_call_fixed=folder_bytes(os.path.join(dev, "b")) - os.path.getsize(os.path.join(dev, REST)),
+            first_call_fixed=folder_bytes(os.path.join(dev, "a"), root) - part_entry(FIRST_PART)
+            + folder_bytes(os.path.join(dev, KERNELS), root),
+            second_call_fixed=folder_bytes(os.path.join(dev, "b"), root) - part_entry(REST),
             warp=os.path.getsize(archive),
         )
         first = split_point(payload, tree, margin)
@@ -142,8 +179,9 @@ def repack(dev: str, tree: int, margin: int) -> dict:
         "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "transfer_limit": TRANSFER_LIMIT, "margin": margin, "tree": tree,
         **dataclasses.asdict(payload),
-        "first_call": tree + folder_bytes(os.path.join(dev, "a")) + folder_bytes(os.path.join(dev, KERNELS)),
-        "second_call": tree + folder_bytes(os.path.join(dev, "b")),
+        "first_call": tree + folder_bytes(os.path.join(dev, "a"), root) + folder_bytes(os.path.join(dev, KERNELS), root)
+        + ARCHIVE_END,
+        "second_call": tree + folder_bytes(os.path.join(dev, "b"), root) + ARCHIVE_END,
         "room_for_tree": room_for_tree(payload, margin),
     }
 
