@@ -2,9 +2,9 @@
 (``XLA_FLAGS=--xla_force_host_platform_device_count=4``, which must be set before JAX
 starts): one point-mass experiment of 4 pairs on 4 devices and on 1, then its checkpoint
 read back onto 3 devices (4 pairs padded to 6) and trained on there; the padding slots
-that such a restore leaves, refilled with the last pair; and one pair's policy read from
-that padded checkpoint; and a function spread over the devices whose arguments and results
-hold an empty array.
+that such a restore leaves, refilled with the last pair; one pair's policy read from that
+padded checkpoint; and a function spread over the devices whose arguments and results hold
+an empty array.
 
     python tests/sharded_experiment.py OUT
 
