@@ -78,8 +78,8 @@ def archived_bytes(root: str, files: list[str]) -> int:
 
 def folder_bytes(path: str, root: str = REPO) -> int:
     """:func:`archived_bytes` of a folder under ``root`` (0 where it does not exist)."""
-    files = [os.path.relpath(os.path.join(folder, name), root) for folder, _, names in os.walk(path) for name in names]
-    return archived_bytes(root, files) if os.path.isdir(path) else 0
+    return archived_bytes(root, [os.path.relpath(os.path.join(folder, name), root)
+                                 for folder, _, names in os.walk(path) for name in names])
 
 
 def tree_bytes(repo: str = REPO) -> int:
@@ -162,12 +162,12 @@ def repack(dev: str, tree: int, margin: int) -> dict:
             raise ValueError(f"{os.path.join(dev, part)} is missing: run this with pack=true (it runs ../shared/device/pack.sh first)")
     with tempfile.TemporaryDirectory() as scratch:
         archive = slim_warp(dev, scratch)
-        part_entry = lambda part: entry_bytes(os.path.relpath(os.path.join(dev, part), root),
-                                              os.path.getsize(os.path.join(dev, part)))
+        part_entry = lambda part, size: entry_bytes(os.path.relpath(os.path.join(dev, part), root), size)
+        packed_entry = lambda part: part_entry(part, os.path.getsize(os.path.join(dev, part)))
         payload = Payload(
-            first_call_fixed=folder_bytes(os.path.join(dev, "a"), root) - part_entry(FIRST_PART)
+            first_call_fixed=folder_bytes(os.path.join(dev, "a"), root) - packed_entry(FIRST_PART)
             + folder_bytes(os.path.join(dev, KERNELS), root),
-            second_call_fixed=folder_bytes(os.path.join(dev, "b"), root) - part_entry(REST),
+            second_call_fixed=folder_bytes(os.path.join(dev, "b"), root) - packed_entry(REST),
             warp=os.path.getsize(archive),
         )
         first = split_point(payload, tree, margin)
@@ -179,9 +179,8 @@ def repack(dev: str, tree: int, margin: int) -> dict:
         "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "transfer_limit": TRANSFER_LIMIT, "margin": margin, "tree": tree,
         **dataclasses.asdict(payload),
-        "first_call": tree + folder_bytes(os.path.join(dev, "a"), root) + folder_bytes(os.path.join(dev, KERNELS), root)
-        + ARCHIVE_END,
-        "second_call": tree + folder_bytes(os.path.join(dev, "b"), root) + ARCHIVE_END,
+        "first_call": tree + payload.first_call_fixed + part_entry(FIRST_PART, first) + ARCHIVE_END,
+        "second_call": tree + payload.second_call_fixed + part_entry(REST, payload.warp - first) + ARCHIVE_END,
         "room_for_tree": room_for_tree(payload, margin),
     }
 
