@@ -285,7 +285,8 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0,
         height = max(4.0, 0.12 * len(names) + 1.5)
         labels = (("lowest $a_u$ of the pool's sets hiding it", "$p_{miss}$ mass on them") if mode_runs[0].pooled
                   else ("$a_u$", "$p_{miss}(u)$"))
-        for attribute, label, name in zip(("scores", "p_miss"), (f"{text} (mean over seeds)" for text in labels),
+        over_seeds = " (mean over seeds)" if len(mode_runs) > 1 else ""
+        for attribute, label, name in zip(("scores", "p_miss"), (f"{text}{over_seeds}" for text in labels),
                                           ("scores", "p_miss")):
             steps, values = aligned(mode_runs, attribute)
             figure, ax = plt.subplots(figsize=(10, height))
@@ -326,11 +327,12 @@ def _final_scores_figure(env: str, names: list[str], group: list[list[Run]]):
     x, width = np.arange(len(names)), 0.8 / len(group)
     variants = sorted({curve_runs[0].variant for curve_runs in group})
     colors = curve_colors([(curve_runs[0].mode, curve_runs[0].variant) for curve_runs in group])
+    seeded = max(len(curve_runs) for curve_runs in group) > 1  # one seed has no interval to draw
     figure, ax = plt.subplots(figsize=(min(30.0, max(8.0, 0.25 * len(names) * len(group))), 4.5))
     for index, (curve_runs, (steps, mean, low, high)) in enumerate(zip(group, finals)):
         mean, low, high = mean[shown], low[shown], high[shown]
         run = curve_runs[0]
-        ax.bar(x + (index - (len(group) - 1) / 2) * width, mean, width, yerr=[mean - low, high - mean],
+        ax.bar(x + (index - (len(group) - 1) / 2) * width, mean, width, yerr=[mean - low, high - mean] if seeded else None,
                capsize=1.5 if len(names) <= 40 else 0, color=colors[run.mode, run.variant], alpha=0.75,
                hatch=("", "//", "..", "xx")[variants.index(run.variant) % 4],
                label=f"{run.curve} ({_seeds(len(curve_runs))}, {steps} env steps)")
@@ -338,7 +340,7 @@ def _final_scores_figure(env: str, names: list[str], group: list[list[Run]]):
     ax.set_xlim(-0.6, len(names) - 0.4)
     ax.set_ylabel("lowest $a_u$ of the pool's sets hiding it" if group[0][0].pooled else "$a_u$")
     ax.set_title(f"{env}: the last scoring's $a_u$ per hidden {'feature' if group[0][0].pooled else 'set'} "
-                 f"(mean over seeds; bars: 95% t-interval)", fontsize=10)
+                 f"({'mean over seeds; bars: 95% t-interval' if seeded else 'one seed per curve: no interval'})", fontsize=10)
     ax.grid(alpha=0.3, axis="y")
     ax.legend(fontsize=8)
     return figure

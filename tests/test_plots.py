@@ -13,8 +13,8 @@ from omegaconf import OmegaConf
 
 from admissable_jax.config import TrainConfig
 from admissable_jax.envs import observation_names
-from admissable_jax.plot import _cell_edges, _heatmap, _seeds, curve_colors, draw_curves, effective_window, main, \
-    plot_runs
+from admissable_jax.plot import _cell_edges, _final_scores_figure, _heatmap, _seeds, curve_colors, draw_curves, \
+    effective_window, main, plot_runs
 from admissable_jax.results import (
     Difference, final_scores, find_runs, format_comparison, load_run, mean_and_interval, mode_differences,
     moving_average, set_names, summary_table,
@@ -299,6 +299,15 @@ def test_plots_say_what_they_show(tmp_path, capsys, monkeypatch):
         assert len(lines) == (4 if per_seed else 2)
         for run, line in zip(runs, lines[1:-1]):
             np.testing.assert_allclose(line.get_ydata(), moving_average(run.min_score, 3))
+        plt.close(figure)
+
+    # The last scoring's bars carry a t-interval over seeds; one seed has none to draw, and says so.
+    for group, interval in (([runs], True), ([runs[:1]], False)):
+        figure = _final_scores_figure("hopper", runs[0].set_names, group)
+        ax = figure.axes[0]
+        assert any(type(container).__name__ == "ErrorbarContainer" for container in ax.containers) == interval
+        assert ("bars: 95% t-interval" in ax.get_title()) == interval
+        assert ("one seed per curve: no interval" in ax.get_title()) == (not interval)
         plt.close(figure)
 
     # The CLI writes into a new folder each time, never over earlier figures, and its
