@@ -56,6 +56,10 @@
 #   CAMPAIGN_SPEED_DEVICE   plan runs from this device's speed records (campaign.py plan's
 #                           speed_device), e.g. 'gpu:NVIDIA H100 80GB HBM3' on an H200 that has
 #                           none of its own (the same chip with faster memory: an upper bound)
+#   CAMPAIGN_MIN_STEPS      the shortest run a step starts (default 200000, the floor for
+#                           Ant; 40 in smoke mode): in a 15-minute lease no Ant run of 200k fits
+#                           (about 105k do), so `CAMPAIGN_MIN_STEPS=50000 ... ant` runs the longest
+#                           that does, for the partial curves and the measured cost per interval
 #   CAMPAIGN_ONLY           a regular expression: the speed step runs only the stages it matches
 #                           (e.g. 'measure-hopper' or 'brax'), to redo one or to test a few
 #   CAMPAIGN_RUN_SECONDS    the worker's run pauses (checkpoints and stops, as experiment's time_limit)
@@ -108,7 +112,7 @@ if [ "$smoke" = 1 ]; then
   full_steps=80  # the sizes of tests/test_hopper_pipelines.py, whose straight run the smoke chain must repeat
   sizes=(physics=warp seeds=1 score_every=40 num_envs=4 learning_starts=48 batch_size=32 hidden_size=32
          buffer_size=1000 score_episodes=2 score_envs=8 episode_length=10 checkpoint_every=1)
-  min_steps=40; worlds=4,8; graph_modes=default; physics_steps=5; scoring=(n_episodes=1 max_steps=10)
+  min_steps=${CAMPAIGN_MIN_STEPS:-40}; worlds=4,8; graph_modes=default; physics_steps=5; scoring=(n_episodes=1 max_steps=10)
   train_bench=(num_envs=4 iterations=4 batch_size=32 buffer_size=1000); brax=(num_envs=4 steps_per_epoch=4 batch_size=32 num_eval_envs=2 episode_length=10)
   deadline=${CAMPAIGN_DEADLINE:-3600}; lease=3600
 else
@@ -117,9 +121,9 @@ else
   # A checkpoint every 20 scorings (100k env steps): runs cannot leave the machine, so one only
   # serves a worker restarted on it after a failure; each save of the replay buffers costs seconds.
   sizes=(physics=warp seeds=5 score_every=5000 checkpoint_every=20)
-  min_steps=200000; worlds=125,1250,10000; graph_modes=default,WARP,WARP_STAGED; physics_steps=100
+  min_steps=${CAMPAIGN_MIN_STEPS:-200000}; worlds=125,1250,10000; graph_modes=default,WARP,WARP_STAGED; physics_steps=100
   scoring=(n_episodes=10); train_bench=(num_envs=125 iterations=40); brax=(num_envs=125 steps_per_epoch=40)
-  deadline=${CAMPAIGN_DEADLINE:-}; lease=1500
+  deadline=${CAMPAIGN_DEADLINE:-}; lease=690
 fi
 ALL=adversarial,uniform,none
 PAIRED=adversarial,uniform
@@ -196,7 +200,8 @@ worker() {
       stage brax-hopper 300 $py benchmarks/brax_sac.py env=hopper physics=warp "${brax[@]}"
       # Brax's SAC update against ours alone (no env): where the training gap to Brax lies.
       stage brax-update-hopper 200 $py benchmarks/brax_sac.py env=hopper update_only=true
-      # Steps 2-4 projected for one whole lease (30 minutes less the start, staging and return).
+      # Steps 2-4 projected for one whole lease: 15 minutes (900 s) less the start and staging
+      # (about 150 s) and the last return (60 s), as results/campaign_projections_15min.txt.
       stage projections 120 $py benchmarks/campaign.py projections "${sizes[@]}" total_steps=$full_steps \
           deadline=$lease min_steps=$min_steps max_steps=$full_steps
       ;;

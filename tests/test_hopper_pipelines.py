@@ -138,12 +138,12 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
 
     # Too little device time: the 3 pairs are refused, then the 2 (planned from the 3 pairs'
     # record, an upper bound), then the longest run that fits is below min_steps; nothing starts.
-    refused = _campaign("hopper", directory, CAMPAIGN_DEADLINE="1")
+    refused = _campaign("hopper", directory, CAMPAIGN_DEADLINE="1", CAMPAIGN_MIN_STEPS="60")
     assert refused.returncode == REFUSED, refused.stdout + refused.stderr
     assert refused.stdout.count("does not fit, refused") == 2
     assert "hopper cannot reach 80 env steps in 1 s: the longest run that fits instead" in refused.stdout
-    assert "below min_steps=40: refused" in refused.stdout
-    assert "refused: hopper: fewer than 40 env steps fit in 1 s" in refused.stdout
+    assert "below min_steps=60: refused" in refused.stdout
+    assert "refused: hopper: fewer than 60 env steps fit in 1 s" in refused.stdout
     assert not os.path.exists(os.path.join(directory, "hopper"))
 
     # A worker paused by CAMPAIGN_RUN_SECONDS after its first scoring (as a failed one would
