@@ -2,11 +2,11 @@
 
     python benchmarks/campaign.py measure env=hopper modes=adversarial,uniform,none seeds=5
     python benchmarks/campaign.py plan env=hopper modes=adversarial,uniform,none seeds=5 \\
-        total_steps=1000000 deadline=1500
+        total_steps=1000000 deadline=690
     python benchmarks/campaign.py plan env=hopper modes=adversarial,uniform,none seeds=5 \\
         total_steps=1000000 fallback_modes=adversarial,uniform or_longest=true deadline=1650
-    python benchmarks/campaign.py plan env=ant seeds=5 total_steps=0 min_steps=200000 deadline=1500
-    python benchmarks/campaign.py projections seeds=5 deadline=1500   # all of the above
+    python benchmarks/campaign.py plan env=ant seeds=5 total_steps=0 min_steps=200000 deadline=690
+    python benchmarks/campaign.py projections seeds=5 deadline=690   # all of the above
 
 ``measure`` builds the experiment exactly as ``python -m admissable_jax.experiment`` would
 for these settings (every (seed, mode) pair vmapped in one program) and times its parts on
