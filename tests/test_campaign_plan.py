@@ -23,9 +23,10 @@ def test_the_next_lease_is_planned_from_the_committed_h100_record(capsys):
     assert "compile 50 s + first run 58 s + 156 scorings x (chunk 2.2 s + full-length scoring 7.5 s)" in shown
     assert shown.strip().splitlines()[-1] == "modes=adversarial,uniform,none total_steps=780000"
 
-    # On a device with no record of its own (this CPU here, an H200 on a lease), the refusal
-    # names the device that has one, so the next call plans from it.
-    assert campaign.main(["plan", *HOPPER_ON_THE_GPU, "total_steps=1000000", "deadline=1650"]) == 2
+    # On a device with no record of its own (an H200 lease), the refusal names the device
+    # that has one, so the next call plans from it.
+    assert campaign.main(["plan", *HOPPER_ON_THE_GPU, "total_steps=1000000", "deadline=1650",
+                          "speed_device=gpu:NVIDIA H200"]) == 2
     refusal = capsys.readouterr().err.strip()
     assert "\n" not in refusal and refusal.endswith(
         "the same shape was measured on gpu:NVIDIA H100 80GB HBM3: plan from it with speed_device= "
