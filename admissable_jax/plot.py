@@ -119,13 +119,19 @@ def _window_note(runs: list[Run], window: int) -> str:
     return f"{average} (window={window} shortened: the runs have {used})"
 
 
+def _has_interval(runs: list[Run]) -> bool:
+    """Whether some curve of these runs (of one env) has several seeds: a curve of one seed
+    has no t-interval to draw, and a caption should not promise one."""
+    return max(collections.Counter(run.curve for run in runs).values()) > 1
+
+
 def _figure_caption(runs: list[Run], window: int, per_seed: bool = False) -> str:
     """What Figure 1 shows, in words under it: a_u, the smoothing, the dots, the band (and
     the seeds' own lines)."""
     episodes = sorted({run.score_episodes for run in runs})
     average = ("" if any(run.pooled for run in runs) else
                "; $\\mathrm{mean}_u\\, a_u$: the mean over all u (the average case, u drawn uniformly)")
-    shaded = "; shaded: 95% t-interval over seeds" if max(collections.Counter(run.curve for run in runs).values()) > 1 else ""
+    shaded = "; shaded: 95% t-interval over seeds" if _has_interval(runs) else ""
     thin = "; thin lines: each seed, smoothed alike" if per_seed else ""
     return (f"$a_u$: mean undiscounted return of N = {'/'.join(map(str, episodes))} deterministic episodes with the "
             f"features u hidden; $\\mathrm{{min}}_u\\, a_u$: the worst u at each scoring{average}.\n"
@@ -228,16 +234,17 @@ def plot_envs_side_by_side(run_dirs: list[str], out_dir: str, window: int = 0,
     order = list(ENV_SPECS)
     envs = sorted({run.env for run in runs}, key=lambda env: (order.index(env) if env in order else len(order), env))
     figure, axes = plt.subplots(1, len(envs), figsize=(5 * len(envs), 4), squeeze=False)
-    notes = []
+    notes, shaded = [], False
     for ax, env in zip(axes[0], envs):
         env_runs = [run for run in runs if run.env == env]
         draw_curves(ax, env_runs, "min_score", window, per_seed)
         ax.set_title(getattr(ENV_SPECS.get(env), "gymnasium_id", None) or env)
         notes.append(f"{env}: {_window_note(env_runs, window)}")
+        shaded = shaded or _has_interval(env_runs)
     axes[0][0].set_ylabel("adversarial performance $\\mathrm{min}_u\\, a_u$")
     figure.suptitle(f"Performance under adversarial missingness: $\\mathrm{{min}}_u\\, a_u$ at every scoring. Lines: "
-                    f"mean over seeds, smoothed per env ({'; '.join(notes)}); shaded: 95% t-interval over seeds"
-                    + ("; thin lines: each seed" if per_seed else ""),
+                    f"mean over seeds, smoothed per env ({'; '.join(notes)})"
+                    + ("; shaded: 95% t-interval over seeds" if shaded else "") + ("; thin lines: each seed" if per_seed else ""),
                     fontsize=8, y=-0.02, va="top", wrap=True)
     make_directory(out_dir, "figures folder")
     return _save(figure, out_dir, "figure1", formats)
@@ -327,7 +334,7 @@ def _final_scores_figure(env: str, names: list[str], group: list[list[Run]]):
     x, width = np.arange(len(names)), 0.8 / len(group)
     variants = sorted({curve_runs[0].variant for curve_runs in group})
     colors = curve_colors([(curve_runs[0].mode, curve_runs[0].variant) for curve_runs in group])
-    seeded = max(len(curve_runs) for curve_runs in group) > 1  # one seed has no interval to draw
+    seeded = _has_interval([run for curve_runs in group for run in curve_runs])
     figure, ax = plt.subplots(figsize=(min(30.0, max(8.0, 0.25 * len(names) * len(group))), 4.5))
     for index, (curve_runs, (steps, mean, low, high)) in enumerate(zip(group, finals)):
         mean, low, high = mean[shown], low[shown], high[shown]

@@ -14,7 +14,7 @@ from omegaconf import OmegaConf
 from admissable_jax.config import TrainConfig
 from admissable_jax.envs import observation_names
 from admissable_jax.plot import _cell_edges, _final_scores_figure, _heatmap, _seeds, curve_colors, draw_curves, \
-    effective_window, main, plot_runs
+    effective_window, main, plot_envs_side_by_side, plot_runs
 from admissable_jax.results import (
     Difference, final_scores, find_runs, format_comparison, load_run, mean_and_interval, mode_differences,
     moving_average, set_names, summary_table,
@@ -309,6 +309,13 @@ def test_plots_say_what_they_show(tmp_path, capsys, monkeypatch):
         assert ("bars: 95% t-interval" in ax.get_title()) == interval
         assert ("one seed per curve: no interval" in ax.get_title()) == (not interval)
         plt.close(figure)
+    # So does the envs-side-by-side caption: a band is promised only where one is drawn.
+    captions = []
+    monkeypatch.setattr("admissable_jax.plot._save", lambda figure, *_: captions.append(figure._suptitle.get_text()) or [])
+    for run_dirs, interval in ((paths, True), (paths[:1], False)):
+        plot_envs_side_by_side(run_dirs, str(tmp_path / "side"))
+        assert ("shaded: 95% t-interval over seeds" in captions[-1]) == interval
+    monkeypatch.undo()
 
     # The CLI writes into a new folder each time, never over earlier figures, and its
     # summary says how the figure was smoothed.
