@@ -145,13 +145,13 @@ def speed_record(config: ExperimentConfig) -> tuple[dict, int]:
     for path in filter(os.path.exists, paths):
         with open(path) as file:
             records += [json.loads(line) for line in file if line.strip()]
-    big_enough = [r for r in records if r["pairs"] >= len(pairs)]
-    shaped = [r for r in big_enough if all(r.get(key) == value for key, value in want.items())]
+    same_shape = [r for r in records if r["pairs"] >= len(pairs)
+                  and all(r.get(key) == value for key, value in want.items() if key != "device")]
+    shaped = [r for r in same_shape if r.get("device") == want["device"]]
     if not shaped:
         # A lease on another chip (an H200 where only an H100 was measured): name the devices
         # that were, so the next call can plan from one of them instead of failing again.
-        elsewhere = sorted({r["device"] for r in big_enough
-                            if all(r.get(key) == value for key, value in want.items() if key != "device")})
+        elsewhere = sorted({r["device"] for r in same_shape})
         advice = (f"the same shape was measured on {', '.join(elsewhere)}: plan from it with speed_device= "
                   f"(gpu_campaign.sh: CAMPAIGN_SPEED_DEVICE=)" if elsewhere else "run the campaign's speed step first")
         raise ValueError(f"no speed record in {' or '.join(paths)} for {dict(want, pairs=len(pairs))} (or more pairs): {advice}")
