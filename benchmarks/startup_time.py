@@ -3,13 +3,18 @@
     python benchmarks/startup_time.py [modules=admissable_jax.plot,...] [repeats=3]
 
 For each module, one warm-up process (it writes Python's bytecode caches) and then
-``repeats`` fresh processes import it; the record holds the median seconds of the import
-alone and of the whole process (interpreter start, import, exit), and whether the import
-loaded MJX. What steps no MuJoCo env (configs, ``plot``, ``--help``, the point mass) should
+``repeats`` fresh processes import it and end as our commands end
+(``admissable_jax.cli.exit_with``), and ``repeats`` more end with Python's plain exit; the
+record holds the median seconds of the import alone, of the whole process (interpreter
+start, import, exit), of the exit alone both ways (``exit_s``, ``plain_exit_s``: from the
+line printed before it to the process's end), and whether the import loaded MJX. What steps no MuJoCo env (configs, ``plot``, ``--help``, the point mass) should
 not: names, sizes and feature names come from ``envs/catalog.py``, and
 ``admissable_jax.envs.physics`` (MJX with MuJoCo Warp's kernels and our contact-frame
-patches, listed last) is the cost they avoid. Appends to
-``benchmarks/results/startup_time.jsonl``.
+patches, listed last) is the cost they avoid. With ``run=``, one command (its module and settings; ``out=`` is
+added) runs once each way instead, and the record holds the seconds from its last line to
+its end. Appends to ``benchmarks/results/startup_time.jsonl``.
+
+    python benchmarks/startup_time.py run="admissable_jax.train env=hopper physics=jax total_steps=80 score_every=40 ..."
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ import os
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 
 from admissable_jax.cli import parse_args
@@ -26,42 +32,77 @@ from common import append_record
 
 MODULES = ("admissable_jax", "admissable_jax.config", "admissable_jax.train", "admissable_jax.experiment",
            "admissable_jax.plot", "admissable_jax.audit", "admissable_jax.wrappers", "admissable_jax.envs.physics")
-# Prints the import's seconds and whether it loaded MJX.
-PROBE = ("import sys, time; start = time.perf_counter(); import {module}; "
-         "print(time.perf_counter() - start, 'mujoco.mjx' in sys.modules)")
+# Prints the import's seconds, whether it loaded MJX and the moment it starts to exit, then exits.
+PROBE = ("import sys, time; start = time.perf_counter(); import {module}; imported = time.perf_counter() - start; "
+         "{prepare}; print(imported, 'mujoco.mjx' in sys.modules, time.time(), flush=True); {exit}")
+EXITS = {"command": dict(prepare="from admissable_jax.cli import exit_with", exit="exit_with(0)"),
+         "plain": dict(prepare="pass", exit="raise SystemExit(0)")}
 
 
 @dataclasses.dataclass
 class StartupConfig:
     modules: str = dataclasses.field(default=",".join(MODULES), metadata={"help": "comma-separated modules to import"})
     repeats: int = dataclasses.field(default=3, metadata={"help": "fresh processes per module (median reported)"})
+    run: str = dataclasses.field(default="", metadata={
+        "help": "instead of the imports: a command's module and key=value settings, run once ending as commands do "
+                "and once with Python's plain exit (the freeze undone), e.g. 'admissable_jax.train env=point_mass'"})
 
 
 def measure(module: str, repeats: int) -> dict:
     environment = {key: value for key, value in os.environ.items() if key != "PYTHONDONTWRITEBYTECODE"}
-    imports, walls, loads_mjx = [], [], set()
-    for attempt in range(repeats + 1):  # the first writes the bytecode caches, uncounted
+    imports, walls, loads_mjx, exits = [], [], set(), {way: [] for way in EXITS}
+    # The first process writes the bytecode caches, uncounted; then the two exits alternate.
+    for attempt, way in enumerate(["command"] + [way for _ in range(repeats) for way in EXITS]):
         started = time.perf_counter()
-        shown = subprocess.run([sys.executable, "-c", PROBE.format(module=module)], capture_output=True, text=True,
-                               env=environment, check=True)
-        wall = time.perf_counter() - started
-        seconds, mjx = shown.stdout.split()[-2:]
+        shown = subprocess.run([sys.executable, "-c", PROBE.format(module=module, **EXITS[way])],
+                               capture_output=True, text=True, env=environment, check=True)
+        wall, ended = time.perf_counter() - started, time.time()
+        seconds, mjx, exiting = shown.stdout.split()[-3:]
         loads_mjx.add(mjx == "True")
         if attempt:
-            imports.append(float(seconds))
-            walls.append(wall)
+            exits[way].append(ended - float(exiting))
+            if way == "command":
+                imports.append(float(seconds))
+                walls.append(wall)
     return {"module": module, "repeats": repeats, "import_s": round(statistics.median(imports), 2),
-            "process_s": round(statistics.median(walls), 2), "loads_mjx": loads_mjx == {True}}
+            "process_s": round(statistics.median(walls), 2), "exit_s": round(statistics.median(exits["command"]), 2),
+            "plain_exit_s": round(statistics.median(exits["plain"]), 2), "loads_mjx": loads_mjx == {True}}
+
+
+def measure_run(command: str) -> dict:
+    module, *settings = command.split()
+    exits = {}
+    for way in EXITS:
+        with tempfile.TemporaryDirectory() as directory:
+            argv = [module, *settings, f"out={directory}/run"]
+            code = (f"import gc, runpy, sys; sys.argv = {argv!r}; " + ("gc.freeze = lambda: None; " if way == "plain" else "")
+                    + f"runpy.run_module({module!r}, run_name='__main__', alter_sys=True)")
+            process = subprocess.Popen([sys.executable, "-u", "-c", code], stdout=subprocess.PIPE,
+                                       stderr=subprocess.STDOUT, text=True)
+            last_line = time.time()
+            for _ in process.stdout:
+                last_line = time.time()
+            if process.wait():
+                raise SystemExit(f"error: {command} exited {process.returncode}")
+            exits[way] = time.time() - last_line
+    return {"run": command, "exit_s": round(exits["command"], 2), "plain_exit_s": round(exits["plain"], 2)}
 
 
 def main(argv: list[str]) -> int:
     config = parse_args(StartupConfig, argv, "benchmarks/startup_time.py", __doc__.splitlines()[0])
     if config.repeats < 1:
         raise SystemExit("error: repeats must be >= 1")
+    if config.run:
+        record = measure_run(config.run)
+        append_record("startup_time", record)
+        print(f"{config.run}: exit {record['exit_s']:.2f} s after its last line "
+              f"(Python's plain exit {record['plain_exit_s']:.2f} s)")
+        return 0
     for module in (name.strip() for name in config.modules.split(",") if name.strip()):
         record = measure(module, config.repeats)
         append_record("startup_time", record)
-        print(f"{module:32s} import {record['import_s']:5.2f} s, process {record['process_s']:5.2f} s"
+        print(f"{module:32s} import {record['import_s']:5.2f} s, process {record['process_s']:5.2f} s, exit "
+              f"{record['exit_s']:4.2f} s (Python's plain exit {record['plain_exit_s']:4.2f} s)"
               f"{', loads MJX' if record['loads_mjx'] else ''}")
     return 0
 
