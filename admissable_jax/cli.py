@@ -210,7 +210,7 @@ def exit_with(status: int) -> NoReturn:
     blocks until it ends (37 s on a 2-core CPU, two Hopper pairs: ``benchmarks/stop_latency.py
     second=5``), so it ends at once, with its output flushed. Any other exit is Python's
     (atexit handlers run, buffers are flushed) with every object frozen, so that its garbage
-    collections skip them: a short Hopper run's exit took 2.75 s on a 2-core CPU before, 0.40 s
+    collections skip them: a short Hopper run's exit took 2.20 s on a 2-core CPU before, 0.30 s
     frozen (``benchmarks/startup_time.py run=...``)."""
     if status == INTERRUPTED:
         sys.stdout.flush()
