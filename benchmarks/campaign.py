@@ -45,7 +45,7 @@ import time
 import jax
 
 from admissable_jax.checkpointing import Checkpoints
-from admissable_jax.cli import enable_compilation_cache, parse_args
+from admissable_jax.cli import enable_compilation_cache, exit_with, parse_args
 from admissable_jax.envs import env_spec, make_env, resolve_physics
 from admissable_jax.config import ExperimentConfig, pair_configs
 from admissable_jax.host_loop import interval_pieces, make_trainer, queue_pieces, stacked_init_arguments
@@ -280,4 +280,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))
+    exit_with(main(sys.argv[1:]))
