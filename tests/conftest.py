@@ -6,6 +6,7 @@ pytest-xdist runs whole test files on every core (pyproject.toml). The most expe
 files go first, so that the workers finish together.
 """
 
+import gc
 import os
 import sys
 
@@ -37,3 +38,10 @@ EXPENSIVE_FIRST = ("test_hopper_pipelines.py", "test_envs.py", "test_experiment.
 def pytest_collection_modifyitems(items):
     rank = {name: position for position, name in enumerate(EXPENSIVE_FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
+
+
+def pytest_unconfigure(config):
+    """Each process's session is over: freeze every object, so that the interpreter's closing
+    garbage collections skip them, as a command's exit does (``cli.exit_with``). A worker that
+    compiled MJX programs ended 2-3 s sooner on a 2-core CPU (the same files, 3 runs each way)."""
+    gc.freeze()
