@@ -24,6 +24,7 @@ import sys
 import jax
 import numpy as np
 
+from admissable_jax.cli import exit_with
 from admissable_jax.experiment import ExperimentConfig, run_experiment
 from admissable_jax.placement import PairPlacement
 from admissable_jax.policies import load_policy
@@ -89,3 +90,4 @@ def main(out: str) -> None:
 
 if __name__ == "__main__":
     main(sys.argv[1])
+    exit_with(0)  # as the commands end, without the closing garbage collections
