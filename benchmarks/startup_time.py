@@ -1,4 +1,4 @@
-"""How long our commands take to start: each module imported in fresh interpreters.
+"""How long our commands take to start and to end: each module imported in fresh interpreters.
 
     python benchmarks/startup_time.py [modules=admissable_jax.plot,...] [repeats=3]
 
@@ -7,12 +7,13 @@ For each module, one warm-up process (it writes Python's bytecode caches) and th
 (``admissable_jax.cli.exit_with``), and ``repeats`` more end with Python's plain exit; the
 record holds the median seconds of the import alone, of the whole process (interpreter
 start, import, exit), of the exit alone both ways (``exit_s``, ``plain_exit_s``: from the
-line printed before it to the process's end), and whether the import loaded MJX. What steps no MuJoCo env (configs, ``plot``, ``--help``, the point mass) should
-not: names, sizes and feature names come from ``envs/catalog.py``, and
-``admissable_jax.envs.physics`` (MJX with MuJoCo Warp's kernels and our contact-frame
-patches, listed last) is the cost they avoid. With ``run=``, one command (its module and settings; ``out=`` is
-added) runs once each way instead, and the record holds the seconds from its last line to
-its end. Appends to ``benchmarks/results/startup_time.jsonl``.
+line printed before it to the process's end), and whether the import loaded MJX. What
+steps no MuJoCo env (configs, ``plot``, ``--help``, the point mass) should not: names,
+sizes and feature names come from ``envs/catalog.py``, and ``admissable_jax.envs.physics``
+(MJX with MuJoCo Warp's kernels and our contact-frame patches, listed last) is the cost
+they avoid. With ``run=``, one command (its module and settings; ``out=`` is added) runs
+once each way instead, and the record holds the seconds from its last line to its end.
+Appends to ``benchmarks/results/startup_time.jsonl``.
 
     python benchmarks/startup_time.py run="admissable_jax.train env=hopper physics=jax total_steps=80 score_every=40 ..."
 """
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import shlex
 import statistics
 import subprocess
 import sys
@@ -70,7 +72,9 @@ def measure(module: str, repeats: int) -> dict:
 
 
 def measure_run(command: str) -> dict:
-    module, *settings = command.split()
+    """Seconds from ``command``'s last line to its end: as it ends (``exit_with``), and with
+    the freeze undone (Python's plain exit)."""
+    module, *settings = shlex.split(command)
     exits = {}
     for way in EXITS:
         with tempfile.TemporaryDirectory() as directory:

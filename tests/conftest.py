@@ -30,9 +30,13 @@ default_xla_flag("--xla_backend_optimization_level=0")
 os.environ.setdefault("MUJOCO_GL", "egl")  # the video test renders headless (Mesa's EGL on a CPU)
 
 
-# Measured cold on 2 cores (README): these files compile the most; the rest take seconds.
-EXPENSIVE_FIRST = ("test_hopper_pipelines.py", "test_envs.py", "test_experiment.py",
-                   "test_training.py", "test_runs.py", "test_audit.py", "test_mechanism.py")
+# Longest first, as measured cold on 2 cores (a file's tests summed, --durations=0, 2026-12-03:
+# 186 s down to 12 s); the rest take seconds. Each worker takes the next file as it nears the
+# end of its own, so the two finish together: 6 s apart in a cold run of 380 s (in the order
+# before, which ran test_sharding.py's 72 s near the end, 390 s and 358 s simulated).
+EXPENSIVE_FIRST = ("test_hopper_pipelines.py", "test_envs.py", "test_training.py", "test_sharding.py",
+                   "test_experiment.py", "test_runs.py", "test_plots.py", "test_audit.py",
+                   "test_external_env.py", "test_figure1.py", "test_mechanism.py")
 
 
 def pytest_collection_modifyitems(items):
