@@ -4,10 +4,11 @@
 
 For each module, one warm-up process (it writes Python's bytecode caches) and then
 ``repeats`` fresh processes import it and end as our commands end
-(``admissable_jax.cli.exit_with``), and ``repeats`` more end with Python's plain exit; the
-record holds the median seconds of the import alone, of the whole process (interpreter
-start, import, exit), of the exit alone both ways (``exit_s``, ``plain_exit_s``: from the
-line printed before it to the process's end), and whether the import loaded MJX. What
+(``admissable_jax.cli.exit_with``), and ``repeats`` more end the same with its freeze undone
+(Python's plain exit); the record holds the median seconds of the import alone, of the whole
+process (interpreter start, import, exit), of the exit alone both ways (``exit_s``,
+``plain_exit_s``: from the line printed before it to the process's end), and whether the
+import loaded MJX. What
 steps no MuJoCo env (configs, ``plot``, ``--help``, the point mass) should not: names,
 sizes and feature names come from ``envs/catalog.py``, and ``admissable_jax.envs.physics``
 (MJX with MuJoCo Warp's kernels and our contact-frame patches, listed last) is the cost
@@ -34,11 +35,13 @@ from common import append_record
 
 MODULES = ("admissable_jax", "admissable_jax.config", "admissable_jax.train", "admissable_jax.experiment",
            "admissable_jax.plot", "admissable_jax.audit", "admissable_jax.wrappers", "admissable_jax.envs.physics")
+# The two ways a process ends, as code run before anything else: as our commands end
+# (``exit_with``), and the same with its freeze undone (Python's plain exit).
+EXITS = {"command": "", "plain": "import gc; gc.freeze = lambda: None; "}
 # Prints the import's seconds, whether it loaded MJX and the moment it starts to exit, then exits.
-PROBE = ("import sys, time; start = time.perf_counter(); import {module}; imported = time.perf_counter() - start; "
-         "{prepare}; print(imported, 'mujoco.mjx' in sys.modules, time.time(), flush=True); {exit}")
-EXITS = {"command": dict(prepare="from admissable_jax.cli import exit_with", exit="exit_with(0)"),
-         "plain": dict(prepare="pass", exit="raise SystemExit(0)")}
+PROBE = ("{undo}import sys, time; start = time.perf_counter(); import {module}; imported = time.perf_counter() - start; "
+         "from admissable_jax.cli import exit_with; print(imported, 'mujoco.mjx' in sys.modules, time.time(), flush=True); "
+         "exit_with(0)")
 
 
 @dataclasses.dataclass
@@ -56,7 +59,7 @@ def measure(module: str, repeats: int) -> dict:
     # The first process writes the bytecode caches, uncounted; then the two exits alternate.
     for attempt, way in enumerate(["command"] + [way for _ in range(repeats) for way in EXITS]):
         started = time.perf_counter()
-        shown = subprocess.run([sys.executable, "-c", PROBE.format(module=module, **EXITS[way])],
+        shown = subprocess.run([sys.executable, "-c", PROBE.format(undo=EXITS[way], module=module)],
                                capture_output=True, text=True, env=environment, check=True)
         wall, ended = time.perf_counter() - started, time.time()
         seconds, mjx, exiting = shown.stdout.split()[-3:]
@@ -79,8 +82,7 @@ def measure_run(command: str) -> dict:
     for way in EXITS:
         with tempfile.TemporaryDirectory() as directory:
             argv = [module, *settings, f"out={directory}/run"]
-            code = (f"import gc, runpy, sys; sys.argv = {argv!r}; " + ("gc.freeze = lambda: None; " if way == "plain" else "")
-                    + f"runpy.run_module({module!r}, run_name='__main__', alter_sys=True)")
+            code = f"{EXITS[way]}import runpy, sys; sys.argv = {argv!r}; runpy.run_module({module!r}, run_name='__main__', alter_sys=True)"
             process = subprocess.Popen([sys.executable, "-u", "-c", code], stdout=subprocess.PIPE,
                                        stderr=subprocess.STDOUT, text=True)
             last_line = time.time()
