@@ -28,7 +28,9 @@ class RunSettings:
     env: str = setting("hopper", "hopper, walker2d or ant, the paper's (or Hopper-v5, Walker2d-v5, Ant-v5); "
                                  "halfcheetah (HalfCheetah-v5); point_mass: a seconds-to-compile toy for smoke runs; "
                                  "package.module:Class: an env of your own (envs.ExternalEnv)")
-    k: int = setting(1, "features hidden per episode (|u| = k)")
+    k: int = setting(1, "features hidden per episode (|u| = k; 1 to k with up_to_k)")
+    up_to_k: bool = setting(False, "U also holds every set of fewer than k features: the paper's U = {u : |u| <= k} "
+                                   "(less the empty set); the same as false at k = 1")
     include_empty_set: bool = setting(False, "also let the adversary pick 'nothing hidden'")
     score_every: int = setting(5000, "zeta: env steps (over all envs) between scorings")
     score_episodes: int = setting(10, "N: deterministic episodes per missing set")
@@ -37,12 +39,12 @@ class RunSettings:
                                               "critic's discounted value of the N starts, no physics) | horizon "
                                               "(score_horizon steps, then the critic)")
     score_horizon: int = setting(100, "H, physics steps of score_estimator=horizon before the critic values the rest")
-    pool_size: int = setting(0, "0: score all C(d, k) sets every round (exact U); P > 0: score a pool of P sets, the "
+    pool_size: int = setting(0, "0: score every set of U every round (exact U); P > 0: score a pool of P sets, the "
                                 "worst a beam search of width P finds (ranked by pool_ranker), refreshed every round: "
                                 "for U too big to score whole (Ant at k = 2: 5,460 sets)")
     pool_ranker: str = setting("critic", "what ranks the pool search's candidates: critic | horizon | rollout")
     pool_explore: float = setting(0.1, "with pool_size > 0: share of adversarial episodes that hide a uniformly random "
-                                       "set of all C(d, k) instead of one drawn from the pool by p_miss")
+                                       "set of all U instead of one drawn from the pool by p_miss")
     physics: str = setting("auto", "physics backend: auto (warp on an NVIDIA GPU with warp-lang, else jax) | jax | warp; "
                                    "envs without a MuJoCo model step in JAX")
     lower_bound: float = setting(0.0, "l: return lower bound; scores below are clipped to it")
@@ -104,7 +106,7 @@ class TrainConfig(RunSettings):
         check_pool(config)
         if config.score_envs == 0:
             num_sets = config.pool_size or num_candidate_sets(observation_size(config.env), config.k,
-                                                              config.include_empty_set)
+                                                              config.include_empty_set, config.up_to_k)
             config.score_envs = default_score_envs((num_sets + 1) * config.score_episodes)
         if config.num_envs == 0:
             config.num_envs = default_num_envs(config.score_every)
@@ -231,12 +233,11 @@ def check_pool(config: RunSettings) -> None:
     if config.pool_size == 0:
         return
     d = observation_size(canonical_env_name(config.env))
-    num_sets = num_candidate_sets(d, config.k)
+    num_sets = num_candidate_sets(d, config.k, up_to_k=config.up_to_k)
     if config.include_empty_set:
-        raise ValueError("pool_size > 0 searches sets of exactly k features: it excludes include_empty_set=true")
+        raise ValueError("pool_size > 0 searches sets of features: it excludes include_empty_set=true")
     if config.pool_size >= num_sets:
-        raise ValueError(f"pool_size={config.pool_size} is not below C({d}, {config.k}) = {num_sets}: score all sets "
-                         f"with pool_size=0")
+        raise ValueError(f"pool_size={config.pool_size} is not below |U| = {num_sets}: score all sets with pool_size=0")
     if config.pool_size > d or 2 * config.k > d:
         raise ValueError(f"pool_size must be <= d = {d} and k <= d/2 (the beam search starts from the single features)")
 

@@ -18,29 +18,37 @@ MODES = ("adversarial", "uniform", "none")
 MAX_CANDIDATE_SETS = 100_000  # more subsets than this cannot be scored in one batched rollout
 
 
-def num_candidate_sets(num_features: int, k: int = 1, include_empty: bool = False) -> int:
-    """|U| = C(d, k) (+ 1 with the empty set); TypeError/ValueError for a bad ``k``."""
+def set_sizes(k: int, up_to_k: bool = False) -> range:
+    """The sizes of the sets in U: k alone, or 1 .. k with ``up_to_k`` (the paper's
+    U = {u : |u| <= k}, §2, less the empty set, which ``include_empty`` adds)."""
+    return range(1 if up_to_k else k, k + 1)
+
+
+def num_candidate_sets(num_features: int, k: int = 1, include_empty: bool = False, up_to_k: bool = False) -> int:
+    """|U| = C(d, k), or the sum of C(d, j) for j = 1 .. k with ``up_to_k`` (+ 1 with the
+    empty set); TypeError/ValueError for a bad ``k``."""
     if not isinstance(k, int) or isinstance(k, bool):
         raise TypeError(f"k must be an int, got {type(k).__name__}")
     if not 1 <= k < num_features:
         raise ValueError(f"k must satisfy 1 <= k < d = {num_features}, got k = {k}")
-    count = math.comb(num_features, k)
+    count = sum(math.comb(num_features, size) for size in set_sizes(k, up_to_k))
     if count > MAX_CANDIDATE_SETS:
-        raise ValueError(
-            f"C({num_features}, {k}) = {count} candidate sets exceed {MAX_CANDIDATE_SETS}"
-        )
+        sizes = f"C({num_features}, {k})" if not up_to_k else f"C({num_features}, 1) + ... + C({num_features}, {k})"
+        raise ValueError(f"{sizes} = {count} candidate sets exceed {MAX_CANDIDATE_SETS}")
     return count + int(include_empty)
 
 
-def candidate_sets(num_features: int, k: int = 1, include_empty: bool = False) -> np.ndarray:
-    """U as a (|U|, d) 0/1 float32 matrix: every subset of exactly ``k`` features, in
-    lexicographic order (k = 1 gives row i = {i}), optionally preceded by the empty set."""
-    num_candidate_sets(num_features, k, include_empty)
+def candidate_sets(num_features: int, k: int = 1, include_empty: bool = False, up_to_k: bool = False) -> np.ndarray:
+    """U as a (|U|, d) 0/1 float32 matrix: every subset of exactly ``k`` features (of 1 to
+    ``k`` with ``up_to_k``, smaller sets first), each size in lexicographic order (k = 1
+    gives row i = {i}), optionally preceded by the empty set."""
+    num_candidate_sets(num_features, k, include_empty, up_to_k)
     rows = [np.zeros(num_features, np.float32)] if include_empty else []
-    for subset in itertools.combinations(range(num_features), k):
-        row = np.zeros(num_features, np.float32)
-        row[list(subset)] = 1.0
-        rows.append(row)
+    for size in set_sizes(k, up_to_k):
+        for subset in itertools.combinations(range(num_features), size):
+            row = np.zeros(num_features, np.float32)
+            row[list(subset)] = 1.0
+            rows.append(row)
     return np.stack(rows)
 
 

@@ -81,9 +81,9 @@ class Run:
         return f"{self.mode}, {self.variant}" if self.variant else self.mode
 
 
-def set_names(features: list[str], k: int, include_empty: bool) -> list[str]:
+def set_names(features: list[str], k: int, include_empty: bool, up_to_k: bool = False) -> list[str]:
     """A name per candidate set u, in the runs' order: its hidden features' names."""
-    rows = candidate_sets(len(features), k, include_empty)
+    rows = candidate_sets(len(features), k, include_empty, up_to_k)
     return [" + ".join(features[i] for i in np.flatnonzero(row)) or "nothing hidden" for row in rows]
 
 
@@ -110,10 +110,12 @@ def load_run(path: str) -> Run:
         worst_sets = [" + ".join(features[i] for i in parse_set(row["sets"][int(np.argmin(row["scores"]))]))
                       for row in rows]
     else:
-        names = set_names(features, int(config.k), bool(config.include_empty_set))
+        up_to_k = bool(config.get("up_to_k", False))  # a config written before the key: exactly k
+        names = set_names(features, int(config.k), bool(config.include_empty_set), up_to_k)
         if scores.ndim != 2 or scores.shape[1] != len(names) or p_miss.shape != scores.shape:
             raise ValueError(f"{scores_path}: each row must hold {len(names)} scores and p_miss values (one per set "
-                             f"of {config.env} with k={config.k}), got {scores.shape[1:]} and {p_miss.shape[1:]}")
+                             f"of {config.env} with k={config.k}{', up_to_k' * up_to_k}), "
+                             f"got {scores.shape[1:]} and {p_miss.shape[1:]}")
         mean_score = scores.mean(axis=1)
         worst_sets = [names[i] for i in np.argmin(scores, axis=1)]
     return Run(

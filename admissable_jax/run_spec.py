@@ -22,7 +22,8 @@ from admissable_jax.replay import buffer_capacity
 class RunSpec:
     env: str  # canonical env name
     env_options: EnvOptions  # episode limit, physics backend, batch capacity (see `of`)
-    k: int  # |u|
+    k: int  # |u|, or the largest |u| with up_to_k
+    up_to_k: bool  # U holds the sets of 1 .. k features
     include_empty_set: bool
     num_envs: int  # envs stepped per iteration
     score_envs: int  # envs stepped at once in a scoring round
@@ -53,6 +54,7 @@ class RunSpec:
                 max_batch=num_runs * max(config.num_envs, config.score_envs, horizon_ranker_batch(config)),
             ),
             k=config.k,
+            up_to_k=config.up_to_k,
             include_empty_set=config.include_empty_set,
             num_envs=config.num_envs,
             score_envs=config.score_envs,

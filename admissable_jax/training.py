@@ -7,7 +7,8 @@ where one ended (drawing a fresh u ~ p_miss for each, paper §3), and takes
 ``run_chunk`` scans iterations on the device; ``score_and_update`` scores every u in one
 batched rollout and applies the adversary's update.
 
-The candidate sets U are all C(d, k) sets of k features, and ``set_index`` indexes them.
+The candidate sets U are all C(d, k) sets of k features (of 1 .. k features with
+``up_to_k``, the paper's |u| <= k), and ``set_index`` indexes them.
 With ``pool_size`` P > 0 (where U is too big to score every round: Ant at k = 2 has 5,460
 sets) the adversary works on a pool instead: every scoring round a beam search of width P
 (:func:`~admissable_jax.scoring.beam_search_worst_sets`), ranked by the cheap
@@ -65,7 +66,8 @@ class Trainer:
     def __init__(self, env, spec: RunSpec):
         self.env = env
         self.spec = spec
-        self.hidden_sets = jnp.asarray(candidate_sets(env.observation_size, spec.k, spec.include_empty_set))
+        self.hidden_sets = jnp.asarray(candidate_sets(env.observation_size, spec.k, spec.include_empty_set,
+                                                    spec.up_to_k))
         self.num_sets = int(self.hidden_sets.shape[0])
         self.pooled = spec.pool_size > 0
         self.num_scored = spec.pool_size or self.num_sets  # P
@@ -258,7 +260,8 @@ class Trainer:
         worst, as indices into U."""
         found = beam_search_worst_sets(
             lambda rows: self._score(state, rng, rows, self.spec.pool_ranker).scores,
-            self.env.observation_size, self.spec.k, self.num_scored,
+            self.env.observation_size, self.spec.k, self.num_scored, self.spec.up_to_k,
         )
-        # A found set of k features overlaps its own row of U in k features, every other row in fewer.
+        # A found set overlaps its own row of U in all its features and any other in fewer, but for
+        # the larger sets holding it, which come after it in U (smaller sets first): argmax finds it.
         return jnp.argmax(found.rows @ self.hidden_sets.T, axis=1).astype(jnp.int32)

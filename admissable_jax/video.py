@@ -27,7 +27,7 @@ import numpy as np  # noqa: E402
 from admissable_jax.cli import exit_with, parse_args, run_from_cli, setting  # noqa: E402
 from admissable_jax.envs import observation_names, settotalmass_warning_dropped  # noqa: E402
 from admissable_jax.errors import RunFailed, make_directory  # noqa: E402
-from admissable_jax.method import candidate_sets, describe_set  # noqa: E402
+from admissable_jax.method import describe_set, parse_set  # noqa: E402
 from admissable_jax.run_directory import read_jsonl  # noqa: E402
 
 PANEL_WIDTH, PANEL_HEIGHT, LABEL_HEIGHT = 480, 352, 32  # multiples of 16, as H.264 wants
@@ -73,7 +73,7 @@ class Video:
     frames: int
 
 
-def resolve_hidden(hidden: str, env_name: str, scores: list[dict], step: int, k: int, include_empty: bool) -> tuple[int, ...]:
+def resolve_hidden(hidden: str, env_name: str, scores: list[dict], step: int) -> tuple[int, ...]:
     """u from ``hidden``: ``worst`` (argmin of the scoring row at ``step``), or indices and
     feature names (:func:`~admissable_jax.envs.observation_names`), comma separated."""
     names = observation_names(env_name)
@@ -82,8 +82,7 @@ def resolve_hidden(hidden: str, env_name: str, scores: list[dict], step: int, k:
         if not rows:
             raise ValueError(f"hidden=worst needs the scoring at env step {step}, which scores.jsonl does not hold; "
                              "name the features instead (hidden=0,3)")
-        sets = candidate_sets(len(names), k, include_empty)
-        return tuple(int(i) for i in np.flatnonzero(sets[rows[-1]["argmin"]]))
+        return tuple(parse_set(rows[-1]["argmin_set"]))
     lower = [name.lower() for name in names]
     chosen = []
     for item in (part.strip() for part in hidden.split(",") if part.strip()):
@@ -119,7 +118,7 @@ def render_video(config: VideoConfig) -> Video:
     if policy.trainer.env.gymnasium_id is None:
         raise ValueError(f"{train.env} has no Gymnasium env to render")
     hidden = resolve_hidden(config.hidden, train.env, read_jsonl(os.path.join(config.run_dir, "scores.jsonl")),
-                            policy.step, train.k, train.include_empty_set)
+                            policy.step)
     names = tuple(observation_names(train.env)[i] for i in hidden)
     out = config.out or os.path.join(config.run_dir, "videos", f"step{policy.step}-hidden{'-'.join(map(str, hidden)) or 'none'}.mp4")
     make_directory(os.path.dirname(os.path.abspath(out)), "video folder")

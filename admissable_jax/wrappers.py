@@ -65,16 +65,18 @@ class MissingnessObservation(gymnasium.ObservationWrapper, gymnasium.utils.Recor
 
 
 class AdversarialMissingness(MissingnessObservation):
-    """u ~ p_miss over all sets of ``k`` features, drawn at every reset and fixed for the
-    episode (paper §3). ``update(scores)`` takes a_u for every set, in the order of
-    :attr:`candidate_sets` (what :func:`score_policy` returns), and sets
+    """u ~ p_miss over all sets of ``k`` features (of 1 to ``k`` with ``up_to_k``, the
+    paper's |u| <= k), drawn at every reset and fixed for the episode (paper §3).
+    ``update(scores)`` takes a_u for every set, in the order of :attr:`candidate_sets`
+    (what :func:`score_policy` returns, given the same ``k`` and ``up_to_k``), and sets
     p_miss(u) ∝ 1/(max(a_u, l) − l + ε) in ``mode="adversarial"``; ``"uniform"`` keeps p_miss
     uniform (the paper's baseline). In a vector env every copy holds its own p_miss:
     ``envs.call("update", scores)`` updates them all.
     """
 
     def __init__(self, env: gymnasium.Env, k: int = 1, mode: str = "adversarial", lower_bound: float = 0.0,
-                 epsilon: float = 1e-8, include_empty_set: bool = False, seed: int | None = None):
+                 epsilon: float = 1e-8, include_empty_set: bool = False, seed: int | None = None,
+                 up_to_k: bool = False):
         if mode not in MODES[:2]:
             raise ValueError(f"mode must be 'adversarial' or 'uniform', got {mode!r}")
         if not np.isfinite(lower_bound):
@@ -82,9 +84,10 @@ class AdversarialMissingness(MissingnessObservation):
         if not 0 < epsilon < np.inf:
             raise ValueError(f"epsilon must be > 0 and finite, got {epsilon}")
         gymnasium.utils.RecordConstructorArgs.__init__(self, k=k, mode=mode, lower_bound=lower_bound, epsilon=epsilon,
-                                                        include_empty_set=include_empty_set, seed=seed)
+                                                        include_empty_set=include_empty_set, seed=seed,
+                                                        up_to_k=up_to_k)
         super().__init__(env, hidden=self._draw)
-        self.candidate_sets = candidate_sets(self.num_features, k, include_empty_set)
+        self.candidate_sets = candidate_sets(self.num_features, k, include_empty_set, up_to_k)
         self.mode, self.lower_bound, self.epsilon = mode, float(lower_bound), float(epsilon)
         self.p_miss = np.full(len(self.candidate_sets), 1.0 / len(self.candidate_sets))
         self.set_index = 0
@@ -122,9 +125,10 @@ class PolicyScores:
 def score_policy(env_id: str, policy: Callable[[np.ndarray], Any], k: int = 1, n_episodes: int = 10,
                  num_envs: int = 8, include_empty_set: bool = False, seed: int = 0,
                  vectorization_mode: str = "sync", hidden_sets: np.ndarray | None = None,
-                 progress: bool = False, **env_kwargs) -> PolicyScores:
-    """a_u for every set u of ``k`` features (paper §3): the mean undiscounted return of
-    ``n_episodes`` episodes with u hidden, and the clean return, for any Python policy.
+                 progress: bool = False, up_to_k: bool = False, **env_kwargs) -> PolicyScores:
+    """a_u for every set u of ``k`` features (of 1 to ``k`` with ``up_to_k``; paper §3): the
+    mean undiscounted return of ``n_episodes`` episodes with u hidden, and the clean return,
+    for any Python policy.
     ``hidden_sets`` ((|U|, d) 0/1 rows) scores those sets instead, in one rollout (the
     audit's sets of several sizes).
 
@@ -142,7 +146,7 @@ def score_policy(env_id: str, policy: Callable[[np.ndarray], Any], k: int = 1, n
     try:
         num_features = int(envs.single_observation_space.shape[0])
         if hidden_sets is None:
-            hidden_sets = candidate_sets(num_features, k, include_empty_set)
+            hidden_sets = candidate_sets(num_features, k, include_empty_set, up_to_k)
         hidden_sets = np.asarray(hidden_sets, np.float32)
         if hidden_sets.ndim != 2 or hidden_sets.shape[1] != num_features:
             raise ValueError(f"hidden_sets must be (sets, {num_features}) 0/1 rows for {env_id}, "

@@ -205,8 +205,9 @@ def _saved_sizes(run_dir: str) -> dict:
     from omegaconf import OmegaConf
 
     saved = OmegaConf.to_container(OmegaConf.load(f"{run_dir}/config.yaml"))
-    keys = ("num_envs", "buffer_size", "hidden_size", "hidden_layers", "k", "include_empty_set", "score_every", "learning_starts", "batch_size")
-    return {key: saved[key] for key in keys}
+    keys = ("num_envs", "buffer_size", "hidden_size", "hidden_layers", "k", "up_to_k", "include_empty_set",
+            "score_every", "learning_starts", "batch_size")
+    return {key: saved[key] for key in keys if key in saved}  # up_to_k: not in a config written before it
 
 
 if __name__ == "__main__":

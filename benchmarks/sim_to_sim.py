@@ -50,8 +50,8 @@ def main(argv: list[str]) -> None:
     trainer, run = policy.trainer, policy.config
     ours = score_missingness(trainer.env, trainer.policy, policy.actor_params, jax.random.key(config.seed),
                              trainer.hidden_sets, config.n_episodes, None, run.score_envs)
-    theirs = score_policy(trainer.env.gymnasium_id, policy.masked, k=run.k, n_episodes=config.n_episodes,
-                          num_envs=config.num_envs, include_empty_set=run.include_empty_set, seed=config.seed,
+    theirs = score_policy(trainer.env.gymnasium_id, policy.masked, n_episodes=config.n_episodes,
+                          num_envs=config.num_envs, seed=config.seed, hidden_sets=np.asarray(trainer.hidden_sets),
                           max_episode_steps=trainer.env.max_episode_steps)
     names = [describe_set(row) for row in np.asarray(trainer.hidden_sets)]
     ours_scores, theirs_scores = np.asarray(ours.scores), theirs.scores

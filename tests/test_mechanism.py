@@ -10,6 +10,7 @@ start (|p| <= sqrt 2) is never beyond it.
 
 from __future__ import annotations
 
+import types
 
 import jax
 import jax.numpy as jnp
@@ -200,13 +201,14 @@ def test_the_next_chunk_draws_from_the_p_miss_the_scoring_just_set(escape_radius
     assert (np.asarray(state.set_index) == 0).all()
 
 
-def test_two_missing_features_and_the_empty_set_in_training_and_scoring(escape_radius):
-    trainer = _trainer(k=2, include_empty_set=True)
-    np.testing.assert_array_equal(trainer.hidden_sets, candidate_sets(4, 2, include_empty=True))
-    assert trainer.num_sets == 7 and float(trainer.hidden_sets[0].sum()) == 0
+def test_up_to_two_missing_features_and_the_empty_set_in_training_and_scoring(escape_radius):
+    """U = {u : |u| <= 2} with ``up_to_k``: the empty set, 4 single features, 6 pairs."""
+    trainer = _trainer(k=2, include_empty_set=True, up_to_k=True)
+    np.testing.assert_array_equal(trainer.hidden_sets, candidate_sets(4, 2, include_empty=True, up_to_k=True))
+    assert trainer.num_sets == 11 and np.asarray(trainer.hidden_sets).sum(axis=1).tolist() == [0] + [1] * 4 + [2] * 6
     trainer.agent.sample_action = lambda params, masked, rng: (_seen(masked), jnp.zeros(masked.shape[:-1]))
     trainer.policy = _controller
-    state = trainer.init(0, True, True, 0.0).replace(p_miss=jnp.full(7, 1 / 7))
+    state = trainer.init(0, True, True, 0.0).replace(p_miss=jnp.full(11, 1 / 11))
 
     def run(state):
         state, _ = trainer.run_chunk(state, ITERATIONS)
@@ -220,8 +222,22 @@ def test_two_missing_features_and_the_empty_set_in_training_and_scoring(escape_r
     np.testing.assert_allclose(rows.action[policy][..., 1], np.where(sets[policy][..., 0] > 0, 0.0, 5 * rows.obs[policy][..., 0]),
                                rtol=1e-6)
     drawn = np.unique(rows.set_index)
-    assert 0 in drawn and len(drawn) >= 5  # the empty set and pairs were drawn (~50 draws of 7)
-    # Scoring: 7 sets, each from the same start states; the empty set is the clean case.
-    assert scored.scores.shape == (7,) and scored.returns.shape == (8, 2)
+    assert 0 in drawn and {1, 2} & set(drawn) and {5, 6} & set(drawn)  # ~50 draws of 11: empty, single, pair
+    # Scoring: 11 sets, each from the same start states; the empty set is the clean case.
+    assert scored.scores.shape == (11,) and scored.returns.shape == (12, 2)
     np.testing.assert_allclose(scored.scores[0], scored.clean_score, rtol=1e-6)
-    assert float(scored.scores[1]) < float(scored.clean_score)  # {0, 1}: the controller is blind
+    assert float(scored.scores[1]) < float(scored.clean_score)  # {0}: the controller loses x
+
+
+@pytest.mark.parametrize("up_to_k", [False, True])
+def test_a_pool_over_sets_of_up_to_k_features_keeps_a_single_feature_that_beats_every_pair(up_to_k):
+    """The pool search's finalists as indices into U. Scored by rows · (-1, 2.5, 3, 4), {0}
+    (-1) is worse than every pair: with ``up_to_k`` the pool of 3 is {0}, {0,1}, {0,2};
+    with exactly k it is the three worst pairs the beam reached."""
+    trainer = _trainer(k=2, up_to_k=up_to_k, pool_size=3)
+    assert trainer.num_sets == (10 if up_to_k else 6) and trainer.num_scored == 3
+    weights = jnp.array([-1.0, 2.5, 3.0, 4.0])
+    trainer._score = lambda state, rng, rows, estimator: types.SimpleNamespace(scores=rows @ weights)
+    pool = np.asarray(trainer._search_pool(None, jax.random.key(0)))
+    found = [tuple(np.flatnonzero(row)) for row in np.asarray(trainer.hidden_sets)[pool]]
+    assert found == ([(0,), (0, 1), (0, 2)] if up_to_k else [(0, 1), (0, 2), (0, 3)])

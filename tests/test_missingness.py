@@ -12,6 +12,7 @@ from admissable_jax.missingness import (
     candidate_sets,
     describe_set,
     mask_observation,
+    num_candidate_sets,
     sample_set_indices,
 )
 
@@ -24,6 +25,11 @@ def test_candidate_sets():
     assert pairs[0].sum() == 0 and (pairs[1:].sum(axis=1) == 2).all()
     assert len({tuple(row) for row in pairs}) == len(pairs)
     assert describe_set(pairs[1]) == "{0,1}" and describe_set(pairs[0]) == "{}"
+    # The paper's U = {u : |u| <= k}: every set of 1 .. k features, smaller sets first.
+    up_to_two = candidate_sets(5, k=2, up_to_k=True)
+    np.testing.assert_array_equal(up_to_two, np.concatenate([singles, pairs[1:]]))
+    assert num_candidate_sets(5, 2, include_empty=True, up_to_k=True) == 1 + 5 + 10
+    np.testing.assert_array_equal(candidate_sets(5, up_to_k=True), singles)  # k = 1: the same U
     with pytest.raises(ValueError, match="k < d"):
         candidate_sets(11, k=11)
     with pytest.raises(ValueError, match="k < d"):
@@ -32,6 +38,9 @@ def test_candidate_sets():
         candidate_sets(11, k=True)
     with pytest.raises(ValueError, match="exceed"):
         candidate_sets(105, k=4)
+    assert num_candidate_sets(85, 3) == 98_770  # fits; with the smaller sets it does not
+    with pytest.raises(ValueError, match=r"C\(85, 1\) \+ ... \+ C\(85, 3\) = 102425 candidate sets exceed"):
+        num_candidate_sets(85, 3, up_to_k=True)
 
 
 def test_mask_observation():

@@ -419,7 +419,7 @@ def test_a_checkpoint_of_an_older_state_layout_is_named_and_its_networks_still_r
         (["physics=cuda"], "physics must be one of auto, jax, warp"),
         (["logger=tensorboard,mlflow"], "logger must be none or a comma list of tensorboard, wandb, got 'tensorboard,mlflow'"),
         (["score_estimator=guess"], "score_estimator must be one of rollout, critic, horizon"),
-        (["env=hopper", "k=2", "pool_size=55"], "pool_size=55 is not below C(11, 2) = 55"),
+        (["env=hopper", "k=2", "pool_size=55"], "pool_size=55 is not below |U| = 55"),
         (["pool_ranker=guess"], "pool_ranker must be one of rollout, critic, horizon"),
     ],
 )

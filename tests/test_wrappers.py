@@ -50,6 +50,11 @@ def test_score_policy_gives_the_papers_a_u_for_a_numpy_policy(capsys):
     assert result.loop_steps == 17
     pairs = score_policy("ConstantFeatures-v0", lambda obs: (sum_of_visible(obs), None), k=2, n_episodes=1, num_envs=2)
     np.testing.assert_allclose(pairs.scores, [15.0, 10.0, 5.0])  # {0,1}, {0,2}, {1,2}; SB3-style tuple taken
+    up_to_two = score_policy("ConstantFeatures-v0", sum_of_visible, k=2, up_to_k=True, n_episodes=1, num_envs=2)
+    np.testing.assert_allclose(up_to_two.scores, [25.0, 20.0, 15.0, 15.0, 10.0, 5.0])  # singles, then pairs
+    adversary = AdversarialMissingness(ConstantFeatures(), k=2, up_to_k=True, seed=0)
+    np.testing.assert_array_equal(adversary.candidate_sets, up_to_two.hidden_sets)
+    assert adversary.update(up_to_two.scores).shape == (6,)
 
 
 def test_masked_observation_and_its_space():

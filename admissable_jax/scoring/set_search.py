@@ -3,7 +3,9 @@
 Beam search of width b (greedy at b = 1): level 1 ranks every single feature; each later
 level extends each of the b sets kept so far by every feature not yet in it, ranks all the
 distinct extensions in one batch, and keeps the b lowest. After k levels it has ranked at
-most d + (k − 1) · b · d sets instead of C(d, k). Any scorer ranks the candidates: the
+most d + (k − 1) · b · d sets instead of C(d, k). With ``up_to_k`` (U holds the sets of
+1 .. k features, the paper's |u| <= k) the finalists are the b lowest of every level's,
+so a single feature can beat every pair; the beam extended at each level is the same. Any scorer ranks the candidates: the
 paper's rollout, or a cheaper estimate (``admissable_jax.scoring``), whose finalists a
 rollout can then confirm.
 
@@ -29,22 +31,24 @@ SetScorer = Callable[[jax.Array], jax.Array]  # (m, d) 0/1 rows -> (m,) scores; 
 class SearchResult:
     """The sets a beam search kept, lowest score first."""
 
-    rows: jax.Array  # (b, d) 0/1 rows of the k-feature sets kept
+    rows: jax.Array  # (b, d) 0/1 rows of the sets kept: of k features (of 1 .. k with up_to_k)
     scores: jax.Array  # (b,) the scorer's scores; inf where not ``found``
-    found: jax.Array  # (b,) bool: False only where fewer than b distinct sets of k exist
+    found: jax.Array  # (b,) bool: False only where fewer than b distinct sets exist
     num_ranked: jax.Array  # () distinct sets the scorer ranked over all levels
 
 
-def beam_search_worst_sets(score_sets: SetScorer, num_features: int, k: int, beam_width: int = 1) -> SearchResult:
-    """The ``beam_width`` sets of ``k`` features that ``score_sets`` finds worst (module
-    docstring). ``score_sets`` maps (b · d, d) rows to (b · d,) scores and may be traced;
-    ``num_features``, ``k`` and ``beam_width`` are static. Raises ValueError unless
+def beam_search_worst_sets(score_sets: SetScorer, num_features: int, k: int, beam_width: int = 1,
+                           up_to_k: bool = False) -> SearchResult:
+    """The ``beam_width`` sets of ``k`` features (of 1 .. k with ``up_to_k``) that
+    ``score_sets`` finds worst (module docstring). ``score_sets`` maps (b · d, d) rows to
+    (b · d,) scores and may be traced; the other arguments are static. Raises ValueError unless
     1 <= k <= num_features and beam_width >= 1."""
     if not 1 <= k <= num_features or beam_width < 1:
         raise ValueError(f"need 1 <= k <= d = {num_features} and beam_width >= 1, got k={k}, beam_width={beam_width}")
     d, b = num_features, beam_width
-    kept = jnp.zeros((b, d), jnp.float32)
+    kept = jnp.zeros((b, d), jnp.float32)  # the beam that the next level extends
     kept_found = jnp.arange(b) == 0  # level 0 keeps one set: the empty one
+    final_rows, final_scores, final_found = jnp.zeros((0, d), jnp.float32), jnp.zeros((0,)), jnp.zeros((0,), bool)
     num_ranked = jnp.zeros((), jnp.int32)
     earlier = jnp.tril(jnp.ones((b * d, b * d), bool), k=-1)  # earlier[i, j]: candidate j comes before i
     for size in range(1, k + 1):
@@ -55,5 +59,10 @@ def beam_search_worst_sets(score_sets: SetScorer, num_features: int, k: int, bea
         scores = jnp.where(new, score_sets(candidates), jnp.inf)
         num_ranked = num_ranked + new.sum()
         order = jnp.argsort(scores, stable=True)[:b]
-        kept, kept_scores, kept_found = candidates[order], scores[order], new[order]
-    return SearchResult(rows=kept, scores=kept_scores, found=kept_found, num_ranked=num_ranked)
+        kept, kept_found = candidates[order], new[order]
+        if up_to_k or size == k:  # the answer: the b lowest of this level's sets (and the smaller sets' finalists)
+            final_rows, final_scores, final_found = (jnp.concatenate(pair) for pair in (
+                (final_rows, candidates), (final_scores, scores), (final_found, new)))
+            lowest = jnp.argsort(final_scores, stable=True)[:b]
+            final_rows, final_scores, final_found = final_rows[lowest], final_scores[lowest], final_found[lowest]
+    return SearchResult(rows=final_rows, scores=final_scores, found=final_found, num_ranked=num_ranked)
