@@ -289,6 +289,8 @@ def test_plots_say_what_they_show(tmp_path, capsys, monkeypatch):
     # Rows carry Gymnasium's observation names; one seed is "1 seed".
     assert runs[0].set_names[:3] == ["torso z", "torso angle", "thigh joint angle"]
     assert set_names(observation_names("hopper"), 2, True)[:2] == ["nothing hidden", "torso z + torso angle"]
+    up_to_two = load_run(_fake_run(str(tmp_path / "up_to_k"), "adversarial", 0, records=2, sets=66, k=2, up_to_k=True))
+    assert up_to_two.set_names[10:12] == [observation_names("hopper")[10], "torso z + torso angle"]  # 11 singles first
     assert set_names(observation_names("ant"), 1, False)[27:30] == ["torso contact torque x", "torso contact torque y", "torso contact torque z"]
     assert _seeds(1) == "1 seed" and _seeds(5) == "5 seeds"
     # per_seed: each seed's own moving average, thin, after the mean's line (here one curve of 2 seeds).
