@@ -4,10 +4,10 @@ Beam search of width b (greedy at b = 1): level 1 ranks every single feature; ea
 level extends each of the b sets kept so far by every feature not yet in it, ranks all the
 distinct extensions in one batch, and keeps the b lowest. After k levels it has ranked at
 most d + (k − 1) · b · d sets instead of C(d, k). With ``up_to_k`` (U holds the sets of
-1 .. k features, the paper's |u| <= k) the finalists are the b lowest of every level's,
-so a single feature can beat every pair; the beam extended at each level is the same. Any scorer ranks the candidates: the
-paper's rollout, or a cheaper estimate (``admissable_jax.scoring``), whose finalists a
-rollout can then confirm.
+1 .. k features, the paper's |u| <= k) the finalists are the b lowest of all levels, so a
+single feature can beat every pair; the beam each level extends is the same. Any scorer
+ranks the candidates: the paper's rollout, or a cheaper estimate
+(``admissable_jax.scoring``), whose finalists a rollout can then confirm.
 
 Every level hands the scorer the same number of rows, b · d (each kept set with each
 feature added; rows that repeat a set, or extend a set by a feature it holds, or extend an
