@@ -230,16 +230,20 @@ def test_gaps_to_the_worst_paired_and_by_welch(tmp_path):
 
 def test_audit_steps_as_many_envs_at_once_as_training_scores():
     """slots=0: 32 on this CPU (a batched MJX step costs its batch size there), fewer where the
-    audit has fewer episodes; slots=N: N."""
+    audit has fewer episodes; slots=N: N. Without k=, the audit's sets are those the run
+    trained against."""
     from types import SimpleNamespace
 
     from admissable_jax.audit.command import AuditConfig, _slots
 
-    point_mass = SimpleNamespace(observation_size=4)
+    point_mass = SimpleNamespace(observation_size=4, config=TrainConfig(env="point_mass"))
     assert jax.default_backend() == "cpu"
     assert _slots(AuditConfig(run_dir="run", k="1,2", episodes=50), point_mass) == 32  # (4 + 6 + 1) × 50 episodes
     assert _slots(AuditConfig(run_dir="run", k="1", episodes=4), point_mass) == 20
     assert _slots(AuditConfig(run_dir="run", k="1", episodes=50, shapley="exact", slots=100), point_mass) == 100
+    for trained, sets in (({}, 4), ({"k": 2}, 6), ({"k": 2, "up_to_k": True}, 4 + 6)):
+        run = SimpleNamespace(observation_size=4, config=TrainConfig(env="point_mass", **trained))
+        assert _slots(AuditConfig(run_dir="run", episodes=2), run) == (sets + 1) * 2
 
 
 @pytest.mark.parametrize("ctrl_cs", [1, 2])

@@ -16,11 +16,12 @@ from admissable_jax.audit.sets import AuditResult, audit, audit_gymnasium, check
     gymnasium_features, plan_size, shapley_plan
 from admissable_jax.cli import enable_compilation_cache, parse_args, reporting, run_from_cli, setting
 from admissable_jax.errors import make_directory, remove_if_unused
-from admissable_jax.method import num_candidate_sets
+from admissable_jax.method import num_candidate_sets, set_sizes
 from admissable_jax.scoring import SCORE_ESTIMATORS
 from admissable_jax.scoring.attribution import MIN_ORDERS, ShapleyPlan
 
 if TYPE_CHECKING:  # for the annotations only
+    from admissable_jax.config import TrainConfig
     from admissable_jax.envs import MjxEnv
     from admissable_jax.policies import TrainedPolicy
     from admissable_jax.training import Trainer
@@ -31,7 +32,8 @@ if TYPE_CHECKING:  # for the annotations only
 class AuditConfig:
     run_dir: str = setting("", "a train run directory, an experiment pair's, or an experiment's folder (every pair, "
                                "then comparison.md of the modes); may be given first, without run_dir=")
-    k: str = setting("1", "set sizes to audit, comma separated (e.g. 1,2)")
+    k: str = setting("", "set sizes to audit, comma separated (e.g. 1,2); default: the sizes of the run's U (its k, "
+                         "or 1 to k with up_to_k), 1 with policy=")
     episodes: int = setting(50, "N: deterministic episodes per set (the CI narrows as 1/sqrt(N))")
     out: str = setting("", "where the report goes (default RUN_DIR/audit-step<STEP>)")
     step: int = setting(-1, "the checkpoint (env step) to audit; -1 = the latest")
@@ -60,7 +62,11 @@ class AuditConfig:
                                 "coalitions are fewer); 0 = none")
 
 
-def _ks(text: str) -> tuple[int, ...]:
+def _ks(text: str, train: TrainConfig | None = None) -> tuple[int, ...]:
+    """The set sizes ``k=`` asks for; where it is empty, those of the sets the run ``train``
+    trained against (a Python policy's: 1)."""
+    if not text.strip():
+        return tuple(set_sizes(train.k, train.up_to_k)) if train is not None else (1,)
     try:
         ks = tuple(sorted({int(part) for part in text.split(",") if part.strip()}))
     except ValueError:
@@ -68,6 +74,10 @@ def _ks(text: str) -> tuple[int, ...]:
     if not ks or ks[0] < 1:
         raise ValueError(f"k must be a comma list of set sizes >= 1, got {text!r}")
     return ks
+
+
+def _sizes(ks: tuple[int, ...]) -> str:
+    return ",".join(map(str, ks))
 
 
 def check_audit_config(config: AuditConfig) -> None:
@@ -127,7 +137,7 @@ def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     gymnasium_features(config.gym, ks)  # before anything is written
     out = config.out or f"audit-{config.gym}-{name}"
     with _audit_folder(out):
-        with reporting(f"auditing {config.policy} on {config.gym} for k={config.k} ({_episodes_asked(config)})"):
+        with reporting(f"auditing {config.policy} on {config.gym} for k={_sizes(ks)} ({_episodes_asked(config)})"):
             result = audit_gymnasium(config.gym, policy, ks, config.episodes, num_envs=config.slots or 8,
                                      seed=config.seed, shapley=_shapley(config.shapley), progress=True,
                                      tell_apart=config.tell_apart)
@@ -179,7 +189,7 @@ def _slots(config: AuditConfig, policy: TrainedPolicy) -> int:
     from admissable_jax.config import default_score_envs
 
     d = policy.observation_size
-    episodes = (sum(num_candidate_sets(d, k) for k in _ks(config.k)) + plan_size(_plan(config, d)) + 1) * config.episodes
+    episodes = (sum(num_candidate_sets(d, k) for k in _ks(config.k, policy.config)) + plan_size(_plan(config, d)) + 1) * config.episodes
     return min(episodes, config.slots) if config.slots else min(default_score_envs(episodes), 4096)
 
 
@@ -197,13 +207,13 @@ def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
 
     out = config.out or os.path.join(config.run_dir, f"audit-step{policy.step}")
     train = policy.config
-    d = policy.observation_size
-    check_audit_size(train.env, d, _ks(config.k), config.episodes, config.search, config.beam_width, _plan(config, d))
+    d, ks = policy.observation_size, _ks(config.k, policy.config)
+    check_audit_size(train.env, d, ks, config.episodes, config.search, config.beam_width, _plan(config, d))
     with _audit_folder(out):
-        with reporting(f"auditing checkpoint {policy.step} of {train.env} for k={config.k} ({config.search} search, "
+        with reporting(f"auditing checkpoint {policy.step} of {train.env} for k={_sizes(ks)} ({config.search} search, "
                        f"{_episodes_asked(config)}, {env.physics_name} physics on {jax.default_backend()}; "
                        f"compiling included)"):
-            result = audit(env, trainer.policy, policy.actor_params, _ks(config.k), config.episodes, config.seed,
+            result = audit(env, trainer.policy, policy.actor_params, ks, config.episodes, config.seed,
                            _slots(config, policy), observation_names(train.env),
                            {"run": os.path.abspath(config.run_dir), "checkpoint (env step)": policy.step,
                             "mode": train.missingness, "seed": train.seed,
