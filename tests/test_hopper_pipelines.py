@@ -225,6 +225,9 @@ def test_video_of_the_trained_hopper_beside_its_worst_set(jax_run, tmp_path, cap
     assert not [warning for warning in warned if "os.fork()" in str(warning.message)]
     worst = np.flatnonzero(candidate_sets(11)[jax_run.scores[-1]["argmin"]])
     assert made.hidden == tuple(worst) and made.step == 80
+    # A pool's row indexes its own sets, not U: hidden=worst hides the set the row names.
+    pooled = [{"env_steps": 80, "argmin": 1, "argmin_set": "{3,7}", "sets": ["{0,1}", "{3,7}"]}]
+    assert video.resolve_hidden("worst", "hopper", pooled, 80) == (3, 7)
     # 20 frames: the start, one per step until this barely trained Hopper falls (both sides
     # within 19 steps), then the end held (for up to a second).
     assert made.frames == 20 and 0 < made.hidden_length <= 19 and 0 < made.clean_length <= 19
