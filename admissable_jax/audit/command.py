@@ -189,7 +189,8 @@ def _slots(config: AuditConfig, policy: TrainedPolicy) -> int:
     from admissable_jax.config import default_score_envs
 
     d = policy.observation_size
-    episodes = (sum(num_candidate_sets(d, k) for k in _ks(config.k, policy.config)) + plan_size(_plan(config, d)) + 1) * config.episodes
+    num_sets = sum(num_candidate_sets(d, k) for k in _ks(config.k, policy.config)) + plan_size(_plan(config, d))
+    episodes = (num_sets + 1) * config.episodes
     return min(episodes, config.slots) if config.slots else min(default_score_envs(episodes), 4096)
 
 
@@ -207,7 +208,7 @@ def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
 
     out = config.out or os.path.join(config.run_dir, f"audit-step{policy.step}")
     train = policy.config
-    d, ks = policy.observation_size, _ks(config.k, policy.config)
+    d, ks = policy.observation_size, _ks(config.k, train)
     check_audit_size(train.env, d, ks, config.episodes, config.search, config.beam_width, _plan(config, d))
     with _audit_folder(out):
         with reporting(f"auditing checkpoint {policy.step} of {train.env} for k={_sizes(ks)} ({config.search} search, "
