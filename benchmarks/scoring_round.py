@@ -103,7 +103,10 @@ def main(argv: list[str]) -> None:
     bench = parse_args(ScoringBenchConfig, argv, "benchmarks/scoring_round.py", __doc__.splitlines()[0])
     config = TrainConfig(env=bench.env, num_envs=8, buffer_size=8, learning_starts=256, progress=False,
                          physics=bench.physics).resolved()
-    episodes = (num_candidate_sets(observation_size(config.env), config.k) + 1) * bench.n_episodes
+    if bench.run:  # its sets (k, up_to_k, the empty set) and network sizes
+        config = TrainConfig(**{**dataclasses.asdict(config), **_saved_sizes(bench.run)}).resolved()
+    num_sets = num_candidate_sets(observation_size(config.env), config.k, config.include_empty_set, config.up_to_k)
+    episodes = (num_sets + 1) * bench.n_episodes
     slots = {-1: default_score_envs(episodes), 0: episodes}.get(bench.slots, min(bench.slots, episodes))
     env = make_env(config.env, episode_length=bench.max_steps, physics=config.physics, max_batch=slots,
                    terminate_when_unhealthy=bench.terminate)
@@ -111,10 +114,7 @@ def main(argv: list[str]) -> None:
     state = jax.jit(trainer.init)(*init_arguments(config))
     label = "untrained actor"
     if bench.run:
-        checkpoints = Checkpoints(f"{bench.run}/checkpoints")
-        saved_config = TrainConfig(**{**dataclasses.asdict(config), **_saved_sizes(bench.run)}).resolved()
-        trainer = Trainer(env, RunSpec.of(saved_config))
-        step, state = checkpoints.restore(jax.jit(trainer.init)(*init_arguments(saved_config)))
+        step, state = Checkpoints(f"{bench.run}/checkpoints").restore(state)
         label = f"actor of {bench.run} at {step} env steps"
     result, compile_s, first_s, run_s = _compile_and_run(env, trainer.policy, state.sac.actor_params, bench,
                                                          trainer.hidden_sets, slots)
