@@ -64,7 +64,7 @@ def help_text(config_cls: type, program: str, summary: str, config_file: ConfigF
 
 
 # Keys that say where a run is and whether it continues: never taken from a config file.
-RUN_LOCATION = ("out", "resume", "resume_step")
+RUN_LOCATION = ("out", "resume", "resume_step", "fast_forward")
 
 
 def parse_args(

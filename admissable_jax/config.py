@@ -71,6 +71,10 @@ class RunSettings:
                                        "audit steps= look back over training")
     resume: bool = setting(False, "continue the run in 'out' from its last checkpoint")
     resume_step: int = setting(-1, "with resume=true: the checkpoint (env step) to continue from; -1 = the latest")
+    fast_forward: bool = setting(False, "with resume=true: re-train, without scoring, from that checkpoint (or from the "
+                                        "start, where there is none) to the run's last recorded scoring, each p_miss "
+                                        "read from scores.jsonl, checked bit for bit against metrics.jsonl; for runs "
+                                        "whose checkpoints stayed on another machine")
     progress: bool = setting(True, "show a progress bar")
     logger: str = setting("none", "also log every scores/metrics row to: none | tensorboard (<run dir>/tensorboard) | "
                                      "wandb (the wandb extra; $WANDB_PROJECT, WANDB_MODE=offline) | tensorboard,wandb")
@@ -204,7 +208,7 @@ def swept_lower_bounds(config: ExperimentConfig) -> list[float]:
 def config_file_of(cls: type) -> ConfigFile:
     """What ``config=FILE`` takes for the command of ``cls`` (``TrainConfig`` or
     ``ExperimentConfig``): its own keys; skipped, which run the file came from (``out``,
-    ``resume``, ``resume_step``) and the other command's own keys (a train run's
+    ``resume``, ``resume_step``, ``fast_forward``) and the other command's own keys (a train run's
     ``missingness`` and ``seed`` given to ``experiment``; an experiment's ``seeds`` and
     ``modes`` given to ``train``)."""
     own = {field.name for field in dataclasses.fields(cls)}
@@ -278,6 +282,8 @@ def validate(config: TrainConfig) -> None:
     for name in ("num_envs", "score_envs"):
         if getattr(config, name) < 0:
             raise ValueError(f"{name} must be >= 0, got {getattr(config, name)}")
+    if config.fast_forward and not config.resume:
+        raise ValueError("fast_forward=true continues a run from its records: pass resume=true too")
     if config.time_limit < 0:
         raise ValueError(f"time_limit must be >= 0 (0 = no limit), got {config.time_limit}")
     if config.utd <= 0:

@@ -6,7 +6,9 @@ envs, on the device, in up to 10 calls so that the progress bar moves) and
 update). After each scoring it appends one row to
 ``scores.jsonl`` and one to ``metrics.jsonl`` of every run directory, and every
 ``checkpoint_every`` scorings (and at the end) it saves an orbax checkpoint of the whole
-training state, from which ``resume=true`` continues. Both functions are compiled before
+training state, from which ``resume=true`` continues; ``fast_forward=true`` then re-trains
+the intervals recorded after that checkpoint (or all of them, where there is none) without
+scoring them (:mod:`admissable_jax.fast_forward`). Both functions are compiled before
 the state is allocated, so a run that would not fit in memory stops before it starts.
 A batch of pairs runs where its :class:`~admissable_jax.placement.PairPlacement` puts it
 (one device or many, one process or many); this loop only asks it.
@@ -14,6 +16,7 @@ A batch of pairs runs where its :class:`~admissable_jax.placement.PairPlacement`
 
 from __future__ import annotations
 
+import functools
 import os
 import shutil
 import time
@@ -28,6 +31,7 @@ from admissable_jax.cli import in_background, report, reporting, stop_at_next_bo
 from admissable_jax.config import TrainConfig, curve_names
 from admissable_jax.envs import make_env
 from admissable_jax.errors import Interrupted, RunFailed
+from admissable_jax.fast_forward import RecordedScoring, check_fingerprint, recorded_scorings
 from admissable_jax.memory import MemoryBudget, MemoryBudgetExceeded, memory_budget
 from admissable_jax.placement import PairPlacement
 from admissable_jax.provenance import invocation_record
@@ -130,9 +134,18 @@ class TrainingLoop:
         self.num_devices = placement.num_devices if placement else 1
         self.pieces = interval_pieces(trainer.spec.iterations_per_scoring)
         run_piece = lambda state: trainer.run_chunk(state, trainer.spec.iterations_per_scoring // self.pieces)
-        score_and_update = trainer.score_and_update
-        self._run_piece = placement.spread(run_piece) if placement else run_piece
-        self._score_and_update = placement.spread(score_and_update) if placement else score_and_update
+
+        def score_and_update(state: TrainState):  # the round, and the fingerprint of the state it leaves
+            state, scores = trainer.score_and_update(state)
+            return state, scores, trainer.fingerprint(state)
+
+        def recorded_round(state: TrainState, p_miss, pool):  # what a recorded round left, put in place
+            state = trainer.after_scoring(state, p_miss, pool)
+            return state, trainer.fingerprint(state)
+
+        spread = placement.spread if placement else (lambda function: function)
+        self._run_piece, self._score_and_update, self._recorded_round = map(
+            spread, (run_piece, score_and_update, recorded_round))
 
     def host_rows(self, tree: Any) -> Any:
         """A device pytree of the loop's on the host: this process's pairs along the leading
@@ -181,7 +194,8 @@ class TrainingLoop:
         """Train from scratch or from the checkpoint ``resume`` names, up to
         ``planned_steps``, or until ``time_limit`` would be passed (then it checkpoints and
         returns early; ``resume=true`` continues). Every invocation trains at least one
-        scoring interval."""
+        scoring interval. With ``fast_forward`` the intervals recorded after the checkpoint
+        (all, without one) are re-trained first, each round put in place from its record."""
         config = self.config
         started_run = time.perf_counter()
         resume_from = self._resume_from()
@@ -191,6 +205,8 @@ class TrainingLoop:
             _, state = self._restore(self.abstract_state(), resume_from)
             self.checkpoints.close()
             return state
+        # Read before compiling, so that records which cannot be fast-forwarded cost no compile.
+        recorded = self._recorded_scorings(resume_from or 0) if config.fast_forward else [[] for _ in self.runs]
         budget = self.compile()
         report(f"{self.num_runs} run(s) x {config.num_envs} envs of {config.env} on "
                f"{self.trainer.env.physics_name} physics: {budget.describe()}")
@@ -201,10 +217,17 @@ class TrainingLoop:
         start_step = 0
         if resume_from is not None:
             start_step, state = self._restore(state, resume_from)
-            for run in self.runs:
-                for note in run.set_aside_rows_after(start_step):
-                    report(note)
         num_scorings = config.planned_steps // config.score_every
+        first_scoring = start_step // config.score_every
+        first_scored = min(num_scorings, first_scoring + min(map(len, recorded)))  # the first round scored here
+        if config.fast_forward:
+            report(f"fast-forward: re-training env steps {start_step} to {first_scored * config.score_every} from "
+                   f"{'checkpoint ' + str(start_step) if resume_from is not None else 'the start'}, each scoring's "
+                   f"p_miss read from the records, then training on")
+        if resume_from is not None or config.fast_forward:
+            for run in self.runs:
+                for note in run.set_aside_rows_after(first_scored * config.score_every):
+                    report(note)
         invocation = invocation_record(start_step, budget.device, self.num_devices, self.trainer.env.physics_name,
                                        self.num_runs)
         # smoothing=0: the rate (and the time left) over this invocation, scorings included.
@@ -212,7 +235,7 @@ class TrainingLoop:
                    dynamic_ncols=True, smoothing=0)
         with stop_at_next_boundary("at the end of this scoring interval, with a checkpoint") as stop, ticking(bar):
             try:
-                for scoring in range(start_step // config.score_every, num_scorings):
+                for scoring in range(first_scoring, num_scorings):
                     interval_started = started = time.perf_counter()
                     state, chunk_metrics = self.train_interval(state, bar)
                     train_seconds = time.perf_counter() - started
@@ -220,24 +243,29 @@ class TrainingLoop:
                     self._check_finite(chunk_metrics, env_steps)
                     self._check_physics(np.any(chunk_metrics["capacity_exceeded"]), env_steps)
 
-                    bar.set_description_str("scoring")
-                    started = time.perf_counter()
-                    state, scores = self.score_and_update(state)
-                    scores, p_miss, pool, grad_steps = self.host_rows((scores, state.p_miss, state.pool, state.grad_steps))
-                    self._check_physics(np.any(scores.capacity_exceeded), env_steps)
-                    score_seconds = time.perf_counter() - started
                     rows = []
-                    for index, run in enumerate(self.runs):
-                        pick = lambda tree: self.select_pair(tree, index)
-                        if scoring == start_step // config.score_every:  # this command's first row: say what made it
-                            run.record_invocation(invocation)
-                        rows.append(score_row(env_steps, pick(scores), pick(p_miss),
-                                              np.asarray(self.trainer.scored_sets(pick(pool))),
-                                              self.trainer.spec.score_estimator, listed=self.trainer.pooled))
-                        run.append("scores.jsonl", rows[-1])
-                        run.append("metrics.jsonl", metrics_row(
-                            env_steps, int(pick(grad_steps)), pick(chunk_metrics),
-                            train_seconds, score_seconds, config, self.num_runs))
+                    if scoring < first_scored:
+                        bar.set_description_str("fast-forward")
+                        state = self._put_recorded_round(state, [of_run[scoring - first_scoring] for of_run in recorded])
+                    else:
+                        bar.set_description_str("scoring")
+                        started = time.perf_counter()
+                        state, scores, fingerprint = self.score_and_update(state)
+                        scores, p_miss, pool, grad_steps, fingerprint = self.host_rows(
+                            (scores, state.p_miss, state.pool, state.grad_steps, fingerprint))
+                        self._check_physics(np.any(scores.capacity_exceeded), env_steps)
+                        score_seconds = time.perf_counter() - started
+                        for index, run in enumerate(self.runs):
+                            pick = lambda tree: self.select_pair(tree, index)
+                            if scoring == first_scored:  # this command's first row: say what made it
+                                run.record_invocation(invocation)
+                            rows.append(score_row(env_steps, pick(scores), pick(p_miss),
+                                                  np.asarray(self.trainer.scored_sets(pick(pool))),
+                                                  self.trainer.spec.score_estimator, listed=self.trainer.pooled))
+                            run.append("scores.jsonl", rows[-1])
+                            run.append("metrics.jsonl", metrics_row(
+                                env_steps, int(pick(grad_steps)), pick(chunk_metrics),
+                                train_seconds, score_seconds, config, self.num_runs, int(pick(fingerprint))))
 
                     last = scoring == num_scorings - 1
                     now = time.perf_counter()
@@ -278,6 +306,43 @@ class TrainingLoop:
         return state, jax.tree.map(lambda *pieces: np.concatenate(pieces, axis=iteration_axis),
                                    *[self.host_rows(metrics) for metrics in piece_metrics])
 
+    def _recorded_scorings(self, start_step: int) -> list[list[RecordedScoring]]:
+        """Each run's recorded rounds after ``start_step`` (:func:`~admissable_jax.fast_forward.recorded_scorings`),
+        for ``fast_forward=true``; ValueError in one line where there is nothing to re-train
+        or the pairs live in several processes."""
+        if self.placement and jax.process_count() > 1:
+            raise ValueError("fast_forward=true runs in one process: its pairs' records are read on one host")
+        set_index = {tuple(np.flatnonzero(row)): index for index, row in enumerate(np.asarray(self.trainer.hidden_sets))} \
+            if self.trainer.pooled else None
+        recorded = [recorded_scorings(run, start_step, self.config.score_every, set_index) for run in self.runs]
+        if not min(map(len, recorded)):
+            bare = next(run.path for run, of_run in zip(self.runs, recorded) if not of_run)
+            raise ValueError(f"nothing to fast-forward: {bare} records no scoring with a state fingerprint after env "
+                             f"step {start_step} (runs recorded before fast_forward existed have none); "
+                             f"resume without fast_forward")
+        return recorded
+
+    @functools.cached_property
+    def recorded_round(self) -> Callable[..., tuple[TrainState, Any]]:
+        """The compiled program that puts a recorded round in place (fast-forward only)."""
+        shardings = {"in_shardings": self.placement.sharding, "out_shardings": self.placement.sharding} \
+            if self.placement else {}
+        return jax.jit(self._recorded_round, donate_argnums=0, **shardings)
+
+    def _put_recorded_round(self, state: TrainState, recorded: list[RecordedScoring]) -> TrainState:
+        """``state`` as the recorded round (one per run) left it, its fingerprint checked
+        against the record (:func:`~admissable_jax.fast_forward.check_fingerprint`)."""
+        p_miss, pool = (np.stack([getattr(round_, name) for round_ in recorded]) for name in ("p_miss", "pool"))
+        if self.placement:
+            p_miss, pool = self.placement.place(p_miss), self.placement.place(pool)
+        else:
+            p_miss, pool = p_miss[0], pool[0]
+        state, fingerprint = self.recorded_round(state, p_miss, pool)
+        fingerprint = self.host_rows(fingerprint)
+        for index, (run, round_) in enumerate(zip(self.runs, recorded)):
+            check_fingerprint(run, round_, int(self.select_pair(fingerprint, index)))
+        return state
+
     def _check_disk(self, state_bytes: int) -> None:
         """Warn at the start when the checkpoints kept (``keep_checkpoints``, each about the
         whole state) would not fit on their disk. The run still starts: a disk that fills
@@ -303,8 +368,9 @@ class TrainingLoop:
 
     def _resume_from(self) -> int | None:
         """The checkpoint step a resumed run continues from (None for a fresh run)."""
-        if not self.config.resume:
-            return None
+        if not self.config.resume or (self.config.fast_forward and self.checkpoints.latest_step() is None
+                                      and self.config.resume_step < 0):
+            return None  # a fresh run, or one fast-forwarded from the start
         return self.checkpoints.step_to_restore(None if self.config.resume_step < 0 else self.config.resume_step)
 
     def _kept_checkpoint(self) -> str:

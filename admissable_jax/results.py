@@ -43,7 +43,7 @@ from admissable_jax.scoring.worst_set import samples_to_separate
 # only in these are seeds of one curve (``physics``: both backends pass the same parity
 # tests; ``score_envs``: the same scores, tested). Runs differing in any other key are
 # separate curves, named by it (``label_variants``).
-NOT_SETTINGS = frozenset({"env", "missingness", "seed", "out", "resume", "resume_step", "progress", "logger",
+NOT_SETTINGS = frozenset({"env", "missingness", "seed", "out", "resume", "resume_step", "fast_forward", "progress", "logger",
                           "time_limit", "checkpoint_every", "keep_checkpoints", "total_steps", "score_envs",
                           "physics"})
 # Settings that only the adversarial mode reads (its p_miss update, paper §3; the pool's

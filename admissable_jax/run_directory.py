@@ -33,11 +33,12 @@ from admissable_jax.scoring import MissingnessScores
 # Settings that may change when a run is resumed; any other difference is refused.
 # score_envs only changes how many episodes a scoring round steps at once, not its scores;
 # out is wherever the run directory is now (it may have been moved or copied).
-RESUMABLE_CHANGES = ("resume", "resume_step", "total_steps", "progress", "checkpoint_every", "keep_checkpoints",
+RESUMABLE_CHANGES = ("resume", "resume_step", "fast_forward", "total_steps", "progress", "checkpoint_every", "keep_checkpoints",
                      "score_envs", "out", "time_limit", "logger")
 
 
 OBSERVATION_NAMES = "observation_names.json"
+FINGERPRINT = "state_fingerprint"  # metrics.jsonl: the training state's fingerprint after the scoring
 # What a run writes before its first scoring: a folder holding only these is removed again.
 SETTINGS_FILES = ("config.yaml", OBSERVATION_NAMES)
 
@@ -124,9 +125,11 @@ def score_row(env_steps: int, scores: MissingnessScores, p_miss, hidden_sets, es
     }
 
 
-def metrics_row(env_steps, grad_steps, chunk, train_seconds, score_seconds, config, num_runs) -> dict[str, Any]:
+def metrics_row(env_steps, grad_steps, chunk, train_seconds, score_seconds, config, num_runs,
+                fingerprint: int) -> dict[str, Any]:
     """One run's training curves over the last chunk. Speeds are per run: a batch of
-    ``num_runs`` runs shares the wall-clock time."""
+    ``num_runs`` runs shares the wall-clock time. ``state_fingerprint``, the training
+    state's after the scoring, is what a fast-forward checks (admissable_jax.fast_forward)."""
     learned = chunk["learned"].astype(bool)
     episodes = int(chunk["episodes"].sum())
     row = {
@@ -139,6 +142,7 @@ def metrics_row(env_steps, grad_steps, chunk, train_seconds, score_seconds, conf
         "grad_steps_per_s": float(learned.sum()) * config.updates_per_iteration / train_seconds,
         "score_seconds": score_seconds,
         "runs_in_program": num_runs,
+        FINGERPRINT: fingerprint,
     }
     for name in ("critic_loss", "actor_loss", "alpha", "entropy", "q_mean"):
         row[name] = float(chunk[name][learned].mean()) if learned.any() else None

@@ -25,6 +25,7 @@ is data (``adversarial``, ``masking``), not code, and so is the adversary's lowe
 
 from __future__ import annotations
 
+import chex
 import jax
 import jax.numpy as jnp
 from flax import struct
@@ -34,6 +35,7 @@ from admissable_jax.adversary import update_p_miss, uniform_p_miss
 from admissable_jax.agent import SAC, SACBatch, SACState
 from admissable_jax.branching import lazy_cond
 from admissable_jax.envs import EnvState, reset_where_done
+from admissable_jax.fingerprints import tree_fingerprint
 from admissable_jax.missingness import candidate_sets, mask_observation, sample_set_indices
 from admissable_jax.run_spec import RunSpec
 from admissable_jax.scoring import MissingnessScores, beam_search_worst_sets, score_missingness
@@ -236,7 +238,7 @@ class Trainer:
         """Score every u (N = ``score_episodes`` episodes each, by the spec's estimator: one
         batched rollout, or the critic's estimate) and update p_miss (adversarial mode only).
         With a pool: search the pool afresh first, then score its sets (module docstring)."""
-        rng, score_rng = jax.random.split(state.rng)
+        score_rng = jax.random.split(state.rng)[1]  # [0] moves the state's key on: after_scoring
         pool = state.pool
         if self.pooled:
             score_rng, search_rng = jax.random.split(score_rng)
@@ -245,7 +247,21 @@ class Trainer:
         p_miss = update_p_miss(
             state.p_miss, scores.scores, state.adversarial, state.lower_bound, self.spec.epsilon
         )
-        return state.replace(p_miss=p_miss, pool=pool, rng=rng), scores
+        return self.after_scoring(state, p_miss, pool), scores
+
+    def after_scoring(self, state: TrainState, p_miss: jax.Array, pool: jax.Array) -> TrainState:
+        """The state a scoring round leaves: its p_miss and pool (as the round set them, or
+        as a record of the round says, when a run is fast-forwarded through it) and the
+        PRNG key moved on past the round's own key."""
+        chex.assert_equal_shape([p_miss, state.p_miss])
+        chex.assert_equal_shape([pool, state.pool])
+        return state.replace(p_miss=p_miss, pool=pool, rng=jax.random.split(state.rng)[0])
+
+    @staticmethod
+    def fingerprint(state: TrainState) -> jax.Array:
+        """() uint32 of the state's exact bits (:func:`~admissable_jax.fingerprints.tree_fingerprint`),
+        recorded after every scoring so that a fast-forward can check it computes the same run."""
+        return tree_fingerprint(state)
 
     def _score(self, state: TrainState, rng: jax.Array, hidden_sets: jax.Array, estimator: str) -> MissingnessScores:
         """``hidden_sets``' scores by ``estimator`` with the state's actor and critic."""

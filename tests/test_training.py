@@ -454,12 +454,12 @@ def test_config_file_sets_keys_the_command_line_overrides(tmp_path, capsys):
     train = parse_args(TrainConfig, [f"config={saved}", "seed=1"], "t", "", config_file=config_file_of(TrainConfig))
     assert (train.env, train.k, train.score_episodes, train.missingness, train.seed, train.out) == (
         "point_mass", 2, 3, "uniform", 1, "")
-    assert capsys.readouterr().err == f"config={saved}: out, resume, resume_step not taken from it (they say which run it came from)\n"
+    assert capsys.readouterr().err == f"config={saved}: fast_forward, out, resume, resume_step not taken from it (they say which run it came from)\n"
     experiment = parse_args(ExperimentConfig, [f"config={saved}", "seeds=2"], "e", "",
                             config_file=config_file_of(ExperimentConfig))
     assert (experiment.env, experiment.k, experiment.score_episodes, experiment.seeds, experiment.modes) == (
         "point_mass", 2, 3, 2, "adversarial,uniform")
-    assert "missingness, out, resume, resume_step, seed not taken" in capsys.readouterr().err
+    assert "fast_forward, missingness, out, resume, resume_step, seed not taken" in capsys.readouterr().err
 
     (tmp_path / "typo.yaml").write_text("env: hopper\nlerning_rate: 0.001\n")
     (tmp_path / "bad_value.yaml").write_text("k: two\n")

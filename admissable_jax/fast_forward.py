@@ -1,0 +1,72 @@
+"""Fast-forward: rebuild a run's training state from its records, where its checkpoints are
+out of reach (``resume=true fast_forward=true``).
+
+A scoring round changes three things in the training state (:meth:`Trainer.after_scoring
+<admissable_jax.training.Trainer.after_scoring>`): p_miss, the pool, and the PRNG key, moved
+on as every round moves it. The first two are in the round's ``scores.jsonl`` row, exactly
+(float32 values written in full); training between two scorings reads nothing else of a
+round. So the training chunks re-run from the last checkpoint (or from the start) with
+each recorded round's p_miss and pool put in its place rebuild the state the run had, at
+the cost of the chunks alone: on a GPU the scoring rounds are most of a run's time (Hopper,
+7.5 of 9.8 s per ζ on an H100), so a run whose multi-GB replay buffer cannot leave its
+machine continues on another after re-training its first part there. A device gives the
+same state only where it computes as the recording one did (the same program on the same
+kind of device, deterministic kernels), so every rebuilt state's fingerprint
+(:func:`~admissable_jax.fingerprints.tree_fingerprint`) is checked against the one its
+``metrics.jsonl`` row recorded, and the first that differs stops the command in one line,
+the records untouched.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from admissable_jax.errors import RunFailed
+from admissable_jax.method import parse_set
+from admissable_jax.run_directory import FINGERPRINT, RunDirectory
+
+
+class FastForwardDiverged(RunFailed):
+    """A rebuilt state's fingerprint differs from the recorded one: this device does not
+    compute the run as the one that recorded it did."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RecordedScoring:
+    """What one scoring round left in the training state, from its rows: p_miss (P,), the
+    pool's indices into U ((0,) without a pool), and the state's fingerprint after it."""
+
+    env_steps: int
+    p_miss: np.ndarray
+    pool: np.ndarray
+    fingerprint: int
+
+
+def recorded_scorings(run: RunDirectory, after: int, score_every: int, set_index: dict[tuple[int, ...], int] | None
+                      ) -> list[RecordedScoring]:
+    """The run's recorded rounds after env step ``after``, ζ apart from it, as far as both
+    of its files hold them with a fingerprint. ``set_index`` maps a pool's sets (feature
+    tuples) to their index in U; ``None`` for a run without a pool."""
+    scores = {row["env_steps"]: row for row in run.read("scores.jsonl")}
+    metrics = {row["env_steps"]: row for row in run.read("metrics.jsonl")}
+    found = []
+    step = after + score_every
+    while step in scores and FINGERPRINT in metrics.get(step, {}):
+        row = scores[step]
+        pool = np.zeros((0,), np.int32) if set_index is None else \
+            np.array([set_index[tuple(parse_set(name))] for name in row["sets"]], np.int32)
+        found.append(RecordedScoring(step, np.asarray(row["p_miss"], np.float32), pool, int(metrics[step][FINGERPRINT])))
+        step += score_every
+    return found
+
+
+def check_fingerprint(run: RunDirectory, recorded: RecordedScoring, rebuilt: int) -> None:
+    """:class:`FastForwardDiverged` in one line where the rebuilt state is not the recorded one."""
+    if rebuilt != recorded.fingerprint:
+        raise FastForwardDiverged(
+            f"fast-forward diverged at env step {recorded.env_steps} in {run.path}: the rebuilt state's fingerprint "
+            f"{rebuilt:#010x} is not the recorded {recorded.fingerprint:#010x} (this device does not compute the run "
+            f"as the one that recorded it did); the records are untouched: resume from a checkpoint, or start over"
+        )
