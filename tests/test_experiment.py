@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 
 import jax
 import nbformat
@@ -109,9 +110,16 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
     # Resumed from the command line, which ends with what the pairs found: the summary per mode
     # and adversarial − uniform, as plot's summary.md has them.
     argv = [f"{key}={str(value).lower() if isinstance(value, bool) else value}" for key, value in EXPERIMENT.items()]
+    elsewhere = str(tmp_path / "elsewhere")  # the records alone, as a lent machine's pack brings them back
+    shutil.copytree(resumed_root, elsewhere, ignore=shutil.ignore_patterns("checkpoints"))
     assert experiment_main([*argv, "total_steps=3000", f"out={resumed_root}", "resume=true"]) == 0
     assert _scores(resumed_root) == _scores(str(tmp_path / "straight"))
     said = capsys.readouterr().out
+    # Fast-forwarded from them, the four pairs re-train 2,000 env steps without scoring, each
+    # pair's rounds put in place from its own records, and go on as the uninterrupted run.
+    assert experiment_main([*argv, "total_steps=3000", f"out={elsewhere}", "resume=true", "fast_forward=true"]) == 0
+    assert _scores(elsewhere) == _scores(str(tmp_path / "straight"))
+    assert "fast-forward: re-training env steps 0 to 2000 from the start" in capsys.readouterr().err
     final_min = {mode: np.array([r.scores[-1]["min_score"] for r in straight if r.config.missingness == mode])
                  for mode in ("adversarial", "uniform")}
     features = observation_names("point_mass")

@@ -13,6 +13,7 @@ import functools
 import glob
 import json
 import os
+import shutil
 import struct
 import subprocess
 import sys
@@ -298,6 +299,14 @@ def test_candidate_pool_for_k2_search_draws_and_records(tmp_path):
             cell = table[len(names) * t + i]["a_u"]
             assert (float(cell) if cell else None) == (min(hiding) if hiding else None)
     assert any("scores_adversarial.png" in path for path in plot_runs([config.out], str(tmp_path / "figures"), formats=("png",)))
+    # Fast-forward puts each recorded round's pool in place by its sets' names: from checkpoint
+    # 2000, the last interval re-trained without scoring gives the run's final state again.
+    shutil.rmtree(os.path.join(config.out, "checkpoints", "3000"))
+    forwarded = train_fn(dataclasses.replace(config, total_steps=3000, score_every=1000, checkpoint_every=1,
+                                             resume=True, fast_forward=True))
+    assert forwarded.scores == rows
+    for a, b in zip(jax.tree.leaves(forwarded.state), jax.tree.leaves(result.state)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     last = summary_table([config.out]).splitlines()[-1].split(" | ")
     assert last[-3] == "—"  # no final mean_u a_u
     # Where the run is weak at the end: the pool's set of lowest a_u, as the trainer recorded it.
@@ -351,11 +360,17 @@ def test_score_missingness_equals_a_plain_loop_and_finds_the_used_feature():
     np.testing.assert_allclose(scored.scores[1:], scored.clean_score, rtol=1e-6)
 
 
-def test_checkpoint_resume_continues_exactly(tmp_path):
-    config = dataclasses.replace(POINT_MASS, total_steps=4000, checkpoint_every=1, hidden_size=32)
+def test_checkpoint_resume_continues_exactly(tmp_path, capsys):
+    """resume=true from a checkpoint, and fast_forward=true from the records alone (the run's
+    checkpoints left behind on another machine): both continue the run bit for bit."""
+    from admissable_jax.fast_forward import FastForwardDiverged
+
+    config = dataclasses.replace(POINT_MASS, total_steps=4000, checkpoint_every=1, hidden_size=32, logger="none")
     straight = train_fn(dataclasses.replace(config, out=str(tmp_path / "straight")))
     resumed_dir = str(tmp_path / "resumed")
     train_fn(dataclasses.replace(config, total_steps=2000, out=resumed_dir))
+    elsewhere = str(tmp_path / "elsewhere")  # what comes back from a lent machine: the records, no checkpoint
+    shutil.copytree(resumed_dir, elsewhere, ignore=shutil.ignore_patterns("checkpoints"))
     with pytest.raises(FileExistsError, match="resume=true"):
         train_fn(dataclasses.replace(config, out=resumed_dir))
     with pytest.raises(ValueError, match="cannot resume with seed=1"):
@@ -366,6 +381,43 @@ def test_checkpoint_resume_continues_exactly(tmp_path):
     assert [r["p_miss"] for r in resumed.scores] == [r["p_miss"] for r in straight.scores]
     for a, b in zip(jax.tree.leaves(resumed.state), jax.tree.leaves(straight.state)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+    # Fast-forward: without a checkpoint, resume=true alone has nothing to start from.
+    with pytest.raises(CheckpointError, match="no checkpoint to resume from"):
+        train_fn(dataclasses.replace(config, out=elsewhere, resume=True))
+    with pytest.raises(ValueError, match="fast_forward=true continues a run from its records: pass resume=true too"):
+        train_fn(dataclasses.replace(config, out=elsewhere, fast_forward=True))
+    metrics_path = os.path.join(elsewhere, "metrics.jsonl")
+    recorded = [json.loads(line) for line in open(metrics_path)]
+    assert [row["state_fingerprint"] for row in recorded] == [row["state_fingerprint"] for row in straight.metrics[:2]]
+    # A rebuilt state that is not the recorded one (a device that computes differently; here
+    # a record altered) stops the command in one line, the records untouched.
+    altered = [{**row, "state_fingerprint": row["state_fingerprint"] ^ 1} if row["env_steps"] == 1000 else row
+               for row in recorded]
+    with open(metrics_path, "w") as file:
+        file.writelines(json.dumps(row) + "\n" for row in altered)
+    ahead = dataclasses.replace(config, out=elsewhere, resume=True, fast_forward=True)
+    with pytest.raises(FastForwardDiverged, match=f"fast-forward diverged at env step 1000 in {elsewhere}: the rebuilt "
+                                                  "state's fingerprint 0x[0-9a-f]{8} is not the recorded") as error:
+        train_fn(ahead)
+    assert "\n" not in str(error.value)
+    assert [json.loads(line) for line in open(metrics_path)] == altered
+    with open(metrics_path, "w") as file:
+        file.writelines(json.dumps(row) + "\n" for row in recorded)
+    # From the records alone: 2,000 env steps re-trained without scoring, then trained on.
+    forwarded = train_fn(ahead)
+    assert "fast-forward: re-training env steps 0 to 2000 from the start" in capsys.readouterr().err
+    assert forwarded.scores == straight.scores
+    for a, b in zip(jax.tree.leaves(forwarded.state), jax.tree.leaves(straight.state)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    # Records without fingerprints (older runs) cannot be checked, so they are not fast-forwarded.
+    with open(metrics_path, "w") as file:
+        file.writelines(json.dumps({key: value for key, value in row.items() if key != "state_fingerprint"}) + "\n"
+                        for row in forwarded.metrics)
+    shutil.rmtree(os.path.join(elsewhere, "checkpoints"))
+    with pytest.raises(ValueError, match=f"nothing to fast-forward: {elsewhere} records no scoring with a state "
+                                         "fingerprint after env step 0"):
+        train_fn(dataclasses.replace(ahead, total_steps=4500))
 
 
 def test_corrupt_checkpoint_and_divergence_keep_finished_work(tmp_path):
