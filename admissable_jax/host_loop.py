@@ -243,29 +243,14 @@ class TrainingLoop:
                     self._check_finite(chunk_metrics, env_steps)
                     self._check_physics(np.any(chunk_metrics["capacity_exceeded"]), env_steps)
 
-                    rows = []
                     if scoring < first_scored:
                         bar.set_description_str("fast-forward")
+                        rows = []
                         state = self._put_recorded_round(state, [of_run[scoring - first_scoring] for of_run in recorded])
                     else:
                         bar.set_description_str("scoring")
-                        started = time.perf_counter()
-                        state, scores, fingerprint = self.score_and_update(state)
-                        scores, p_miss, pool, grad_steps, fingerprint = self.host_rows(
-                            (scores, state.p_miss, state.pool, state.grad_steps, fingerprint))
-                        self._check_physics(np.any(scores.capacity_exceeded), env_steps)
-                        score_seconds = time.perf_counter() - started
-                        for index, run in enumerate(self.runs):
-                            pick = lambda tree: self.select_pair(tree, index)
-                            if scoring == first_scored:  # this command's first row: say what made it
-                                run.record_invocation(invocation)
-                            rows.append(score_row(env_steps, pick(scores), pick(p_miss),
-                                                  np.asarray(self.trainer.scored_sets(pick(pool))),
-                                                  self.trainer.spec.score_estimator, listed=self.trainer.pooled))
-                            run.append("scores.jsonl", rows[-1])
-                            run.append("metrics.jsonl", metrics_row(
-                                env_steps, int(pick(grad_steps)), pick(chunk_metrics),
-                                train_seconds, score_seconds, config, self.num_runs, int(pick(fingerprint))))
+                        state, rows = self._score_and_record(state, env_steps, chunk_metrics, train_seconds,
+                                                             invocation if scoring == first_scored else None)
 
                     last = scoring == num_scorings - 1
                     now = time.perf_counter()
@@ -305,6 +290,29 @@ class TrainingLoop:
         iteration_axis = 1 if self.placement else 0  # after the pair axis
         return state, jax.tree.map(lambda *pieces: np.concatenate(pieces, axis=iteration_axis),
                                    *[self.host_rows(metrics) for metrics in piece_metrics])
+
+    def _score_and_record(self, state: TrainState, env_steps: int, chunk_metrics: dict[str, np.ndarray],
+                          train_seconds: float, invocation: dict[str, Any] | None) -> tuple[TrainState, list[dict]]:
+        """The scoring round after an interval, and each run's rows of it appended to its
+        ``scores.jsonl`` and ``metrics.jsonl`` (after ``invocation``, this command's record,
+        where this is its first row). Returns the state and the runs' score rows."""
+        started = time.perf_counter()
+        state, scores, fingerprint = self.score_and_update(state)
+        scores, p_miss, pool, grad_steps, fingerprint = self.host_rows(
+            (scores, state.p_miss, state.pool, state.grad_steps, fingerprint))
+        self._check_physics(np.any(scores.capacity_exceeded), env_steps)
+        score_seconds = time.perf_counter() - started
+        rows = []
+        for index, run in enumerate(self.runs):
+            pick = lambda tree: self.select_pair(tree, index)
+            if invocation is not None:
+                run.record_invocation(invocation)
+            rows.append(score_row(env_steps, pick(scores), pick(p_miss), np.asarray(self.trainer.scored_sets(pick(pool))),
+                                  self.trainer.spec.score_estimator, listed=self.trainer.pooled))
+            run.append("scores.jsonl", rows[-1])
+            run.append("metrics.jsonl", metrics_row(env_steps, int(pick(grad_steps)), pick(chunk_metrics), train_seconds,
+                                                    score_seconds, self.config, self.num_runs, int(pick(fingerprint))))
+        return state, rows
 
     def _recorded_scorings(self, start_step: int) -> list[list[RecordedScoring]]:
         """Each run's recorded rounds after ``start_step`` (:func:`~admissable_jax.fast_forward.recorded_scorings`),
