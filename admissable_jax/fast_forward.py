@@ -44,22 +44,30 @@ class RecordedScoring:
     fingerprint: int
 
 
-def recorded_scorings(run: RunDirectory, after: int, score_every: int, set_index: dict[tuple[int, ...], int] | None
-                      ) -> list[RecordedScoring]:
-    """The run's recorded rounds after env step ``after``, ζ apart from it, as far as both
-    of its files hold them with a fingerprint. ``set_index`` maps a pool's sets (feature
-    tuples) to their index in U; ``None`` for a run without a pool."""
+def recorded_rows(run: RunDirectory, after: int, score_every: int) -> list[tuple[dict, int]]:
+    """(``scores.jsonl`` row, recorded state fingerprint) of each round the run recorded after
+    env step ``after``, ζ apart from it, as far as both of its files hold them with a fingerprint."""
     scores = {row["env_steps"]: row for row in run.read("scores.jsonl")}
     metrics = {row["env_steps"]: row for row in run.read("metrics.jsonl")}
     found = []
     step = after + score_every
     while step in scores and FINGERPRINT in metrics.get(step, {}):
-        row = scores[step]
-        pool = np.zeros((0,), np.int32) if set_index is None else \
-            np.array([set_index[tuple(parse_set(name))] for name in row["sets"]], np.int32)
-        found.append(RecordedScoring(step, np.asarray(row["p_miss"], np.float32), pool, int(metrics[step][FINGERPRINT])))
+        found.append((scores[step], int(metrics[step][FINGERPRINT])))
         step += score_every
     return found
+
+
+def recorded_scorings(run: RunDirectory, after: int, score_every: int, set_index: dict[tuple[int, ...], int] | None
+                      ) -> list[RecordedScoring]:
+    """:func:`recorded_rows` as what each round left in the state. ``set_index`` maps a
+    pool's sets (feature tuples) to their index in U; ``None`` for a run without a pool."""
+    def pool(row: dict) -> np.ndarray:
+        if set_index is None:
+            return np.zeros((0,), np.int32)
+        return np.array([set_index[tuple(parse_set(name))] for name in row["sets"]], np.int32)
+
+    return [RecordedScoring(row["env_steps"], np.asarray(row["p_miss"], np.float32), pool(row), fingerprint)
+            for row, fingerprint in recorded_rows(run, after, score_every)]
 
 
 def check_fingerprint(run: RunDirectory, recorded: RecordedScoring, rebuilt: int) -> None:

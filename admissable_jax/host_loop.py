@@ -26,12 +26,12 @@ import jax
 import numpy as np
 from tqdm.auto import tqdm
 
-from admissable_jax.checkpointing import Checkpoints
+from admissable_jax.checkpointing import CheckpointError, Checkpoints
 from admissable_jax.cli import in_background, report, reporting, stop_at_next_boundary, ticking
 from admissable_jax.config import TrainConfig, curve_names
 from admissable_jax.envs import make_env
 from admissable_jax.errors import Interrupted, RunFailed
-from admissable_jax.fast_forward import RecordedScoring, check_fingerprint, recorded_scorings
+from admissable_jax.fast_forward import RecordedScoring, check_fingerprint, recorded_rows, recorded_scorings
 from admissable_jax.memory import MemoryBudget, MemoryBudgetExceeded, memory_budget
 from admissable_jax.placement import PairPlacement
 from admissable_jax.provenance import invocation_record
@@ -376,10 +376,16 @@ class TrainingLoop:
 
     def _resume_from(self) -> int | None:
         """The checkpoint step a resumed run continues from (None for a fresh run)."""
-        if not self.config.resume or (self.config.fast_forward and self.checkpoints.latest_step() is None
-                                      and self.config.resume_step < 0):
+        config = self.config
+        if not config.resume or (config.fast_forward and self.checkpoints.latest_step() is None and config.resume_step < 0):
             return None  # a fresh run, or one fast-forwarded from the start
-        return self.checkpoints.step_to_restore(None if self.config.resume_step < 0 else self.config.resume_step)
+        if self.checkpoints.latest_step() is None and not config.fast_forward:
+            reached = min(len(recorded_rows(run, 0, config.score_every)) for run in self.runs) * config.score_every
+            if reached:
+                raise CheckpointError(
+                    f"no checkpoint to resume from in {self.checkpoints.directory}; the records reach env step "
+                    f"{reached}: resume=true fast_forward=true rebuilds the run from them")
+        return self.checkpoints.step_to_restore(None if config.resume_step < 0 else config.resume_step)
 
     def _kept_checkpoint(self) -> str:
         kept = self.checkpoints.latest_step()

@@ -383,7 +383,8 @@ def test_checkpoint_resume_continues_exactly(tmp_path, capsys):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
     # Fast-forward: without a checkpoint, resume=true alone has nothing to start from.
-    with pytest.raises(CheckpointError, match="no checkpoint to resume from"):
+    with pytest.raises(CheckpointError, match=f"no checkpoint to resume from in {elsewhere}/checkpoints; the records "
+                                              "reach env step 2000: resume=true fast_forward=true rebuilds the run"):
         train_fn(dataclasses.replace(config, out=elsewhere, resume=True))
     with pytest.raises(ValueError, match="fast_forward=true continues a run from its records: pass resume=true too"):
         train_fn(dataclasses.replace(config, out=elsewhere, fast_forward=True))
