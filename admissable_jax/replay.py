@@ -69,6 +69,14 @@ def insert(buffer: ReplayBuffer, batch: Transitions) -> ReplayBuffer:
     )
 
 
+def latest(buffer: ReplayBuffer, count: int) -> Transitions:
+    """The ``count`` rows written last (at most the capacity), oldest first."""
+    capacity = buffer.data.reward.shape[0]
+    count = min(count, capacity)
+    indices = (buffer.position - count + jnp.arange(count)) % capacity
+    return jax.tree.map(lambda column: column[indices], buffer.data)
+
+
 def sample(buffer: ReplayBuffer, rng: jax.Array, batch_size: int) -> Transitions:
     """``batch_size`` transitions drawn uniformly, with replacement, from the filled rows."""
     indices = jax.random.randint(rng, (batch_size,), 0, jnp.maximum(buffer.size, 1))

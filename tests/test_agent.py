@@ -127,5 +127,8 @@ def test_replay_buffer_wraps_around_and_samples_only_filled_rows():
         buffer = replay.insert(buffer, transitions(values))
     assert int(buffer.size) == 6 and int(buffer.position) == 2
     np.testing.assert_array_equal(buffer.data.reward, [7, 8, 3, 4, 5, 6])
+    # The rows written last, oldest first, across the wrap (what a state's fingerprint hashes of the buffer).
+    np.testing.assert_array_equal(replay.latest(buffer, 4).reward, [5, 6, 7, 8])
+    np.testing.assert_array_equal(replay.latest(buffer, 10).reward, [3, 4, 5, 6, 7, 8])
     drawn = replay.sample(buffer, jax.random.key(1), 2000).reward
     assert set(np.unique(drawn).tolist()) == {3.0, 4.0, 5.0, 6.0, 7.0, 8.0}
