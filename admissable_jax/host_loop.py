@@ -221,9 +221,10 @@ class TrainingLoop:
         first_scoring = start_step // config.score_every
         first_scored = min(num_scorings, first_scoring + min(map(len, recorded)))  # the first round scored here
         if config.fast_forward:
+            then = "then training on" if first_scored < num_scorings else "the run ends there"
             report(f"fast-forward: re-training env steps {start_step} to {first_scored * config.score_every} from "
                    f"{'checkpoint ' + str(start_step) if resume_from is not None else 'the start'}, each scoring's "
-                   f"p_miss read from the records, then training on")
+                   f"p_miss read from the records; {then}")
         if resume_from is not None or config.fast_forward:
             for run in self.runs:
                 for note in run.set_aside_rows_after(first_scored * config.score_every):
