@@ -75,6 +75,7 @@ def check_fingerprint(run: RunDirectory, recorded: RecordedScoring, rebuilt: int
     if rebuilt != recorded.fingerprint:
         raise FastForwardDiverged(
             f"fast-forward diverged at env step {recorded.env_steps} in {run.path}: the rebuilt state's fingerprint "
-            f"{rebuilt:#010x} is not the recorded {recorded.fingerprint:#010x} (this device does not compute the run "
-            f"as the one that recorded it did); the records are untouched: resume from a checkpoint, or start over"
+            f"{rebuilt:#010x} is not the recorded {recorded.fingerprint:#010x} (this device, or this version of the code, "
+            f"does not compute the run as the recording one did); the records are untouched: resume from a checkpoint, "
+            f"or start over"
         )
