@@ -365,10 +365,11 @@ def test_checkpoint_resume_continues_exactly(tmp_path, capsys):
     checkpoints left behind on another machine): both continue the run bit for bit."""
     from admissable_jax.fast_forward import FastForwardDiverged
 
-    config = dataclasses.replace(POINT_MASS, total_steps=4000, checkpoint_every=1, hidden_size=32, logger="none")
+    config = dataclasses.replace(POINT_MASS, total_steps=2000, score_every=500, learning_starts=500, checkpoint_every=1,
+                                 hidden_size=32, logger="none")
     straight = train_fn(dataclasses.replace(config, out=str(tmp_path / "straight")))
     resumed_dir = str(tmp_path / "resumed")
-    train_fn(dataclasses.replace(config, total_steps=2000, out=resumed_dir))
+    train_fn(dataclasses.replace(config, total_steps=1000, out=resumed_dir))
     elsewhere = str(tmp_path / "elsewhere")  # what comes back from a lent machine: the records, no checkpoint
     shutil.copytree(resumed_dir, elsewhere, ignore=shutil.ignore_patterns("checkpoints"))
     with pytest.raises(FileExistsError, match="resume=true"):
@@ -384,7 +385,7 @@ def test_checkpoint_resume_continues_exactly(tmp_path, capsys):
 
     # Fast-forward: without a checkpoint, resume=true alone has nothing to start from.
     with pytest.raises(CheckpointError, match=f"no checkpoint to resume from in {elsewhere}/checkpoints; the records "
-                                              "reach env step 2000: resume=true fast_forward=true rebuilds the run"):
+                                              "reach env step 1000: resume=true fast_forward=true rebuilds the run"):
         train_fn(dataclasses.replace(config, out=elsewhere, resume=True))
     with pytest.raises(ValueError, match="fast_forward=true continues a run from its records: pass resume=true too"):
         train_fn(dataclasses.replace(config, out=elsewhere, fast_forward=True))
@@ -393,21 +394,21 @@ def test_checkpoint_resume_continues_exactly(tmp_path, capsys):
     assert [row["state_fingerprint"] for row in recorded] == [row["state_fingerprint"] for row in straight.metrics[:2]]
     # A rebuilt state that is not the recorded one (a device that computes differently; here
     # a record altered) stops the command in one line, the records untouched.
-    altered = [{**row, "state_fingerprint": row["state_fingerprint"] ^ 1} if row["env_steps"] == 1000 else row
+    altered = [{**row, "state_fingerprint": row["state_fingerprint"] ^ 1} if row["env_steps"] == 500 else row
                for row in recorded]
     with open(metrics_path, "w") as file:
         file.writelines(json.dumps(row) + "\n" for row in altered)
     ahead = dataclasses.replace(config, out=elsewhere, resume=True, fast_forward=True)
-    with pytest.raises(FastForwardDiverged, match=f"fast-forward diverged at env step 1000 in {elsewhere}: the rebuilt "
+    with pytest.raises(FastForwardDiverged, match=f"fast-forward diverged at env step 500 in {elsewhere}: the rebuilt "
                                                   "state's fingerprint 0x[0-9a-f]{8} is not the recorded") as error:
         train_fn(ahead)
     assert "\n" not in str(error.value)
     assert [json.loads(line) for line in open(metrics_path)] == altered
     with open(metrics_path, "w") as file:
         file.writelines(json.dumps(row) + "\n" for row in recorded)
-    # From the records alone: 2,000 env steps re-trained without scoring, then trained on.
+    # From the records alone: 1,000 env steps re-trained without scoring (learning from 500), then trained on.
     forwarded = train_fn(ahead)
-    assert "fast-forward: re-training env steps 0 to 2000 from the start" in capsys.readouterr().err
+    assert "fast-forward: re-training env steps 0 to 1000 from the start" in capsys.readouterr().err
     assert forwarded.scores == straight.scores
     for a, b in zip(jax.tree.leaves(forwarded.state), jax.tree.leaves(straight.state)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
@@ -418,7 +419,7 @@ def test_checkpoint_resume_continues_exactly(tmp_path, capsys):
     shutil.rmtree(os.path.join(elsewhere, "checkpoints"))
     with pytest.raises(ValueError, match=f"nothing to fast-forward: {elsewhere} records no scoring with a state "
                                          "fingerprint after env step 0"):
-        train_fn(dataclasses.replace(ahead, total_steps=4500))
+        train_fn(dataclasses.replace(ahead, total_steps=2500))
 
 
 def test_corrupt_checkpoint_and_divergence_keep_finished_work(tmp_path):
