@@ -27,6 +27,7 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
+from typing import Callable
 
 import jax
 from omegaconf import OmegaConf
@@ -40,6 +41,7 @@ from admissable_jax.placement import PairPlacement, initialize_distributed
 from admissable_jax.results import comparison_section, mode_differences, summary_table
 from admissable_jax.run_directory import RunDirectory, load_config, read_jsonl
 from admissable_jax.train import TrainResult
+from admissable_jax.training import Trainer, TrainState
 
 def experiment_dir(pairs: list[TrainConfig]) -> str:
     return os.path.dirname(pairs[0].out)
@@ -73,10 +75,8 @@ def run_experiment(config) -> list[TrainResult]:
         if jax.process_index() == 0:
             OmegaConf.save(OmegaConf.structured(config), experiment_yaml)
 
-        arguments = [placement.place(column) for column in stacked_init_arguments(pairs)]
-        spread_init = jax.jit(placement.spread(trainer.init), out_shardings=placement.sharding)
-        init = lambda: spread_init(*arguments)
-        loop = TrainingLoop(trainer, first, runs, Checkpoints(checkpoint_dir, first.keep_checkpoints), init, placement)
+        loop = TrainingLoop(trainer, first, runs, Checkpoints(checkpoint_dir, first.keep_checkpoints),
+                            pairs_init(trainer, pairs, placement), placement)
         if config.budget_only:
             print(f"{len(pairs)} pairs x {first.num_envs} envs, {first.env}: {loop.compile().describe()}; "
                   f"{placement.describe()}")
@@ -88,6 +88,14 @@ def run_experiment(config) -> list[TrainResult]:
                     run.read("metrics.jsonl"))
         for index, run in zip(local_pairs, runs)
     ]
+
+
+def pairs_init(trainer: Trainer, pairs: list[TrainConfig], placement: PairPlacement) -> Callable[[], TrainState]:
+    """The pairs' fresh training state, stacked along the pair axis where ``placement`` puts
+    it (:meth:`Trainer.init <admissable_jax.training.Trainer.init>` of each pair's seed, mode and l)."""
+    arguments = [placement.place(column) for column in stacked_init_arguments(pairs)]
+    spread_init = jax.jit(placement.spread(trainer.init), out_shardings=placement.sharding)
+    return lambda: spread_init(*arguments)
 
 
 def check_same_pairs(config, pairs: list[TrainConfig], experiment_yaml: str) -> None:

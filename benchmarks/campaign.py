@@ -48,7 +48,9 @@ from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.cli import enable_compilation_cache, exit_with, parse_args
 from admissable_jax.envs import env_spec, make_env, resolve_physics
 from admissable_jax.config import ExperimentConfig, pair_configs
-from admissable_jax.host_loop import interval_pieces, make_trainer, queue_pieces, stacked_init_arguments
+from admissable_jax.experiment import pairs_init
+from admissable_jax.host_loop import TrainingLoop, make_trainer, queue_pieces
+from admissable_jax.placement import PairPlacement
 from admissable_jax.training import Trainer
 from common import COMMITTED_RESULTS_DIR, RESULTS_DIR, append_record, environment_record, timed
 
@@ -71,36 +73,30 @@ class PlanConfig(ExperimentConfig):
     speed_device: str = dataclasses.field(default="", metadata={"help": "plan from this device's speed records ('' = this device's), e.g. an H100's on an H200 that has none"})
 
 
-def _experiment_trainer(config: ExperimentConfig) -> tuple[Trainer, list, Trainer]:
-    """(trainer, pair configs, the same trainer on an env that never terminates)."""
-    pairs = pair_configs(config)
-    trainer = make_trainer(pairs[0], num_runs=len(pairs))
-    endless_env = make_env(trainer.spec.env, dataclasses.replace(trainer.spec.env_options, terminate_when_unhealthy=False))
-    return trainer, pairs, Trainer(endless_env, trainer.spec)
-
-
 def measure(config: MeasureConfig) -> int:
-    trainer, pairs, endless = _experiment_trainer(config)
-    arguments = stacked_init_arguments(pairs)
-    init = jax.jit(lambda: jax.vmap(trainer.init)(*arguments))
-    pieces = interval_pieces(trainer.spec.iterations_per_scoring)
-    piece = jax.vmap(lambda state: trainer.run_chunk(state, trainer.spec.iterations_per_scoring // pieces))
-
-    # Compiled as the experiment compiles them (the state donated to each program).
+    pairs = pair_configs(config)
+    placement = PairPlacement.over(len(pairs), config.devices)
+    trainer = make_trainer(pairs[0], num_runs=placement.pairs_per_device)
+    # The experiment's own programs, compiled by its host loop (the state donated to each), so
+    # that the run measured here finds them in the compilation cache and starts compiled.
+    loop = TrainingLoop(trainer, pairs[0], [], None, pairs_init(trainer, pairs, placement), placement)
     start = time.perf_counter()
-    state = init()
-    piece = jax.jit(piece, donate_argnums=0).lower(state).compile()
-    score = jax.jit(jax.vmap(trainer.score_and_update), donate_argnums=0).lower(state).compile()
+    loop.compile()
+    state = loop.init()
     compile_s = time.perf_counter() - start
-    score_full = jax.jit(jax.vmap(endless.score_and_update), donate_argnums=0).lower(state).compile()
+    # Every round at full length: the same scoring on an env that never terminates.
+    endless = Trainer(make_env(trainer.spec.env, dataclasses.replace(trainer.spec.env_options, terminate_when_unhealthy=False)),
+                      trainer.spec)
+    score_full = jax.jit(placement.spread(endless.score_and_update), donate_argnums=0, in_shardings=placement.sharding,
+                         out_shardings=placement.sharding).lower(state).compile()
 
     def chunk(state):  # one interval as the experiment trains it: its pieces queued at once
-        state, piece_metrics = queue_pieces(piece, state, pieces)
+        state, piece_metrics = queue_pieces(loop.run_piece, state, loop.pieces)
         return state, jax.tree.map(lambda *parts: jax.numpy.concatenate(parts, axis=1), *piece_metrics)
 
     (state, _), first_chunk_s = timed(chunk, state)  # learning starts within it
     (state, metrics), chunk_s = timed(chunk, state)
-    (state, scores), score_s = timed(score, state)
+    (state, scores, _), score_s = timed(loop.score_and_update, state)
     (state, full), score_full_s = timed(score_full, state)
     with tempfile.TemporaryDirectory() as directory:
         checkpoints = Checkpoints(directory)
