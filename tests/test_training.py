@@ -422,6 +422,26 @@ def test_checkpoint_resume_continues_exactly(tmp_path, capsys):
         train_fn(dataclasses.replace(ahead, total_steps=2500))
 
 
+def test_a_state_fingerprint_sees_every_bit_and_where_it_is():
+    """The fingerprint a fast-forward checks: equal for equal bits (whatever order a device
+    sums in), different for one flipped bit, two values swapped, or a leaf's change of kind."""
+    from admissable_jax.fingerprints import tree_fingerprint
+
+    values = jax.random.normal(jax.random.key(0), (1000, 7))
+    tree = {"params": values, "steps": jnp.int32(12), "done": jnp.zeros(5, bool), "key": jax.random.PRNGKey(3)}
+    fingerprint = jax.jit(tree_fingerprint)
+    base = int(fingerprint(tree))
+    assert base == int(tree_fingerprint(tree)) == int(fingerprint(jax.tree.map(jnp.copy, tree)))
+    flipped = values.at[500, 3].set(jax.lax.bitcast_convert_type(
+        jax.lax.bitcast_convert_type(values[500, 3], jnp.uint32) ^ jnp.uint32(1), jnp.float32))
+    swapped = values.at[0, 0].set(values[1, 0]).at[1, 0].set(values[0, 0])
+    changed = [{**tree, "params": flipped}, {**tree, "params": swapped}, {**tree, "steps": jnp.int32(13)},
+               {**tree, "done": tree["done"].at[4].set(True)}, {**tree, "steps": jnp.float32(12)}]
+    assert len({base, *(int(fingerprint(other)) for other in changed)}) == 1 + len(changed)
+    np.testing.assert_array_equal(jax.vmap(tree_fingerprint)(jax.tree.map(lambda leaf: jnp.stack([leaf, leaf]), tree)),
+                                  [base, base])
+
+
 def test_corrupt_checkpoint_and_divergence_keep_finished_work(tmp_path):
     out = str(tmp_path / "diverges")
     # Learning starts after the first scoring; a huge learning rate then blows up the losses.
