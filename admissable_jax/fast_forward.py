@@ -7,14 +7,15 @@ on as every round moves it. The first two are in the round's ``scores.jsonl`` ro
 (float32 values written in full); training between two scorings reads nothing else of a
 round. So the training chunks re-run from the last checkpoint (or from the start) with
 each recorded round's p_miss and pool put in its place rebuild the state the run had, at
-the cost of the chunks alone: on a GPU the scoring rounds are most of a run's time (Hopper,
-7.5 of 9.8 s per ζ on an H100), so a run whose multi-GB replay buffer cannot leave its
-machine continues on another after re-training its first part there. A device gives the
-same state only where it computes as the recording one did (the same program on the same
-kind of device, deterministic kernels), so every rebuilt state's fingerprint
-(:func:`~admissable_jax.fingerprints.tree_fingerprint`) is checked against the one its
-``metrics.jsonl`` row recorded, and the first that differs stops the command in one line,
-the records untouched.
+the cost of the chunks alone: the scoring rounds, much of a run's time once its episodes
+run long, are skipped, and a run whose checkpoints are lost, or stayed on a machine its
+replay buffer could not leave, goes on from its records. A device gives the same state only
+where it computes as the recording one did (the same program on the same kind of device,
+deterministic kernels: the CPU does; MuJoCo Warp on a GPU, which adds floats with atomics
+in no fixed order, is not expected to), so every rebuilt state's fingerprint
+(:meth:`Trainer.fingerprint <admissable_jax.training.Trainer.fingerprint>`) is checked
+against the one its ``metrics.jsonl`` row recorded, and the first that differs stops the
+command in one line, the records untouched.
 """
 
 from __future__ import annotations

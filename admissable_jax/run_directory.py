@@ -33,8 +33,8 @@ from admissable_jax.scoring import MissingnessScores
 # Settings that may change when a run is resumed; any other difference is refused.
 # score_envs only changes how many episodes a scoring round steps at once, not its scores;
 # out is wherever the run directory is now (it may have been moved or copied).
-RESUMABLE_CHANGES = ("resume", "resume_step", "fast_forward", "total_steps", "progress", "checkpoint_every", "keep_checkpoints",
-                     "score_envs", "out", "time_limit", "logger")
+RESUMABLE_CHANGES = ("resume", "resume_step", "fast_forward", "total_steps", "progress", "checkpoint_every",
+                     "keep_checkpoints", "score_envs", "out", "time_limit", "logger")
 
 
 OBSERVATION_NAMES = "observation_names.json"
