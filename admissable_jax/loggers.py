@@ -34,6 +34,11 @@ def parse_logger_names(names: str) -> tuple[str, ...]:
     return tuple(name for name in parsed if name != "none")
 
 
+# metrics.jsonl's key for the training state's fingerprint (admissable_jax.fast_forward): a
+# hash, not a curve, so the loggers leave it out.
+FINGERPRINT = "state_fingerprint"
+
+
 @dataclasses.dataclass
 class FlatRow:
     """One JSONL row as loggers take it: scalars by tag, p_miss (or None), the env step."""
@@ -48,7 +53,7 @@ def flatten_row(file_name: str, row: dict[str, Any]) -> FlatRow:
     prefix = file_name.removesuffix(".jsonl")
     scalars = {
         f"{prefix}/{key}": float(value) for key, value in row.items()
-        if key != "env_steps" and isinstance(value, (int, float)) and not isinstance(value, bool)
+        if key not in ("env_steps", FINGERPRINT) and isinstance(value, (int, float)) and not isinstance(value, bool)
     }
     for index, score in enumerate(row.get("scores", ())):
         scalars[f"a_u/{index:03d}"] = float(score)

@@ -25,7 +25,7 @@ from admissable_jax.config import TrainConfig
 from admissable_jax.envs import env_physics, observation_names
 from admissable_jax.errors import make_directory, remove_if_unused
 from admissable_jax.locks import RunLock
-from admissable_jax.loggers import Loggers
+from admissable_jax.loggers import FINGERPRINT, Loggers
 from admissable_jax.missingness import describe_set
 from admissable_jax.provenance import INVOCATIONS
 from admissable_jax.scoring import MissingnessScores
@@ -38,7 +38,6 @@ RESUMABLE_CHANGES = ("resume", "resume_step", "fast_forward", "total_steps", "pr
 
 
 OBSERVATION_NAMES = "observation_names.json"
-FINGERPRINT = "state_fingerprint"  # metrics.jsonl: the training state's fingerprint after the scoring
 # What a run writes before its first scoring: a folder holding only these is removed again.
 SETTINGS_FILES = ("config.yaml", OBSERVATION_NAMES)
 

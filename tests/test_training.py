@@ -169,7 +169,9 @@ def test_loggers_mirror_the_jsonl_rows(point_mass_run):
         np.testing.assert_allclose(logged["p_miss/bins"], np.arange(5) - 0.5)
     for row in point_mass_run.metrics[1:]:
         assert values["metrics/critic_loss"][row["env_steps"]] == pytest.approx(row["critic_loss"], rel=1e-6)
+        assert "state_fingerprint" in row and "metrics/state_fingerprint" not in wandb_rows[row["env_steps"]]
         assert wandb_rows[row["env_steps"]]["metrics/critic_loss"] == pytest.approx(row["critic_loss"], rel=1e-6)
+    assert "metrics/state_fingerprint" not in values  # a hash, not a curve
     with open(os.path.join(point_mass_run.run_dir, "wandb_run_id")) as file:  # resume=true logs on into this run
         assert glob.glob(os.path.join(point_mass_run.run_dir, "wandb", f"offline-run-*-{file.read().strip()}"))
 
