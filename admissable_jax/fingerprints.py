@@ -3,11 +3,11 @@ training state agree bit for bit (a fast-forwarded run against the one that reco
 :mod:`admissable_jax.fast_forward`).
 
 Every leaf's bits are read as uint32 words (floats bitcast, integers and bools widened),
-each word multiplied by an odd constant of its position and summed modulo 2^32: an integer
-sum, so the result does not depend on the order in which a device reduces it (a float sum
-would), and swapping two different values changes it. The leaves' sums are combined in
-the tree's order. 32 bits: two different states share a fingerprint with probability about
-2^-32 per comparison.
+the leaves' words joined in the tree's order, each word multiplied by an odd constant of its
+position and summed modulo 2^32: an integer sum, so the result does not depend on the order
+in which a device reduces it (a float sum would), and swapping two different values changes
+it. 32 bits: two different states share a fingerprint with probability about 2^-32 per
+comparison.
 """
 
 from __future__ import annotations
@@ -32,15 +32,11 @@ def _words(leaf: jax.Array) -> jax.Array:
     return leaf.astype(jnp.uint32).ravel()  # bools, small and 64-bit integers
 
 
-def _leaf_sum(words: jax.Array) -> jax.Array:
-    position = jnp.arange(words.size, dtype=jnp.uint32)
-    return jnp.sum(words * (position * jnp.uint32(2) + jnp.uint32(1)) * jnp.uint32(_GOLDEN), dtype=jnp.uint32)
-
-
 def tree_fingerprint(tree: Any) -> jax.Array:
     """() uint32: the fingerprint of every leaf of ``tree`` (module docstring). Pure and
-    jittable; vmap it for a batch of trees."""
-    fingerprint = jnp.uint32(len(jax.tree.leaves(tree)))
-    for leaf in jax.tree.leaves(tree):
-        fingerprint = fingerprint * jnp.uint32(_GOLDEN) + _leaf_sum(_words(leaf))
-    return fingerprint
+    jittable; vmap it for a batch of trees. The leaves' words are joined into one vector and
+    summed at once: a reduction per leaf made XLA:CPU compile a training program's scoring
+    round about 6 s longer."""
+    words = jnp.concatenate([_words(leaf) for leaf in jax.tree.leaves(tree)] or [jnp.zeros((0,), jnp.uint32)])
+    position = jnp.arange(words.size, dtype=jnp.uint32)
+    return jnp.sum(words * (position * jnp.uint32(2) + jnp.uint32(1)) * jnp.uint32(_GOLDEN), dtype=jnp.uint32)
