@@ -25,8 +25,8 @@ import dataclasses
 import numpy as np
 
 from admissable_jax.errors import RunFailed
-from admissable_jax.method import parse_set
 from admissable_jax.loggers import FINGERPRINT
+from admissable_jax.method import parse_set
 from admissable_jax.run_directory import RunDirectory
 
 

@@ -168,17 +168,20 @@ class TrainingLoop:
         sharding = self.placement.sharding
         return jax.tree.map(lambda leaf: jax.ShapeDtypeStruct(leaf.shape, leaf.dtype, sharding=sharding), shapes)
 
+    def _shardings(self) -> dict[str, Any]:
+        """``jax.jit``'s shardings for the loop's programs: the pairs' along the leading axis."""
+        return {"in_shardings": self.placement.sharding, "out_shardings": self.placement.sharding} \
+            if self.placement else {}
+
     def compile(self) -> MemoryBudget:
         """Compile both programs without allocating the state; refuse if they won't fit."""
         abstract_state = self.abstract_state()
         env = self.trainer.env
         where = f"{self.config.env} ({env.physics_name} physics) on {jax.devices()[0].platform}"
-        shardings = {"in_shardings": self.placement.sharding, "out_shardings": self.placement.sharding} \
-            if self.placement else {}
         # Both programs are traced here, then compiled on two threads at once (XLA compiles
         # outside Python's lock, so on two or more cores the compiles overlap) while this
         # thread waits, where a Ctrl-C is heard at once.
-        lowered = [jax.jit(function, donate_argnums=0, **shardings).lower(abstract_state)
+        lowered = [jax.jit(function, donate_argnums=0, **self._shardings()).lower(abstract_state)
                    for function in (self._run_piece, self._score_and_update)]
         with reporting(f"compiling the training step and the scoring round for {where}"):
             compiling = [in_background(program.compile) for program in lowered]
@@ -334,9 +337,7 @@ class TrainingLoop:
     @functools.cached_property
     def recorded_round(self) -> Callable[..., tuple[TrainState, Any]]:
         """The compiled program that puts a recorded round in place (fast-forward only)."""
-        shardings = {"in_shardings": self.placement.sharding, "out_shardings": self.placement.sharding} \
-            if self.placement else {}
-        return jax.jit(self._recorded_round, donate_argnums=0, **shardings)
+        return jax.jit(self._recorded_round, donate_argnums=0, **self._shardings())
 
     def _put_recorded_round(self, state: TrainState, recorded: list[RecordedScoring]) -> TrainState:
         """``state`` as the recorded round (one per run) left it, its fingerprint checked
@@ -378,10 +379,13 @@ class TrainingLoop:
     def _resume_from(self) -> int | None:
         """The checkpoint step a resumed run continues from (None for a fresh run)."""
         config = self.config
-        if not config.resume or (config.fast_forward and self.checkpoints.latest_step() is None and config.resume_step < 0):
-            return None  # a fresh run, or one fast-forwarded from the start
-        if self.checkpoints.latest_step() is None and not config.fast_forward:
-            reached = min(len(recorded_rows(run, 0, config.score_every)) for run in self.runs) * config.score_every
+        if not config.resume:
+            return None  # a fresh run
+        if self.checkpoints.latest_step() is None:
+            if config.fast_forward and config.resume_step < 0:
+                return None  # fast-forwarded from the start
+            reached = 0 if config.fast_forward else \
+                min(len(recorded_rows(run, 0, config.score_every)) for run in self.runs) * config.score_every
             if reached:
                 raise CheckpointError(
                     f"no checkpoint to resume from in {self.checkpoints.directory}; the records reach env step "
