@@ -223,17 +223,18 @@ class TrainingLoop:
         num_scorings = config.planned_steps // config.score_every
         first_scoring = start_step // config.score_every
         first_scored = min(num_scorings, first_scoring + min(map(len, recorded)))  # the first round scored here
+        records_kept_to = first_scored * config.score_every  # start_step, unless fast_forward re-trains further
         if config.fast_forward:
             then = "then training on" if first_scored < num_scorings else "the run ends there"
-            report(f"fast-forward: re-training env steps {start_step} to {first_scored * config.score_every} from "
+            report(f"fast-forward: re-training env steps {start_step} to {records_kept_to} from "
                    f"{'checkpoint ' + str(start_step) if resume_from is not None else 'the start'}, each scoring's "
                    f"p_miss read from the records; {then}")
         if resume_from is not None or config.fast_forward:
             for run in self.runs:
-                for note in run.set_aside_rows_after(first_scored * config.score_every):
+                for note in run.set_aside_rows_after(records_kept_to):
                     report(note)
-        invocation = invocation_record(start_step, budget.device, self.num_devices, self.trainer.env.physics_name,
-                                       self.num_runs)
+        invocation = invocation_record(start_step, records_kept_to if config.fast_forward else None, budget.device,
+                                       self.num_devices, self.trainer.env.physics_name, self.num_runs)
         # smoothing=0: the rate (and the time left) over this invocation, scorings included.
         bar = tqdm(total=config.planned_steps, initial=start_step, unit="step", disable=not config.progress,
                    dynamic_ncols=True, smoothing=0)
@@ -253,8 +254,8 @@ class TrainingLoop:
                         state = self._put_recorded_round(state, [of_run[scoring - first_scoring] for of_run in recorded])
                     else:
                         bar.set_description_str("scoring")
-                        state, rows = self._score_and_record(state, env_steps, chunk_metrics, train_seconds,
-                                                             invocation if scoring == first_scored else None)
+                        state, rows = self._score_and_record(state, env_steps, chunk_metrics, train_seconds, invocation)
+                        invocation = None  # recorded with this command's first rows
 
                     last = scoring == num_scorings - 1
                     now = time.perf_counter()
@@ -264,6 +265,10 @@ class TrainingLoop:
                     if (scoring + 1) % config.checkpoint_every == 0 or last or pause or stopped:
                         bar.set_description_str("saving")
                         self.checkpoints.save(env_steps, state)
+                        if invocation is not None:  # a fast-forward's checkpoint, before any row of this command
+                            for run in self.runs:
+                                run.record_invocation(invocation)
+                            invocation = None
                     bar.set_description_str("")
                     if rows:
                         bar.set_postfix(progress_postfix(rows, self.curves),

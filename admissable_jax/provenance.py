@@ -49,14 +49,16 @@ def source_commit(exclude: tuple[str, ...] = ()) -> str | None:
     return commit + ("+changes" if changed else "")
 
 
-def invocation_record(from_env_steps: int, device: str, devices: int, physics: str,
+def invocation_record(from_env_steps: int, fast_forward_to: int | None, device: str, devices: int, physics: str,
                       runs_in_program: int) -> dict[str, Any]:
-    """One ``invocations.jsonl`` line for the command now training (``device``: the kind,
-    e.g. ``gpu:NVIDIA H100 80GB HBM3``, of the ``devices`` it runs on; ``runs_in_program``:
-    the pairs trained together)."""
+    """One ``invocations.jsonl`` line for the command now training (``fast_forward_to``: the
+    env step to which it re-trains from the records, None without ``fast_forward``;
+    ``device``: the kind, e.g. ``gpu:NVIDIA H100 80GB HBM3``, of the ``devices`` it runs on;
+    ``runs_in_program``: the pairs trained together)."""
     return {
         "started": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "from_env_steps": from_env_steps,
+        "fast_forward_to": fast_forward_to,
         "command": [os.path.basename(sys.executable), *sys.argv],
         "host": platform.node(),
         "device": device,

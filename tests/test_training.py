@@ -408,9 +408,15 @@ def test_checkpoint_resume_continues_exactly(tmp_path, capsys):
     assert [json.loads(line) for line in open(metrics_path)] == altered
     with open(metrics_path, "w") as file:
         file.writelines(json.dumps(row) + "\n" for row in recorded)
-    # From the records alone: 1,000 env steps re-trained without scoring (learning from 500), then trained on.
-    forwarded = train_fn(ahead)
-    assert "fast-forward: re-training env steps 0 to 1000 from the start" in capsys.readouterr().err
+    # From the records alone: 1,000 env steps re-trained without scoring (learning from 500) to
+    # a checkpoint, a command that says so in invocations.jsonl though it wrote no row; then
+    # trained on from that checkpoint.
+    train_fn(dataclasses.replace(ahead, total_steps=1000))
+    assert "fast-forward: re-training env steps 0 to 1000 from the start, each scoring's p_miss read from the " \
+           "records; the run ends there" in capsys.readouterr().err
+    invocations = [json.loads(line) for line in open(os.path.join(elsewhere, "invocations.jsonl"))]
+    assert [(record["from_env_steps"], record["fast_forward_to"]) for record in invocations] == [(0, None), (0, 1000)]
+    forwarded = train_fn(dataclasses.replace(ahead, fast_forward=False))
     assert forwarded.scores == straight.scores
     for a, b in zip(jax.tree.leaves(forwarded.state), jax.tree.leaves(straight.state)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
