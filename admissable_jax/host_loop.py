@@ -143,9 +143,7 @@ class TrainingLoop:
             state = trainer.after_scoring(state, p_miss, pool)
             return state, trainer.fingerprint(state)
 
-        spread = placement.spread if placement else (lambda function: function)
-        self._run_piece, self._score_and_update, self._recorded_round = map(
-            spread, (run_piece, score_and_update, recorded_round))
+        self._run_piece, self._score_and_update, self._recorded_round = run_piece, score_and_update, recorded_round
 
     def host_rows(self, tree: Any) -> Any:
         """A device pytree of the loop's on the host: this process's pairs along the leading
@@ -168,10 +166,13 @@ class TrainingLoop:
         sharding = self.placement.sharding
         return jax.tree.map(lambda leaf: jax.ShapeDtypeStruct(leaf.shape, leaf.dtype, sharding=sharding), shapes)
 
-    def _shardings(self) -> dict[str, Any]:
-        """``jax.jit``'s shardings for the loop's programs: the pairs' along the leading axis."""
-        return {"in_shardings": self.placement.sharding, "out_shardings": self.placement.sharding} \
-            if self.placement else {}
+    def program(self, function: Callable[..., Any]) -> Callable[..., Any]:
+        """``function`` of a training state (and its first result one), as the loop runs it:
+        jitted with the state donated, and with a placement run per pair on the pairs' devices."""
+        if not self.placement:
+            return jax.jit(function, donate_argnums=0)
+        sharding = self.placement.sharding
+        return jax.jit(self.placement.spread(function), donate_argnums=0, in_shardings=sharding, out_shardings=sharding)
 
     def compile(self) -> MemoryBudget:
         """Compile both programs without allocating the state; refuse if they won't fit."""
@@ -181,8 +182,7 @@ class TrainingLoop:
         # Both programs are traced here, then compiled on two threads at once (XLA compiles
         # outside Python's lock, so on two or more cores the compiles overlap) while this
         # thread waits, where a Ctrl-C is heard at once.
-        lowered = [jax.jit(function, donate_argnums=0, **self._shardings()).lower(abstract_state)
-                   for function in (self._run_piece, self._score_and_update)]
+        lowered = [self.program(function).lower(abstract_state) for function in (self._run_piece, self._score_and_update)]
         with reporting(f"compiling the training step and the scoring round for {where}"):
             compiling = [in_background(program.compile) for program in lowered]
             self.run_piece, self.score_and_update = [program.result() for program in compiling]
@@ -342,7 +342,7 @@ class TrainingLoop:
     @functools.cached_property
     def recorded_round(self) -> Callable[..., tuple[TrainState, Any]]:
         """The compiled program that puts a recorded round in place (fast-forward only)."""
-        return jax.jit(self._recorded_round, donate_argnums=0, **self._shardings())
+        return self.program(self._recorded_round)
 
     def _put_recorded_round(self, state: TrainState, recorded: list[RecordedScoring]) -> TrainState:
         """``state`` as the recorded round (one per run) left it, its fingerprint checked

@@ -87,8 +87,7 @@ def measure(config: MeasureConfig) -> int:
     # Every round at full length: the same scoring on an env that never terminates.
     endless = Trainer(make_env(trainer.spec.env, dataclasses.replace(trainer.spec.env_options, terminate_when_unhealthy=False)),
                       trainer.spec)
-    score_full = jax.jit(placement.spread(endless.score_and_update), donate_argnums=0, in_shardings=placement.sharding,
-                         out_shardings=placement.sharding).lower(state).compile()
+    score_full = loop.program(endless.score_and_update).lower(state).compile()
 
     def chunk(state):  # one interval as the experiment trains it: its pieces queued at once
         state, piece_metrics = queue_pieces(loop.run_piece, state, loop.pieces)
