@@ -179,15 +179,19 @@ class PairPlacement:
         """Pair ``pair``'s part of a pair-sharded pytree, on the device that holds it, read from
         that device's shard alone. (Indexing the global array instead compiles a gather in
         which every device takes part in an all-reduce; XLA:CPU deadlocked once with a pytree's
-        worth of them in flight.) ValueError when no device of this process holds the pair."""
-        def row(leaf: jax.Array) -> jax.Array:
+        worth of them in flight.) One program takes every leaf's row: indexed leaf by leaf, each
+        leaf's shape compiled two small programs of its own. ValueError when no device of this
+        process holds the pair."""
+        def shard_and_row(leaf: jax.Array) -> tuple[jax.Array, int]:
             for shard in leaf.addressable_shards:
                 start, stop, _ = shard.index[0].indices(leaf.shape[0])
                 if start <= pair < stop:
-                    return shard.data[pair - start]
+                    return shard.data, pair - start
             raise ValueError(f"pair {pair} is not on a device of process {jax.process_index()}")
 
-        return jax.tree.map(row, tree)
+        leaves, structure = jax.tree.flatten(tree)
+        shards, rows = zip(*map(shard_and_row, leaves)) if leaves else ((), ())
+        return jax.tree.unflatten(structure, _rows_of(list(shards), list(rows)))
 
     def any_process(self, flag: bool) -> bool:
         """Whether ``flag`` holds in any process (every process gets the same answer, so
@@ -195,3 +199,9 @@ class PairPlacement:
         if jax.process_count() == 1:
             return bool(flag)
         return bool(np.any(multihost_utils.process_allgather(np.asarray(flag, bool))))
+
+
+@jax.jit
+def _rows_of(leaves: list[jax.Array], rows: list[int]) -> list[jax.Array]:
+    """Row ``rows[i]`` of each ``leaves[i]``, in one program."""
+    return [leaf[row] for leaf, row in zip(leaves, rows)]

@@ -9,9 +9,9 @@ from __future__ import annotations
 import collections
 import csv
 import dataclasses
-import functools
 import glob
 import json
+import logging
 import os
 import shutil
 import struct
@@ -321,24 +321,28 @@ def _feature_zero_controller(gain, masked_obs):
     return jnp.clip(jnp.array([-gain * masked_obs[0], 0.0]), -1.0, 1.0)
 
 
-def test_score_missingness_equals_a_plain_loop_and_finds_the_used_feature():
+def test_score_missingness_equals_a_plain_loop_and_finds_the_used_feature(caplog):
     env = make_env("point_mass", episode_length=60)
     hidden_sets = candidate_sets(4, k=1)
     rng = jax.random.key(7)
     n_episodes = 3
-    score = jax.jit(score_missingness, static_argnums=(0, 1, 5, 6, 7))
-    scored = score(env, _feature_zero_controller, 2.0, rng, hidden_sets, n_episodes, None, None)
+    scored = score_missingness(env, _feature_zero_controller, 2.0, rng, hidden_sets, n_episodes)
+    # Called directly it runs compiled: the same call again compiles nothing.
+    with jax.log_compiles(), caplog.at_level(logging.WARNING):
+        again = score_missingness(env, _feature_zero_controller, 2.0, jax.random.key(8), hidden_sets, n_episodes)
+    assert not [record for record in caplog.records if "Compiling" in record.getMessage()]
+    assert again.returns.shape == scored.returns.shape and not np.array_equal(again.returns, scored.returns)
     # A pool of 4 slots for the 15 episodes: slots start unstarted episodes as theirs end.
-    pooled = score(env, _feature_zero_controller, 2.0, rng, hidden_sets, n_episodes, None, 4)
+    pooled = score_missingness(env, _feature_zero_controller, 2.0, rng, hidden_sets, n_episodes, num_slots=4)
     np.testing.assert_array_equal(pooled.lengths, scored.lengths)
     np.testing.assert_allclose(pooled.returns, scored.returns, rtol=1e-6)
     assert int(scored.loop_steps) == int(scored.lengths.max())
     assert int(pooled.loop_steps) >= int(np.ceil(scored.lengths.sum() / 4))
     # Checking for running episodes every 7 steps only (GPU hosts wait at each check): the
     # steps past the last episode's end change nothing, and are not counted.
-    blocked = jax.jit(functools.partial(score_missingness, steps_per_check=7), static_argnums=(0, 1, 5, 6, 7))
     for reference, slots in ((scored, None), (pooled, 4)):
-        checked = blocked(env, _feature_zero_controller, 2.0, rng, hidden_sets, n_episodes, None, slots)
+        checked = score_missingness(env, _feature_zero_controller, 2.0, rng, hidden_sets, n_episodes, num_slots=slots,
+                                    steps_per_check=7)
         np.testing.assert_array_equal(checked.lengths, reference.lengths)
         np.testing.assert_allclose(checked.returns, reference.returns, rtol=1e-6)
         assert int(checked.loop_steps) == int(reference.loop_steps)

@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import functools
 import numbers
 from typing import Any, Callable
 
@@ -45,15 +46,28 @@ def score_missingness(
     ``num_slots`` and ``steps_per_check`` concern ``rollout`` (see ``score_by_rollout``); ``critic_fn(critic_params,
     masked_obs, action) -> (2,)`` twin Q, ``score_horizon`` (H) and ``gamma`` the other two.
     ``progress(finished)``: the ``rollout``'s episodes finished so far, told from inside it.
-    Jit-able with ``env``, the functions, the sizes and the estimator's settings static."""
+    Called directly it runs as one program, compiled once per env, function, setting and
+    shape of ``hidden_sets`` (op by op, each call compiled its rollout again and each eager
+    op of its start states once); inside a caller's jit it is part of the caller's program."""
     _check_arguments(env, hidden_sets, n_episodes)
+    if score_estimator not in SCORE_ESTIMATORS:
+        raise ValueError(f"score_estimator must be one of {', '.join(SCORE_ESTIMATORS)}, got {score_estimator!r}")
+    if score_estimator != "rollout" and critic_fn is None:
+        raise ValueError(f"score_estimator={score_estimator} needs the critic (critic_fn and critic_params)")
+    return _scores(env, policy_fn, params, rng, hidden_sets, int(n_episodes), max_steps, num_slots, steps_per_check,
+                   score_estimator, critic_fn, critic_params, score_horizon, gamma, progress)
+
+
+@functools.partial(jax.jit, static_argnums=(0, 1, 5, 6, 7, 8, 9, 10, 12, 13, 14))
+def _scores(env, policy_fn: PolicyFn, params: Any, rng: jax.Array, hidden_sets: jax.Array, n_episodes: int,
+            max_steps: int | None, num_slots: int | None, steps_per_check: int, score_estimator: str,
+            critic_fn: CriticFn | None, critic_params: Any, score_horizon: int, gamma: float,
+            progress: Callable[[jax.Array], None] | None) -> MissingnessScores:
+    """:func:`score_missingness` once its arguments are checked (everything but the
+    parameters, the key and the sets static)."""
     if score_estimator == "rollout":
         return score_by_rollout(env, policy_fn, params, rng, hidden_sets, n_episodes, max_steps, num_slots,
                                 steps_per_check, progress)
-    if score_estimator not in SCORE_ESTIMATORS:
-        raise ValueError(f"score_estimator must be one of {', '.join(SCORE_ESTIMATORS)}, got {score_estimator!r}")
-    if critic_fn is None:
-        raise ValueError(f"score_estimator={score_estimator} needs the critic (critic_fn and critic_params)")
     horizon = score_horizon if score_estimator == "horizon" else 0
     return estimate_scores(env, policy_fn, params, critic_fn, critic_params, rng, hidden_sets, n_episodes, horizon, gamma)
 
