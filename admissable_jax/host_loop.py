@@ -167,8 +167,9 @@ class TrainingLoop:
         return jax.tree.map(lambda leaf: jax.ShapeDtypeStruct(leaf.shape, leaf.dtype, sharding=sharding), shapes)
 
     def program(self, function: Callable[..., Any]) -> Callable[..., Any]:
-        """``function`` of a training state (and its first result one), as the loop runs it:
-        jitted with the state donated, and with a placement run per pair on the pairs' devices."""
+        """``function``, whose first argument and first result are the training state, jitted
+        as the loop runs its programs: the state donated and, with a placement, each pair's
+        part run on the device that holds it."""
         if not self.placement:
             return jax.jit(function, donate_argnums=0)
         sharding = self.placement.sharding
