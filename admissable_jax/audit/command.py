@@ -13,10 +13,10 @@ from typing import TYPE_CHECKING
 from admissable_jax.audit.report import compare_modes, comparison_chart, over_training_chart, over_training_table, \
     pair_curves, shapley_order, write_audit
 from admissable_jax.audit.sets import AuditResult, audit, audit_gymnasium, check_audit_size, check_search, \
-    gymnasium_features, plan_size, shapley_plan
+    gymnasium_features, rollout_sets, shapley_plan
 from admissable_jax.cli import enable_compilation_cache, parse_args, reporting, run_from_cli, setting
 from admissable_jax.errors import make_directory, remove_if_unused
-from admissable_jax.method import num_candidate_sets, set_sizes
+from admissable_jax.method import set_sizes
 from admissable_jax.scoring import SCORE_ESTIMATORS
 from admissable_jax.scoring.attribution import MIN_ORDERS, ShapleyPlan
 
@@ -183,13 +183,14 @@ def _audit_env(config: AuditConfig, policy: TrainedPolicy) -> MjxEnv:
 
 
 def _slots(config: AuditConfig, policy: TrainedPolicy) -> int:
-    """Episodes stepped at once: all (sets + clean) × N, at most ``slots``, or as many as
+    """Episodes stepped at once: the most (sets + clean) × N one of its rollouts steps
+    (:func:`~admissable_jax.audit.sets.rollout_sets`), at most ``slots``, or as many as
     training's scoring steps (:func:`~admissable_jax.config.default_score_envs`: 32 on a CPU,
     where a batched step's cost grows with its batch; all on an accelerator), at most 4096."""
     from admissable_jax.config import default_score_envs
 
     d = policy.observation_size
-    num_sets = sum(num_candidate_sets(d, k) for k in _ks(config.k, policy.config)) + plan_size(_plan(config, d))
+    num_sets = rollout_sets(d, _ks(config.k, policy.config), config.search, config.beam_width, _plan(config, d))
     episodes = (num_sets + 1) * config.episodes
     return min(episodes, config.slots) if config.slots else min(default_score_envs(episodes), 4096)
 

@@ -7,13 +7,14 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 from typing import Any
 
 import numpy as np
 
 from admissable_jax.audit.watch import report_from_rollout, watched_rollout
 from admissable_jax.cli import compiled_in_background
-from admissable_jax.method import candidate_sets, num_candidate_sets
+from admissable_jax.method import candidate_sets
 from admissable_jax.scoring import SCORE_ESTIMATORS
 from admissable_jax.scoring.attribution import ShapleyAttribution, ShapleyPlan, plan_shapley, shapley_attribution
 from admissable_jax.scoring.worst_set import gap_above, samples_to_separate, t_half_width
@@ -145,7 +146,7 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
             audit, env, policy_fn, params, ks, num_slots=num_slots, feature_names=feature_names, source=source,
             estimator=estimator, critic_fn=critic_fn, critic_params=critic_params, horizon=horizon, gamma=gamma,
             search=search, beam_width=beam_width, ranker=ranker, progress=progress),
-            ks, n_episodes, seed, shapley, _rollout_sets(d, ks, search, beam_width, plan))
+            ks, n_episodes, seed, shapley, rollout_sets(d, ks, search, beam_width, plan))
     scorer = jax.jit(score_missingness, static_argnums=(0, 1, 5, 6, 7), static_argnames=(
         "score_estimator", "critic_fn", "score_horizon", "gamma", "progress"))
     key = jax.random.key(seed)
@@ -178,7 +179,7 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
         finalists, ranker_scores = np.asarray(found.rows)[kept], np.asarray(found.scores)[kept]
         blocks.append(finalists)
         search_info[k] = {"method": "beam", "beam_width": beam_width, "ranker": ranker,
-                          "sets_ranked": int(found.num_ranked), "sets_in_all": num_candidate_sets(d, k),
+                          "sets_ranked": int(found.num_ranked), "sets_in_all": math.comb(d, k),
                           "ranker_scores": [[np.flatnonzero(row).tolist(), float(score_)]
                                             for row, score_ in zip(finalists, ranker_scores)]}
     return _audit_result(env.name, estimator, lambda rows: score(rows, estimator).returns, ks, blocks, plan,
@@ -287,7 +288,7 @@ def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs
     if tell_apart:
         return _told_apart(functools.partial(audit_gymnasium, env_id, policy, ks, num_envs=num_envs,
                                              feature_names=feature_names, progress=progress, **env_kwargs),
-                           ks, n_episodes, seed, shapley, _rollout_sets(d, ks, None, 0, plan))
+                           ks, n_episodes, seed, shapley, rollout_sets(d, ks, None, 0, plan))
     if feature_names is None:
         try:
             feature_names = observation_names(canonical_env_name(env_id))
@@ -317,7 +318,7 @@ def check_audit_size(env_name: str, d: int, ks, n_episodes: int, search: str | N
     MAX_AUDIT_EPISODES episodes: (its sets, where searched the b finalists, and the plan's
     coalitions, + the clean case) × N; a beam search's levels rank b · d sets a batch.
     ``search`` None: the audit cannot search (a Gymnasium policy's)."""
-    num_sets = _rollout_sets(d, ks, search, beam_width, plan)
+    num_sets = rollout_sets(d, ks, search, beam_width, plan)
     if (num_sets + 1) * n_episodes > MAX_AUDIT_EPISODES:
         offers = ["lower episodes=", "drop the largest k"]
         offers += [] if search is None else ["use search=beam" if search == "exact" else "lower beam_width="]
@@ -326,9 +327,11 @@ def check_audit_size(env_name: str, d: int, ks, n_episodes: int, search: str | N
                          f"episodes in one rollout, over {MAX_AUDIT_EPISODES:,}: {', '.join(offers[:-1])} or {offers[-1]}")
 
 
-def _rollout_sets(d: int, ks, search: str | None, beam_width: int, plan: ShapleyPlan | None) -> int:
+def rollout_sets(d: int, ks, search: str | None, beam_width: int, plan: ShapleyPlan | None) -> int:
     """The most sets an audit's one rollout scores besides the clean case: its sets (where
-    searched, the b finalists) and the plan's coalitions; a beam search's level, b · d."""
+    searched, the b finalists) and the plan's coalitions; a beam search's level, b · d.
+    Counted, never listed: a searched k may have far more sets than U may hold
+    (MAX_CANDIDATE_SETS; Ant at k = 3: 187,460), and an exact one is refused by its count."""
     searched = [k for k in ks if search == "beam" and k > 1]
-    num_sets = sum(beam_width if k in searched else num_candidate_sets(d, k) for k in ks) + plan_size(plan)
+    num_sets = sum(beam_width if k in searched else math.comb(d, k) for k in ks) + plan_size(plan)
     return max(num_sets, beam_width * d if searched else 0)
