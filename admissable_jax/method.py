@@ -35,7 +35,7 @@ def num_candidate_sets(num_features: int, k: int = 1, include_empty: bool = Fals
     if count > MAX_CANDIDATE_SETS:
         sizes = f"C({num_features}, {k})" if not up_to_k else f"C({num_features}, 1) + ... + C({num_features}, {k})"
         raise ValueError(f"{sizes} = {count:,} candidate sets exceed the {MAX_CANDIDATE_SETS:,} that U may hold "
-                         f"(one (|U|, d) matrix, with a pool too): use a smaller k")
+                         f"(it is kept as one (|U|, d) matrix, with pool_size too): use a smaller k")
     return count + int(include_empty)
 
 
