@@ -255,21 +255,21 @@ class TrainingLoop:
                         state = self._put_recorded_round(state, [of_run[scoring - first_scoring] for of_run in recorded])
                     else:
                         bar.set_description_str("scoring")
-                        state, rows = self._score_and_record(state, env_steps, chunk_metrics, train_seconds, invocation)
-                        invocation = None  # recorded with this command's first rows
+                        state, rows = self._score_and_record(state, env_steps, chunk_metrics, train_seconds)
 
                     last = scoring == num_scorings - 1
                     now = time.perf_counter()
                     pause = self.any_process(not last and config.time_limit > 0
                                              and now - started_run + (now - interval_started) > config.time_limit)
                     stopped = not last and self.any_process(stop.requested)  # Ctrl-C or SIGTERM, in any process
-                    if (scoring + 1) % config.checkpoint_every == 0 or last or pause or stopped:
+                    saving = (scoring + 1) % config.checkpoint_every == 0 or last or pause or stopped
+                    if invocation is not None and (rows or saving):  # this command's first rows or checkpoint
+                        for run in self.runs:
+                            run.record_invocation(invocation)
+                        invocation = None
+                    if saving:
                         bar.set_description_str("saving")
                         self.checkpoints.save(env_steps, state)
-                        if invocation is not None:  # a fast-forward's checkpoint, before any row of this command
-                            for run in self.runs:
-                                run.record_invocation(invocation)
-                            invocation = None
                     bar.set_description_str("")
                     if rows:
                         bar.set_postfix(progress_postfix(rows, self.curves),
@@ -302,10 +302,9 @@ class TrainingLoop:
                                    *[self.host_rows(metrics) for metrics in piece_metrics])
 
     def _score_and_record(self, state: TrainState, env_steps: int, chunk_metrics: dict[str, np.ndarray],
-                          train_seconds: float, invocation: dict[str, Any] | None) -> tuple[TrainState, list[dict]]:
+                          train_seconds: float) -> tuple[TrainState, list[dict]]:
         """The scoring round after an interval, and each run's rows of it appended to its
-        ``scores.jsonl`` and ``metrics.jsonl`` (after ``invocation``, this command's record,
-        where this is its first row). Returns the state and the runs' score rows."""
+        ``scores.jsonl`` and ``metrics.jsonl``. Returns the state and the runs' score rows."""
         started = time.perf_counter()
         state, scores, fingerprint = self.score_and_update(state)
         scores, p_miss, pool, grad_steps, fingerprint = self.host_rows(
@@ -315,8 +314,6 @@ class TrainingLoop:
         rows = []
         for index, run in enumerate(self.runs):
             pick = lambda tree: self.select_pair(tree, index)
-            if invocation is not None:
-                run.record_invocation(invocation)
             rows.append(score_row(env_steps, pick(scores), pick(p_miss), np.asarray(self.trainer.scored_sets(pick(pool))),
                                   self.trainer.spec.score_estimator, listed=self.trainer.pooled))
             run.append("scores.jsonl", rows[-1])
