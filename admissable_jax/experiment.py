@@ -27,7 +27,6 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
-from typing import Callable
 
 import jax
 from omegaconf import OmegaConf
@@ -36,12 +35,11 @@ from admissable_jax.checkpointing import CheckpointError, Checkpoints
 from admissable_jax.cli import enable_compilation_cache, exit_with, parse_args, run_from_cli
 from admissable_jax.config import ExperimentConfig, TrainConfig, config_file_of, pair_configs
 from admissable_jax.errors import INTERRUPTED, make_directory, remove_if_unused
-from admissable_jax.host_loop import TrainingLoop, make_trainer, stacked_init_arguments
+from admissable_jax.host_loop import TrainingLoop, make_trainer, pairs_init
 from admissable_jax.placement import PairPlacement, initialize_distributed
 from admissable_jax.results import comparison_section, mode_differences, summary_table
 from admissable_jax.run_directory import RunDirectory, load_config, read_jsonl
 from admissable_jax.train import TrainResult
-from admissable_jax.training import Trainer, TrainState
 
 def experiment_dir(pairs: list[TrainConfig]) -> str:
     return os.path.dirname(pairs[0].out)
@@ -88,14 +86,6 @@ def run_experiment(config) -> list[TrainResult]:
                     run.read("metrics.jsonl"))
         for index, run in zip(local_pairs, runs)
     ]
-
-
-def pairs_init(trainer: Trainer, pairs: list[TrainConfig], placement: PairPlacement) -> Callable[[], TrainState]:
-    """The pairs' fresh training state, stacked along the pair axis where ``placement`` puts
-    it (:meth:`Trainer.init <admissable_jax.training.Trainer.init>` of each pair's seed, mode and l)."""
-    arguments = [placement.place(column) for column in stacked_init_arguments(pairs)]
-    spread_init = jax.jit(placement.spread(trainer.init), out_shardings=placement.sharding)
-    return lambda: spread_init(*arguments)
 
 
 def check_same_pairs(config, pairs: list[TrainConfig], experiment_yaml: str) -> None:

@@ -62,6 +62,14 @@ def stacked_init_arguments(pairs: list[TrainConfig]) -> tuple[np.ndarray, ...]:
     return tuple(np.array(column, dtype) for column, dtype in zip(zip(*map(init_arguments, pairs)), dtypes))
 
 
+def pairs_init(trainer: Trainer, pairs: list[TrainConfig], placement: PairPlacement) -> Callable[[], TrainState]:
+    """The pairs' fresh training state, stacked along the pair axis where ``placement`` puts
+    it (:meth:`Trainer.init <admissable_jax.training.Trainer.init>` of each pair's seed, mode and l)."""
+    arguments = [placement.place(column) for column in stacked_init_arguments(pairs)]
+    spread_init = jax.jit(placement.spread(trainer.init), out_shardings=placement.sharding)
+    return lambda: spread_init(*arguments)
+
+
 def make_trainer(config: TrainConfig, num_runs: int = 1) -> Trainer:
     """The env and the trainer for a resolved config, sized for ``num_runs`` vmapped runs
     on one device."""
@@ -170,10 +178,7 @@ class TrainingLoop:
         """``function``, whose first argument and first result are the training state, jitted
         as the loop runs its programs: the state donated and, with a placement, each pair's
         part run on the device that holds it."""
-        if not self.placement:
-            return jax.jit(function, donate_argnums=0)
-        sharding = self.placement.sharding
-        return jax.jit(self.placement.spread(function), donate_argnums=0, in_shardings=sharding, out_shardings=sharding)
+        return self.placement.jit(function) if self.placement else jax.jit(function, donate_argnums=0)
 
     def compile(self) -> MemoryBudget:
         """Compile both programs without allocating the state; refuse if they won't fit."""

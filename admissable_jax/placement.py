@@ -131,6 +131,11 @@ class PairPlacement:
 
         return spread_call
 
+    def jit(self, per_pair: Callable[..., Any]) -> Callable[..., Any]:
+        """``per_pair``, whose first argument and first result are a pair's training state,
+        :meth:`spread` and jitted with the pairs' sharding in and out and the state donated."""
+        return jax.jit(self.spread(per_pair), donate_argnums=0, in_shardings=self.sharding, out_shardings=self.sharding)
+
     def place(self, values: np.ndarray) -> jax.Array:
         """A per-pair host array (``num_pairs`` first) as a global array on the mesh, padded
         with the last pair; every process passes the same values and sends its own part."""

@@ -48,8 +48,7 @@ from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.cli import enable_compilation_cache, exit_with, parse_args
 from admissable_jax.envs import env_spec, make_env, resolve_physics
 from admissable_jax.config import ExperimentConfig, pair_configs
-from admissable_jax.experiment import pairs_init
-from admissable_jax.host_loop import TrainingLoop, make_trainer, queue_pieces
+from admissable_jax.host_loop import TrainingLoop, make_trainer, pairs_init, queue_pieces
 from admissable_jax.placement import PairPlacement
 from admissable_jax.training import Trainer
 from common import COMMITTED_RESULTS_DIR, RESULTS_DIR, append_record, environment_record, timed

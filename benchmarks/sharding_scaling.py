@@ -24,7 +24,7 @@ import numpy as np
 
 from admissable_jax.cli import parse_args
 from admissable_jax.config import TrainConfig
-from admissable_jax.host_loop import make_trainer, stacked_init_arguments
+from admissable_jax.host_loop import make_trainer, pairs_init
 from admissable_jax.placement import PairPlacement
 from common import append_record, timed
 
@@ -53,14 +53,11 @@ def measure(bench: ScalingBenchConfig, devices: int) -> dict:
     ).resolved()
     placement = PairPlacement.over(bench.pairs, devices)
     trainer = make_trainer(config, num_runs=placement.pairs_per_device)
-    sharded = lambda function: jax.jit(function, in_shardings=placement.sharding, out_shardings=placement.sharding,
-                                       donate_argnums=0)
-    init = jax.jit(placement.spread(trainer.init), out_shardings=placement.sharding)
     pairs = [dataclasses.replace(config, seed=seed) for seed in range(bench.pairs)]  # adversarial, as experiment's
-    state = init(*(placement.place(column) for column in stacked_init_arguments(pairs)))
-    warmup = sharded(placement.spread(lambda s: trainer.run_chunk(s, warmup_iterations)))
-    chunk = sharded(placement.spread(lambda s: trainer.run_chunk(s, bench.iterations)))
-    score = sharded(placement.spread(trainer.score_and_update))
+    state = pairs_init(trainer, pairs, placement)()
+    warmup = placement.jit(lambda s: trainer.run_chunk(s, warmup_iterations))
+    chunk = placement.jit(lambda s: trainer.run_chunk(s, bench.iterations))
+    score = placement.jit(trainer.score_and_update)
     (state, _), _ = timed(warmup, state)
     compiled_chunk, compile_s = timed(lambda: chunk.lower(state).compile())
     compiled_score = score.lower(state).compile()
