@@ -16,7 +16,7 @@ from admissable_jax.adversary import MODES
 from admissable_jax.cli import RUN_LOCATION, ConfigFile, setting
 from admissable_jax.envs import canonical_env_name, env_physics, observation_size, short_env_name
 from admissable_jax.loggers import parse_logger_names
-from admissable_jax.missingness import num_candidate_sets
+from admissable_jax.method import check_exact_size, num_candidate_sets
 from admissable_jax.scoring import SCORE_ESTIMATORS
 
 
@@ -41,7 +41,7 @@ class RunSettings:
     score_horizon: int = setting(100, "H, physics steps of score_estimator=horizon before the critic values the rest")
     pool_size: int = setting(0, "0: score every set of U every round (exact U); P > 0: score a pool of P sets, the "
                                 "worst a beam search of width P finds (ranked by pool_ranker), refreshed every round: "
-                                "for U too big to score whole (Ant at k = 2: 5,460 sets)")
+                                "for U too big to score whole (Ant: 5,460 pairs, 187,460 triples)")
     pool_ranker: str = setting("critic", "what ranks the pool search's candidates: critic | horizon | rollout")
     pool_explore: float = setting(0.1, "with pool_size > 0: share of adversarial episodes that hide a uniformly random "
                                        "set of all U instead of one drawn from the pool by p_miss")
@@ -107,7 +107,7 @@ class TrainConfig(RunSettings):
         validate(config)
         config.env = canonical_env_name(config.env)
         config.physics = env_physics(config.env, config.physics)
-        check_pool(config)
+        check_sets(config)
         if config.score_envs == 0:
             num_sets = config.pool_size or num_candidate_sets(observation_size(config.env), config.k,
                                                               config.include_empty_set, config.up_to_k)
@@ -231,12 +231,16 @@ def default_score_envs(num_episodes: int) -> int:
     return min(num_episodes, 32) if jax.default_backend() == "cpu" else num_episodes
 
 
-def check_pool(config: RunSettings) -> None:
-    """ValueError in one line for a ``pool_size`` the beam search cannot fill, or one that
-    is no smaller than U (the env's name must be valid)."""
-    if config.pool_size == 0:
-        return
+def check_sets(config: RunSettings) -> None:
+    """ValueError in one line for a U that every round cannot score whole (more than
+    MAX_CANDIDATE_SETS sets) without a pool, for a ``pool_size`` the beam search cannot fill,
+    or one that is no smaller than U (the env's name must be valid)."""
     d = observation_size(canonical_env_name(config.env))
+    if config.pool_size == 0:
+        check_exact_size(d, config.k, config.include_empty_set, config.up_to_k,
+                         remedy=f"score a pool of the worst sets a search finds with pool_size=P (P <= d = {d}), "
+                                f"or use a smaller k")
+        return
     num_sets = num_candidate_sets(d, config.k, up_to_k=config.up_to_k)
     if config.include_empty_set:
         raise ValueError("pool_size > 0 searches sets of features: it excludes include_empty_set=true")

@@ -26,7 +26,7 @@ import numpy as np
 
 from admissable_jax.errors import RunFailed
 from admissable_jax.loggers import FINGERPRINT
-from admissable_jax.method import parse_set
+from admissable_jax.method import SetNumbering, hidden_row, parse_set
 from admissable_jax.run_directory import RunDirectory
 
 
@@ -59,14 +59,15 @@ def recorded_rows(run: RunDirectory, after: int, score_every: int) -> list[tuple
     return found
 
 
-def recorded_scorings(run: RunDirectory, after: int, score_every: int, set_index: dict[tuple[int, ...], int] | None
+def recorded_scorings(run: RunDirectory, after: int, score_every: int, pooled_sets: SetNumbering | None
                       ) -> list[RecordedScoring]:
-    """:func:`recorded_rows` as what each round left in the state. ``set_index`` maps a
-    pool's sets (feature tuples) to their index in U; ``None`` for a run without a pool."""
+    """:func:`recorded_rows` as what each round left in the state. ``pooled_sets`` numbers U,
+    to turn a pool's recorded sets (by name) into their indices; ``None`` for a run without a pool."""
     def pool(row: dict) -> np.ndarray:
-        if set_index is None:
+        if pooled_sets is None:
             return np.zeros((0,), np.int32)
-        return np.array([set_index[tuple(parse_set(name))] for name in row["sets"]], np.int32)
+        d = pooled_sets.num_features
+        return pooled_sets.indices(np.stack([hidden_row(parse_set(name), d) for name in row["sets"]]))
 
     return [RecordedScoring(row["env_steps"], np.asarray(row["p_miss"], np.float32), pool(row), fingerprint)
             for row, fingerprint in recorded_rows(run, after, score_every)]

@@ -332,9 +332,8 @@ class TrainingLoop:
         or the pairs live in several processes."""
         if self.placement and jax.process_count() > 1:
             raise ValueError("fast_forward=true runs in one process: its pairs' records are read on one host")
-        set_index = {tuple(np.flatnonzero(row)): index for index, row in enumerate(np.asarray(self.trainer.hidden_sets))} \
-            if self.trainer.pooled else None
-        recorded = [recorded_scorings(run, start_step, self.config.score_every, set_index) for run in self.runs]
+        pooled_sets = self.trainer.sets if self.trainer.pooled else None
+        recorded = [recorded_scorings(run, start_step, self.config.score_every, pooled_sets) for run in self.runs]
         if not min(map(len, recorded)):
             bare = next(run.path for run, of_run in zip(self.runs, recorded) if not of_run)
             raise ValueError(f"nothing to fast-forward: {bare} records no scoring with a state fingerprint after env "

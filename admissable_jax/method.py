@@ -4,18 +4,21 @@ and the adversary's p_miss, for NumPy and JAX arrays alike.
 JAX-free on purpose: the Gymnasium wrappers (:mod:`admissable_jax.wrappers`) run the method
 with NumPy alone, and the trainer (:mod:`.missingness`, :mod:`.adversary`) runs the same
 functions on JAX arrays under jit. A missing set u ⊆ {0..d-1} is a 0/1 row of length d
-(1 = hidden); the candidate sets U are a (|U|, d) matrix.
+(1 = hidden); the candidate sets U are a (|U|, d) matrix, or where too many to list, an
+index :class:`SetNumbering` turns into a row and back.
 """
 
 from __future__ import annotations
 
-import itertools
+import dataclasses
+import functools
 import math
 
 import numpy as np
 
 MODES = ("adversarial", "uniform", "none")
-MAX_CANDIDATE_SETS = 100_000  # more subsets than this cannot be scored in one batched rollout
+MAX_CANDIDATE_SETS = 100_000  # more sets than this cannot be scored in one batched rollout, nor kept as one matrix
+MAX_SET_INDEX = 2**31 - 1  # a set's index into U is an int32
 
 
 def set_sizes(k: int, up_to_k: bool = False) -> range:
@@ -24,33 +27,141 @@ def set_sizes(k: int, up_to_k: bool = False) -> range:
     return range(1 if up_to_k else k, k + 1)
 
 
+def _sizes_text(num_features: int, k: int, up_to_k: bool) -> str:
+    return f"C({num_features}, {k})" if not up_to_k else f"C({num_features}, 1) + ... + C({num_features}, {k})"
+
+
 def num_candidate_sets(num_features: int, k: int = 1, include_empty: bool = False, up_to_k: bool = False) -> int:
     """|U| = C(d, k), or the sum of C(d, j) for j = 1 .. k with ``up_to_k`` (+ 1 with the
-    empty set); TypeError/ValueError for a bad ``k``."""
+    empty set); TypeError/ValueError for a bad ``k`` or a U too big for int32 indices."""
     if not isinstance(k, int) or isinstance(k, bool):
         raise TypeError(f"k must be an int, got {type(k).__name__}")
     if not 1 <= k < num_features:
         raise ValueError(f"k must satisfy 1 <= k < d = {num_features}, got k = {k}")
-    count = sum(math.comb(num_features, size) for size in set_sizes(k, up_to_k))
+    count = sum(math.comb(num_features, size) for size in set_sizes(k, up_to_k)) + int(include_empty)
+    if count > MAX_SET_INDEX:
+        raise ValueError(f"{_sizes_text(num_features, k, up_to_k)} = {count:,} candidate sets exceed the "
+                         f"{MAX_SET_INDEX:,} that an int32 set index numbers: use a smaller k")
+    return count
+
+
+def check_exact_size(num_features: int, k: int = 1, include_empty: bool = False, up_to_k: bool = False,
+                     remedy: str = "use a smaller k") -> int:
+    """|U| where one batched rollout can score every set and one (|U|, d) matrix hold them,
+    at most :data:`MAX_CANDIDATE_SETS`; ValueError in one line, ending in ``remedy``, beyond."""
+    count = num_candidate_sets(num_features, k, include_empty, up_to_k)
     if count > MAX_CANDIDATE_SETS:
-        sizes = f"C({num_features}, {k})" if not up_to_k else f"C({num_features}, 1) + ... + C({num_features}, {k})"
-        raise ValueError(f"{sizes} = {count:,} candidate sets exceed the {MAX_CANDIDATE_SETS:,} that U may hold "
-                         f"(it is kept as one (|U|, d) matrix, with pool_size too): use a smaller k")
-    return count + int(include_empty)
+        raise ValueError(f"{_sizes_text(num_features, k, up_to_k)} = {count:,} candidate sets exceed the "
+                         f"{MAX_CANDIDATE_SETS:,} that one batched rollout scores and one (|U|, d) matrix holds: "
+                         f"{remedy}")
+    return count
+
+
+@dataclasses.dataclass(frozen=True)
+class SetNumbering:
+    """U's order as arithmetic: the 0/1 row of the set with a given index into U, and the
+    index of a given set, for NumPy and JAX arrays (under jit too), so that a U of any size
+    is numbered without listing it (a pool over Ant's C(105, 3) = 187,460 triples).
+
+    The order: the empty set first (``include_empty``), then the sets of each size of
+    :func:`set_sizes`, smaller first, each size in lexicographic order of the sorted
+    features (k = 1: index i = {i}). Within a size r, the set e_0 < ... < e_{r-1} of d
+    features has the rank C(d, r) − 1 − Σ_j C(d − 1 − e_j, r − j) (the combinatorial
+    number system), which :meth:`rows` inverts greedily. Up to
+    :data:`MAX_CANDIDATE_SETS` sets, :meth:`rows` gathers from the listed matrix instead (one
+    gather per lookup, where the arithmetic costs a few small ops per feature of u).
+    """
+
+    num_features: int
+    k: int = 1
+    include_empty: bool = False
+    up_to_k: bool = False
+
+    def __post_init__(self):
+        num_candidate_sets(self.num_features, self.k, self.include_empty, self.up_to_k)
+
+    @functools.cached_property
+    def count(self) -> int:
+        """|U|."""
+        return num_candidate_sets(self.num_features, self.k, self.include_empty, self.up_to_k)
+
+    @functools.cached_property
+    def _blocks(self) -> tuple[np.ndarray, np.ndarray]:
+        """(size of each block of U, its first index): the empty set's block, then each size's."""
+        sizes = ([0] if self.include_empty else []) + list(set_sizes(self.k, self.up_to_k))
+        counts = [math.comb(self.num_features, size) for size in sizes]
+        return np.array(sizes, np.int32), np.cumsum([0] + counts[:-1]).astype(np.int32)
+
+    @functools.cached_property
+    def _binomials(self) -> np.ndarray:
+        """(k + 1, d + 1) int32 table of C(n, m) at [m, n], capped at int32's largest (a
+        capped entry exceeds every rank of U, so no lookup reads one)."""
+        d = self.num_features
+        return np.array([[min(math.comb(n, m), MAX_SET_INDEX) for n in range(d + 1)] for m in range(self.k + 1)],
+                        np.int32)
+
+    @functools.cached_property
+    def matrix(self) -> np.ndarray:
+        """U as a (|U|, d) 0/1 float32 matrix, in U's order; ValueError beyond
+        :data:`MAX_CANDIDATE_SETS` sets."""
+        check_exact_size(self.num_features, self.k, self.include_empty, self.up_to_k)
+        return self._computed_rows(np.arange(self.count, dtype=np.int32))
+
+    def rows(self, indices):
+        """The 0/1 float32 rows (..., d) of the sets at ``indices`` (ints in [0, |U|)), in
+        ``indices``' array library."""
+        xp = indices.__array_namespace__()
+        if self.count <= MAX_CANDIDATE_SETS:
+            return xp.asarray(self.matrix)[indices]
+        return self._computed_rows(indices)
+
+    def _computed_rows(self, indices):
+        """:meth:`rows` by the greedy inverse of the rank (class docstring), feature by feature
+        of u from the lowest: the co-rank's largest C(n, m) ≤ it names feature d − 1 − n."""
+        xp = indices.__array_namespace__()
+        d = self.num_features
+        sizes, starts = (xp.asarray(table) for table in self._blocks)
+        binomials = xp.asarray(self._binomials)
+        indices = xp.astype(indices, xp.int32)
+        block = xp.sum(xp.astype(indices[..., None] >= starts, xp.int32), axis=-1) - 1
+        size = xp.take(sizes, block)
+        co_rank = xp.take(binomials[:, d], size) - 1 - (indices - xp.take(starts, block))
+        n = xp.arange(d, dtype=xp.int32)
+        rows = xp.zeros(indices.shape + (d,), dtype=xp.float32)
+        for position in range(self.k):
+            still = size - position  # features of u left to find, this one included
+            table = xp.take(binomials[:, :d], xp.clip(still, 1, self.k), axis=0)  # (..., d): C(n, still)
+            largest = xp.sum(xp.astype(table <= co_rank[..., None], xp.int32), axis=-1) - 1
+            found = n == largest[..., None]
+            active = still >= 1
+            co_rank = co_rank - xp.where(active, xp.sum(xp.where(found, table, 0), axis=-1), 0)
+            rows = rows + xp.astype(active[..., None] & (n == d - 1 - largest[..., None]), xp.float32)
+        return rows
+
+    def indices(self, rows):
+        """The int32 indices into U of the sets with 0/1 ``rows`` (..., d), each one a set of U,
+        in ``rows``' array library: the rank of the class docstring plus its size's first index."""
+        xp = rows.__array_namespace__()
+        d = self.num_features
+        sizes, starts = self._blocks
+        first_of_size = np.zeros(self.k + 1, np.int32)
+        first_of_size[sizes] = starts
+        hidden = xp.astype(rows > 0.5, xp.int32)
+        size = xp.sum(hidden, axis=-1)
+        before = hidden @ xp.asarray(np.triu(np.ones((d, d), np.int32), 1))  # hidden features before each one
+        still = xp.clip(size[..., None] - before, 0, self.k)
+        flat = xp.reshape(xp.asarray(self._binomials), (-1,))
+        terms = xp.take(flat, still * (d + 1) + xp.asarray(np.arange(d - 1, -1, -1, dtype=np.int32)))
+        rank = xp.take(xp.asarray(self._binomials[:, d]), size) - 1 - xp.sum(hidden * terms, axis=-1)
+        return xp.take(xp.asarray(first_of_size), size) + rank
 
 
 def candidate_sets(num_features: int, k: int = 1, include_empty: bool = False, up_to_k: bool = False) -> np.ndarray:
     """U as a (|U|, d) 0/1 float32 matrix: every subset of exactly ``k`` features (of 1 to
     ``k`` with ``up_to_k``, smaller sets first), each size in lexicographic order (k = 1
-    gives row i = {i}), optionally preceded by the empty set."""
-    num_candidate_sets(num_features, k, include_empty, up_to_k)
-    rows = [np.zeros(num_features, np.float32)] if include_empty else []
-    for size in set_sizes(k, up_to_k):
-        for subset in itertools.combinations(range(num_features), size):
-            row = np.zeros(num_features, np.float32)
-            row[list(subset)] = 1.0
-            rows.append(row)
-    return np.stack(rows)
+    gives row i = {i}), optionally preceded by the empty set (:class:`SetNumbering`'s order);
+    ValueError beyond :data:`MAX_CANDIDATE_SETS` sets."""
+    return SetNumbering(num_features, k, include_empty, up_to_k).matrix
 
 
 def describe_set(hidden) -> str:

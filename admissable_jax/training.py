@@ -8,8 +8,9 @@ where one ended (drawing a fresh u ~ p_miss for each, paper §3), and takes
 batched rollout and applies the adversary's update.
 
 The candidate sets U are all C(d, k) sets of k features (of 1 .. k features with
-``up_to_k``, the paper's |u| <= k), and ``set_index`` indexes them.
-With ``pool_size`` P > 0 (where U is too big to score every round: Ant at k = 2 has 5,460
+``up_to_k``, the paper's |u| <= k), and ``set_index`` indexes them in the order of
+:class:`~admissable_jax.method.SetNumbering`, which finds a set's row from its index (and back)
+without listing U where U is too big to list. With ``pool_size`` P > 0 (where U is too big to score every round: Ant at k = 2 has 5,460
 sets) the adversary works on a pool instead: every scoring round a beam search of width P
 (:func:`~admissable_jax.scoring.beam_search_worst_sets`), ranked by the cheap
 ``pool_ranker`` (the critic by default), picks the P sets of U it finds worst, fresh each
@@ -36,7 +37,7 @@ from admissable_jax.agent import SAC, SACBatch, SACState
 from admissable_jax.branching import lazy_cond
 from admissable_jax.envs import EnvState, reset_where_done
 from admissable_jax.fingerprints import tree_fingerprint
-from admissable_jax.missingness import candidate_sets, mask_observation, sample_set_indices
+from admissable_jax.missingness import SetNumbering, mask_observation, sample_set_indices
 from admissable_jax.run_spec import RunSpec
 from admissable_jax.scoring import MissingnessScores, beam_search_worst_sets, score_missingness
 
@@ -68,9 +69,8 @@ class Trainer:
     def __init__(self, env, spec: RunSpec):
         self.env = env
         self.spec = spec
-        self.hidden_sets = jnp.asarray(candidate_sets(env.observation_size, spec.k, spec.include_empty_set,
-                                                    spec.up_to_k))
-        self.num_sets = int(self.hidden_sets.shape[0])
+        self.sets = SetNumbering(env.observation_size, spec.k, spec.include_empty_set, spec.up_to_k)
+        self.num_sets = self.sets.count
         self.pooled = spec.pool_size > 0
         self.num_scored = spec.pool_size or self.num_sets  # P
         self.agent = SAC(2 * env.observation_size, env.action_low, env.action_high, spec.sac)
@@ -105,13 +105,20 @@ class Trainer:
         )
 
     # --- pieces -------------------------------------------------------------------------
+    @property
+    def hidden_sets(self) -> jax.Array:
+        """U listed: the (|U|, d) 0/1 rows in U's order; ValueError beyond MAX_CANDIDATE_SETS
+        sets (a pool's U is numbered, never listed)."""
+        return jnp.asarray(self.sets.matrix)
+
     def hidden_rows(self, state: TrainState, set_index: jax.Array) -> jax.Array:
         """The 0/1 rows hidden for these set indices (all zeros when not masking)."""
-        return self.hidden_sets[set_index] * state.masking.astype(jnp.float32)
+        return self.sets.rows(set_index) * state.masking.astype(jnp.float32)
 
     def scored_sets(self, pool: jax.Array) -> jax.Array:
-        """The 0/1 rows of the sets a scoring round scores: the pool's, or all of U."""
-        return self.hidden_sets[pool] if self.pooled else self.hidden_sets
+        """The 0/1 rows of the sets a scoring round scores: the pool's, or all of U (listed:
+        without a pool, U has at most MAX_CANDIDATE_SETS sets)."""
+        return self.sets.rows(pool) if self.pooled else self.hidden_sets
 
     def _draw_sets(self, rng: jax.Array, p_miss: jax.Array, pool: jax.Array, adversarial: jax.Array) -> jax.Array:
         """Each env's set for a new episode, u ~ p_miss, as indices into U (paper §3). With a
@@ -281,6 +288,4 @@ class Trainer:
             lambda rows: self._score(state, rng, rows, self.spec.pool_ranker).scores,
             self.env.observation_size, self.spec.k, self.num_scored, self.spec.up_to_k,
         )
-        # A found set overlaps its own row of U in all its features and any other in fewer, but for
-        # the larger sets holding it, which come after it in U (smaller sets first): argmax finds it.
-        return jnp.argmax(found.rows @ self.hidden_sets.T, axis=1).astype(jnp.int32)
+        return self.sets.indices(found.rows)

@@ -245,7 +245,7 @@ def test_audit_steps_as_many_envs_at_once_as_training_scores():
     for trained, sets in (({}, 4), ({"k": 2}, 6), ({"k": 2, "up_to_k": True}, 4 + 6)):
         run = SimpleNamespace(observation_size=4, config=TrainConfig(env="point_mass", **trained))
         assert _slots(AuditConfig(run_dir="run", episodes=2), run) == (sets + 1) * 2
-    # search=beam never lists U: Ant at k = 3 has 187,460 sets, more than U may hold, and a
+    # search=beam never lists U: Ant at k = 3 has 187,460 sets, more than can be listed, and a
     # beam of 4 ranks 4 · 105 of them a level; searched exhaustively it is refused by its count.
     ant = SimpleNamespace(observation_size=105, config=TrainConfig(env="ant"))
     assert _slots(AuditConfig(run_dir="run", k="3", episodes=2, search="beam", slots=10_000), ant) == (4 * 105 + 1) * 2

@@ -1,5 +1,6 @@
 """Candidate sets, masking and the adversary's p_miss update (pure functions, no physics)."""
 
+import itertools
 import math
 
 import jax
@@ -8,7 +9,9 @@ import numpy as np
 import pytest
 
 from admissable_jax.adversary import inverse_score_p_miss, update_p_miss, uniform_p_miss
+from admissable_jax.method import check_exact_size
 from admissable_jax.missingness import (
+    SetNumbering,
     candidate_sets,
     describe_set,
     mask_observation,
@@ -38,10 +41,48 @@ def test_candidate_sets():
         candidate_sets(11, k=True)
     with pytest.raises(ValueError, match="exceed"):
         candidate_sets(105, k=4)
-    assert num_candidate_sets(85, 3) == 98_770  # fits; with the smaller sets it does not
+    assert check_exact_size(85, 3) == 98_770  # listed; with the smaller sets it is only numbered
     with pytest.raises(ValueError, match=r"C\(85, 1\) \+ ... \+ C\(85, 3\) = 102,425 candidate sets exceed the "
-                                         r"100,000 that U may hold"):
-        num_candidate_sets(85, 3, up_to_k=True)
+                                         r"100,000 that one batched rollout scores"):
+        check_exact_size(85, 3, up_to_k=True)
+    assert num_candidate_sets(85, 3, up_to_k=True) == 102_425
+    with pytest.raises(ValueError, match="C\\(105, 9\\) = 3,005,047,770,725 candidate sets exceed the 2,147,483,647"):
+        num_candidate_sets(105, 9)
+
+
+def _listed(d: int, k: int, include_empty: bool, up_to_k: bool) -> list[tuple[int, ...]]:
+    """U's order written out: the empty set, then each size's sets in lexicographic order."""
+    sizes = range(1, k + 1) if up_to_k else [k]
+    return [()] * include_empty + [subset for size in sizes for subset in itertools.combinations(range(d), size)]
+
+
+@pytest.mark.parametrize("d, k, include_empty, up_to_k", [(5, 1, False, False), (7, 3, True, True),
+                                                          (9, 5, False, False), (11, 4, True, False)])
+def test_set_numbering_is_us_order_both_ways(d, k, include_empty, up_to_k):
+    """Index -> row and row -> index by arithmetic, in NumPy and under jit, against U listed."""
+    numbering = SetNumbering(d, k, include_empty, up_to_k)
+    listed = _listed(d, k, include_empty, up_to_k)
+    computed = numbering._computed_rows(np.arange(numbering.count))
+    assert numbering.count == len(listed) and [tuple(np.flatnonzero(row)) for row in computed] == listed
+    np.testing.assert_array_equal(numbering.matrix, computed)
+    np.testing.assert_array_equal(numbering.indices(computed), np.arange(len(listed)))
+    if (d, k) == (7, 3):
+        rows = jax.jit(numbering._computed_rows)(jnp.arange(numbering.count))
+        np.testing.assert_array_equal(rows, computed)
+        np.testing.assert_array_equal(jax.jit(numbering.indices)(rows), np.arange(len(listed)))
+
+
+def test_set_numbering_numbers_a_u_too_big_to_list():
+    """Ant at k = 3: 187,460 triples, never listed; spot checks against itertools' order."""
+    numbering = SetNumbering(105, 3)
+    with pytest.raises(ValueError, match="187,460 candidate sets exceed the 100,000"):
+        numbering.matrix
+    triples = list(itertools.combinations(range(105), 3))
+    indices = np.array([0, 1, 104, 5_000, 123_456, 187_459])
+    for rows in (numbering.rows(indices), np.asarray(jax.jit(numbering.rows)(jnp.asarray(indices)))):
+        assert [tuple(np.flatnonzero(row)) for row in rows] == [triples[i] for i in indices]
+    drawn = np.random.default_rng(0).integers(0, numbering.count, 2_000)
+    np.testing.assert_array_equal(numbering.indices(numbering.rows(drawn)), drawn)
 
 
 def test_mask_observation():

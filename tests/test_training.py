@@ -10,6 +10,7 @@ import collections
 import csv
 import dataclasses
 import glob
+import itertools
 import json
 import logging
 import os
@@ -226,13 +227,15 @@ def test_missing_set_fixed_within_episode_and_drawn_from_p_miss():
     assert (np.abs(frequencies - np.asarray(p_miss)) < tolerance).all(), frequencies
 
 
-def test_candidate_pool_for_k2_search_draws_and_records(tmp_path):
+def test_candidate_pool_for_k2_search_draws_and_records(tmp_path, monkeypatch):
     """k = 2 with a pool of P = 3 of the C(4, 2) = 6 pairs: every round a beam search of
     width 3 (ranked here by rollouts) picks the pool, only the pool is scored and p_miss is
     over it; adversarial episodes draw from the pool by p_miss or, with probability
     pool_explore, any pair of U; uniform mode draws every pair alike; an episode keeps its
     pair when the pool changes under it. End to end, scores.jsonl lists each row's pool and
-    plot draws per-feature heatmaps."""
+    plot draws per-feature heatmaps. With MAX_CANDIDATE_SETS below |U| here, as for Ant's
+    187,460 triples, U is never listed: every set's row is computed from its index."""
+    from admissable_jax import method
     from admissable_jax.plot import plot_runs
     from admissable_jax.method import parse_set
     from admissable_jax.results import load_run, summary_table, write_tables
@@ -241,8 +244,9 @@ def test_candidate_pool_for_k2_search_draws_and_records(tmp_path):
     config = dataclasses.replace(POINT_MASS, k=2, pool_size=3, pool_ranker="rollout", pool_explore=0.3, num_envs=20,
                                  episode_length=5, hidden_size=32, learning_starts=128, logger="none",
                                  out=str(tmp_path / "pool")).resolved()
+    monkeypatch.setattr(method, "MAX_CANDIDATE_SETS", 5)
     trainer = Trainer(make_env("point_mass", episode_length=5), RunSpec.of(config))
-    pairs = [tuple(np.flatnonzero(row)) for row in np.asarray(trainer.hidden_sets)]
+    pairs = list(itertools.combinations(range(4), 2))  # U's order
     state = trainer.init(0, True, True, 0.0)
     assert state.p_miss.shape == (3,) and len(set(np.asarray(state.pool).tolist())) == 3
 
@@ -253,7 +257,8 @@ def test_candidate_pool_for_k2_search_draws_and_records(tmp_path):
                                                       config.score_episodes).scores
     found = beam_search_worst_sets(rank(search_rng), 4, 2, 3)
     assert [pairs[i] for i in np.asarray(scored_state.pool)] == [tuple(np.flatnonzero(r)) for r in found.rows]
-    pool_rows = trainer.hidden_sets[scored_state.pool]
+    pool_rows = trainer.sets.rows(scored_state.pool)  # computed from the indices: the finalists' own rows
+    np.testing.assert_array_equal(pool_rows, found.rows)
     np.testing.assert_allclose(scores.scores, rank(score_rng)(pool_rows), rtol=1e-5)
     weights = 1 / np.asarray(scores.scores)
     np.testing.assert_allclose(scored_state.p_miss, weights / weights.sum(), rtol=1e-5)
@@ -506,6 +511,9 @@ def test_a_checkpoint_of_an_older_state_layout_is_named_and_its_networks_still_r
         (["logger=tensorboard,mlflow"], "logger must be none or a comma list of tensorboard, wandb, got 'tensorboard,mlflow'"),
         (["score_estimator=guess"], "score_estimator must be one of rollout, critic, horizon"),
         (["env=hopper", "k=2", "pool_size=55"], "pool_size=55 is not below |U| = 55"),
+        (["env=ant", "k=3"], "C(105, 3) = 187,460 candidate sets exceed the 100,000 that one batched rollout scores "
+                             "and one (|U|, d) matrix holds: score a pool of the worst sets a search finds with pool_size=P"),
+        (["env=ant", "k=9", "pool_size=16"], "C(105, 9) = 3,005,047,770,725 candidate sets exceed the 2,147,483,647"),
         (["pool_ranker=guess"], "pool_ranker must be one of rollout, critic, horizon"),
     ],
 )

@@ -330,7 +330,7 @@ def check_audit_size(env_name: str, d: int, ks, n_episodes: int, search: str | N
 def rollout_sets(d: int, ks, search: str | None, beam_width: int, plan: ShapleyPlan | None) -> int:
     """The most sets an audit's one rollout scores besides the clean case: its sets (where
     searched, the b finalists) and the plan's coalitions; a beam search's level, b · d.
-    Counted, never listed: a searched k may have far more sets than U may hold
+    Counted, never listed: a searched k may have far more sets than can be listed
     (MAX_CANDIDATE_SETS; Ant at k = 3: 187,460), and an exact one is refused by its count."""
     searched = [k for k in ks if search == "beam" and k > 1]
     num_sets = sum(beam_width if k in searched else math.comb(d, k) for k in ks) + plan_size(plan)
