@@ -5,6 +5,7 @@
     python benchmarks/train_throughput.py env=hopper num_envs=128 iterations=50 roofline=true
     python benchmarks/train_throughput.py env=hopper num_envs=8 iterations=100 breakdown=true
     python benchmarks/train_throughput.py env=hopper num_envs=8 iterations=100 seeds=2 before_learning=true
+    python benchmarks/train_throughput.py env=ant k=3 pool_size=16 num_envs=8 iterations=50
 
 A warm-up chunk (which compiles) passes learning_starts; the timed chunk then runs
 ``iterations`` iterations in which every iteration learns (UTD as configured). With
@@ -18,7 +19,10 @@ With ``breakdown=true`` it also times the whole iteration and its parts alone, i
 what is left over (one seed). With ``before_learning=true`` the timed chunk instead runs
 before ``learning_starts`` (random actions, no gradient steps): the first 1% of a paper run
 (10k of 1M env steps), which costs only the env, the buffer and the set draws, vmapped over
-seeds or not.
+seeds or not. ``k``, ``up_to_k`` and ``pool_size`` train against other sets than the
+paper's single features; ``set_rows=computed`` computes every hidden set's row from its index
+(``SetNumbering``) where U is small enough to gather it from the listed matrix, so that one U
+times both ways.
 Prints env steps/s and gradient steps/s and appends a record to
 benchmarks/results/train_throughput.jsonl.
 """
@@ -32,6 +36,7 @@ import time
 import jax
 import jax.numpy as jnp
 
+from admissable_jax import method
 from admissable_jax.agent import SACBatch
 from admissable_jax.cli import parse_args
 from admissable_jax.config import TrainConfig
@@ -54,6 +59,10 @@ class TrainBenchConfig:
     roofline: bool = dataclasses.field(default=False, metadata={"help": "also time the SAC update alone against the matmul roofline"})
     breakdown: bool = dataclasses.field(default=False, metadata={"help": "also time the iteration and its parts alone, in turn, best of 3: physics, the iteration without learning, the updates (one seed)"})
     before_learning: bool = dataclasses.field(default=False, metadata={"help": "time iterations before learning_starts instead (no gradient steps)"})
+    k: int = dataclasses.field(default=1, metadata={"help": "features hidden per episode"})
+    up_to_k: bool = dataclasses.field(default=False, metadata={"help": "U also holds the sets of fewer than k features"})
+    pool_size: int = dataclasses.field(default=0, metadata={"help": "the adversary's candidate pool (0: exact U)"})
+    set_rows: str = dataclasses.field(default="auto", metadata={"help": "auto (listed up to MAX_CANDIDATE_SETS sets, else computed) | computed"})
 
 
 def matmul_gflops(size: int = 4096, repeats: int = 10) -> float:
@@ -129,11 +138,15 @@ def main(argv: list[str]) -> None:
     bench = parse_args(TrainBenchConfig, argv, "benchmarks/train_throughput.py", __doc__.splitlines()[0])
     learning_starts = 2**30 if bench.before_learning else max(bench.batch_size, bench.num_envs)
     warmup_iterations = 1 if bench.before_learning else learning_starts // bench.num_envs + 1
+    if bench.set_rows not in ("auto", "computed"):
+        raise SystemExit(f"error: set_rows must be auto or computed, got {bench.set_rows!r}")
     config = TrainConfig(
         env=bench.env, num_envs=bench.num_envs, utd=bench.utd, batch_size=bench.batch_size,
         learning_starts=learning_starts, score_every=bench.num_envs, buffer_size=bench.buffer_size, progress=False,
-        physics=bench.physics,
+        physics=bench.physics, k=bench.k, up_to_k=bench.up_to_k, pool_size=bench.pool_size,
     ).resolved()
+    if bench.set_rows == "computed":
+        method.MAX_CANDIDATE_SETS = 0  # SetNumbering.rows then computes every row, as beyond the limit
     trainer = make_trainer(config, num_runs=bench.seeds)
     env = trainer.env
     seeds = jnp.arange(bench.seeds)
@@ -153,6 +166,8 @@ def main(argv: list[str]) -> None:
         "env": env.gymnasium_id, "physics": env.physics_name, "num_envs": bench.num_envs, "seeds": bench.seeds, "utd": bench.utd,
         "batch_size": bench.batch_size, "hidden_sizes": [config.hidden_size] * config.hidden_layers,
         "buffer_size": trainer.spec.buffer_capacity, "iterations": bench.iterations, "before_learning": bench.before_learning,
+        "k": bench.k, "up_to_k": bench.up_to_k, "pool_size": bench.pool_size, "sets": trainer.num_sets,
+        "set_rows": "listed" if trainer.num_sets <= method.MAX_CANDIDATE_SETS else "computed",
         "warmup_with_compile_s": round(warmup_s, 1), "compile_s": round(compile_s, 1), "run_s": round(run_s, 2),
         "env_steps_per_s": round(env_steps / run_s, 1), "grad_steps_per_s": round(grad_steps / run_s, 1),
         "peak_host_memory_mb": round(peak_host_memory_mb(), 1),
@@ -160,7 +175,8 @@ def main(argv: list[str]) -> None:
     if jax.devices()[0].platform != "cpu":
         record["peak_device_memory_mb"] = round(jax.devices()[0].memory_stats().get("peak_bytes_in_use", 0) / 2**20, 1)
     print(
-        f"{env.gymnasium_id} ({env.physics_name} physics): {bench.seeds} seed(s) x {bench.num_envs} envs, UTD {bench.utd}, batch {bench.batch_size}: "
+        f"{env.gymnasium_id} ({env.physics_name} physics): {bench.seeds} seed(s) x {bench.num_envs} envs, UTD {bench.utd}, batch {bench.batch_size}, "
+        f"|U| = {trainer.num_sets:,} ({record['set_rows']} rows{f', pool {bench.pool_size}' if bench.pool_size else ''}): "
         f"{env_steps / run_s:,.1f} env steps/s, {grad_steps / run_s:,.1f} gradient steps/s over all seeds "
         f"(timed {bench.iterations} iterations in {run_s:.1f} s; compile {compile_s:.1f} s)"
     )
