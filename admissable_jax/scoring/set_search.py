@@ -37,6 +37,24 @@ class SearchResult:
     num_ranked: jax.Array  # () distinct sets the scorer ranked over all levels
 
 
+@jax.jit
+def first_copies(rows: jax.Array, among: jax.Array) -> jax.Array:
+    """``among`` (m,) where no earlier row of ``among`` is the same set as this (m, d) 0/1 row:
+    the rows sorted by their features packed 32 to a word (the ``among`` rows first, equal
+    sets in row order), each compared with the one before it. O(m log m) in time and O(m)
+    in memory, where comparing every pair of rows held (m, m) matrices (Ant at b = d:
+    11,025 rows, 0.66 GiB)."""
+    m, d = rows.shape
+    words = -(-d // 32)
+    bits = jnp.pad(rows > 0.5, ((0, 0), (0, 32 * words - d))).reshape(m, words, 32).astype(jnp.uint32)
+    packed = jnp.sum(bits << jnp.arange(32, dtype=jnp.uint32), axis=-1, dtype=jnp.uint32)  # distinct bits: an OR
+    *keys, row_of = jax.lax.sort((jnp.where(among, 0, 1).astype(jnp.uint32), *packed.T, jnp.arange(m)),
+                                 num_keys=words + 2)
+    keys = jnp.stack(keys, axis=1)
+    first = jnp.concatenate([jnp.ones(1, bool), jnp.any(keys[1:] != keys[:-1], axis=1)])
+    return among & jnp.zeros(m, bool).at[row_of].set(first)
+
+
 def beam_search_worst_sets(score_sets: SetScorer, num_features: int, k: int, beam_width: int = 1,
                            up_to_k: bool = False) -> SearchResult:
     """The ``beam_width`` sets of ``k`` features (of 1 .. k with ``up_to_k``) that
@@ -50,12 +68,10 @@ def beam_search_worst_sets(score_sets: SetScorer, num_features: int, k: int, bea
     kept_found = jnp.arange(b) == 0  # level 0 keeps one set: the empty one
     final_rows, final_scores, final_found = jnp.zeros((0, d), jnp.float32), jnp.zeros((0,)), jnp.zeros((0,), bool)
     num_ranked = jnp.zeros((), jnp.int32)
-    earlier = jnp.tril(jnp.ones((b * d, b * d), bool), k=-1)  # earlier[i, j]: candidate j comes before i
     for size in range(1, k + 1):
         candidates = jnp.maximum(kept[:, None, :], jnp.eye(d)[None]).reshape(b * d, d)  # kept set i plus feature f
         new = (kept_found[:, None] & (kept == 0)).reshape(b * d)  # a set of ``size`` features
-        same = (candidates @ candidates.T) > size - 0.5  # two sets of ``size`` features that overlap in all
-        new = new & ~jnp.any(same & earlier & new[None, :], axis=1)  # the first copy of each set only
+        new = first_copies(candidates, new)
         scores = jnp.where(new, score_sets(candidates), jnp.inf)
         num_ranked = num_ranked + new.sum()
         order = jnp.argsort(scores, stable=True)[:b]
