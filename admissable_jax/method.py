@@ -85,6 +85,11 @@ class SetNumbering:
         """|U|."""
         return num_candidate_sets(self.num_features, self.k, self.include_empty, self.up_to_k)
 
+    @property
+    def listed(self) -> bool:
+        """Whether U is small enough to list: at most :data:`MAX_CANDIDATE_SETS` sets."""
+        return self.count <= MAX_CANDIDATE_SETS
+
     @functools.cached_property
     def _blocks(self) -> tuple[np.ndarray, np.ndarray]:
         """(size of each block of U, its first index): the empty set's block, then each size's."""
@@ -111,7 +116,7 @@ class SetNumbering:
         """The 0/1 float32 rows (..., d) of the sets at ``indices`` (ints in [0, |U|)), in
         ``indices``' array library."""
         xp = indices.__array_namespace__()
-        if self.count <= MAX_CANDIDATE_SETS:
+        if self.listed:
             return xp.asarray(self.matrix)[indices]
         return self._computed_rows(indices)
 

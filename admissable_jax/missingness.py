@@ -19,7 +19,7 @@ from admissable_jax import method
 from admissable_jax.method import MAX_CANDIDATE_SETS, SetNumbering, candidate_sets, describe_set, num_candidate_sets
 
 __all__ = ["MAX_CANDIDATE_SETS", "SetNumbering", "candidate_sets", "describe_set", "mask_observation", "num_candidate_sets",
-           "sample_set_indices"]
+           "sample_distinct_sets", "sample_set_indices"]
 
 
 def mask_observation(obs: jax.Array, hidden: jax.Array) -> jax.Array:
@@ -36,3 +36,21 @@ def mask_observation(obs: jax.Array, hidden: jax.Array) -> jax.Array:
 def sample_set_indices(rng: jax.Array, p_miss: jax.Array, shape: tuple[int, ...]) -> jax.Array:
     """Draw set indices u ~ p_miss (one per episode start)."""
     return jax.random.choice(rng, p_miss.shape[0], shape=shape, p=p_miss).astype(jnp.int32)
+
+
+def sample_distinct_sets(rng: jax.Array, num_sets: int, count: int) -> jax.Array:
+    """``count`` distinct set indices, a uniformly random subset of [0, ``num_sets``) in random
+    order, by Floyd's algorithm: ``count`` draws, where ``jax.random.choice`` without
+    replacement permutes all of U (Ant at k = 5: 96,560,646 sets, 127 s and 1.8 GiB on a
+    2-core CPU). Draw i takes t uniform in [0, j], j = num_sets − count + i, or j itself where
+    t is taken already."""
+    draw_rng, order_rng = jax.random.split(rng)
+    keys = jax.random.split(draw_rng, count)
+
+    def draw(i, chosen):
+        last = num_sets - count + i
+        candidate = jax.random.randint(keys[i], (), 0, last + 1, jnp.int32)
+        return chosen.at[i].set(jnp.where(jnp.any(chosen == candidate), last, candidate))
+
+    chosen = jax.lax.fori_loop(0, count, draw, jnp.full((count,), -1, jnp.int32))
+    return jax.random.permutation(order_rng, chosen)

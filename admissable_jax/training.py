@@ -37,7 +37,7 @@ from admissable_jax.agent import SAC, SACBatch, SACState
 from admissable_jax.branching import lazy_cond
 from admissable_jax.envs import EnvState, reset_where_done
 from admissable_jax.fingerprints import tree_fingerprint
-from admissable_jax.missingness import SetNumbering, mask_observation, sample_set_indices
+from admissable_jax.missingness import SetNumbering, mask_observation, sample_distinct_sets, sample_set_indices
 from admissable_jax.run_spec import RunSpec
 from admissable_jax.scoring import MissingnessScores, beam_search_worst_sets, score_missingness
 
@@ -83,9 +83,10 @@ class Trainer:
         rng = jax.random.PRNGKey(seed)
         rng, agent_rng, env_rng, set_rng = jax.random.split(rng, 4)
         p_miss = uniform_p_miss(self.num_scored)
-        if self.pooled:  # until the first search: P random sets
+        if self.pooled:  # until the first search: P random sets (drawn as before where U can be listed)
             set_rng, pool_rng = jax.random.split(set_rng)
-            pool = jax.random.choice(pool_rng, self.num_sets, (self.num_scored,), replace=False).astype(jnp.int32)
+            pool = jax.random.choice(pool_rng, self.num_sets, (self.num_scored,), replace=False).astype(jnp.int32) \
+                if self.sets.listed else sample_distinct_sets(pool_rng, self.num_sets, self.num_scored)
         else:
             pool = jnp.zeros((0,), jnp.int32)
         adversarial = jnp.asarray(mode_adversarial, bool)

@@ -167,7 +167,7 @@ def main(argv: list[str]) -> None:
         "batch_size": bench.batch_size, "hidden_sizes": [config.hidden_size] * config.hidden_layers,
         "buffer_size": trainer.spec.buffer_capacity, "iterations": bench.iterations, "before_learning": bench.before_learning,
         "k": bench.k, "up_to_k": bench.up_to_k, "pool_size": bench.pool_size, "sets": trainer.num_sets,
-        "set_rows": "listed" if trainer.num_sets <= method.MAX_CANDIDATE_SETS else "computed",
+        "set_rows": "listed" if trainer.sets.listed else "computed",
         "warmup_with_compile_s": round(warmup_s, 1), "compile_s": round(compile_s, 1), "run_s": round(run_s, 2),
         "env_steps_per_s": round(env_steps / run_s, 1), "grad_steps_per_s": round(grad_steps / run_s, 1),
         "peak_host_memory_mb": round(peak_host_memory_mb(), 1),

@@ -16,6 +16,7 @@ from admissable_jax.missingness import (
     describe_set,
     mask_observation,
     num_candidate_sets,
+    sample_distinct_sets,
     sample_set_indices,
 )
 
@@ -48,6 +49,19 @@ def test_candidate_sets():
     assert num_candidate_sets(85, 3, up_to_k=True) == 102_425
     with pytest.raises(ValueError, match="C\\(105, 9\\) = 3,005,047,770,725 candidate sets exceed the 2,147,483,647"):
         num_candidate_sets(105, 9)
+
+
+def test_sample_distinct_sets_is_a_uniform_subset():
+    """Floyd's draw (a pool's first sets where U is too big to list): distinct, in range,
+    every index as likely as any other, in every position."""
+    draws = np.asarray(jax.jit(jax.vmap(lambda key: sample_distinct_sets(key, 10, 4)))(
+        jax.random.split(jax.random.key(0), 4_000)))
+    assert draws.shape == (4_000, 4) and all(len(set(row)) == 4 for row in draws.tolist())
+    assert draws.min() == 0 and draws.max() == 9
+    for frequencies in (np.bincount(draws.ravel(), minlength=10) / draws.size, np.bincount(draws[:, 0], minlength=10) / 4_000):
+        assert (np.abs(frequencies - 0.1) < 4 * np.sqrt(0.1 * 0.9 / 4_000)).all(), frequencies
+    # Ant at k = 5: 96,560,646 sets, drawn from without listing or permuting them.
+    assert len(set(np.asarray(sample_distinct_sets(jax.random.key(1), 96_560_646, 16)).tolist())) == 16
 
 
 def _listed(d: int, k: int, include_empty: bool, up_to_k: bool) -> list[tuple[int, ...]]:
