@@ -3,10 +3,11 @@
 A missing set u ⊆ {0..d-1} is stored as a 0/1 row of length d (1 = hidden), so the
 candidate sets U are a (|U|, d) matrix and an environment's current set is an index into
 it (where U is too big to list, :class:`~admissable_jax.method.SetNumbering` computes the
-row of an index). The masked observation replaces hidden features by 0 and appends the indicator v with
-v_i = 1[i ∈ u] (paper §3, following Skand et al. 2024): 2·d inputs. The formulas live in
-:mod:`admissable_jax.method` (JAX-free, shared with the Gymnasium wrappers); this module
-adds what the trainer needs on the device: shape checks and u's sampling.
+row of an index). The masked observation replaces hidden features by 0 and appends the
+indicator v with v_i = 1[i ∈ u] (paper §3, following Skand et al. 2024): 2·d inputs. The
+formulas live in :mod:`admissable_jax.method` (JAX-free, shared with the Gymnasium
+wrappers); this module adds what the trainer needs on the device: shape checks and u's
+sampling.
 """
 
 from __future__ import annotations
@@ -18,8 +19,8 @@ import jax.numpy as jnp
 from admissable_jax import method
 from admissable_jax.method import MAX_CANDIDATE_SETS, SetNumbering, candidate_sets, describe_set, num_candidate_sets
 
-__all__ = ["MAX_CANDIDATE_SETS", "SetNumbering", "candidate_sets", "describe_set", "mask_observation", "num_candidate_sets",
-           "sample_distinct_sets", "sample_set_indices"]
+__all__ = ["MAX_CANDIDATE_SETS", "SetNumbering", "candidate_sets", "describe_set", "mask_observation",
+           "num_candidate_sets", "sample_distinct_sets", "sample_set_indices"]
 
 
 def mask_observation(obs: jax.Array, hidden: jax.Array) -> jax.Array:

@@ -9,9 +9,10 @@ batched rollout and applies the adversary's update.
 
 The candidate sets U are all C(d, k) sets of k features (of 1 .. k features with
 ``up_to_k``, the paper's |u| <= k), and ``set_index`` indexes them in the order of
-:class:`~admissable_jax.method.SetNumbering`, which finds a set's row from its index (and back)
-without listing U where U is too big to list. With ``pool_size`` P > 0 (where U is too big to score every round: Ant at k = 2 has 5,460
-sets) the adversary works on a pool instead: every scoring round a beam search of width P
+:class:`~admissable_jax.method.SetNumbering`, which finds a set's row from its index (and
+back) without listing U where U is too big to list. With ``pool_size`` P > 0 (where U is too
+big to score every round: Ant at k = 2 has 5,460 sets, at k = 3 187,460) the adversary
+works on a pool instead: every scoring round a beam search of width P
 (:func:`~admissable_jax.scoring.beam_search_worst_sets`), ranked by the cheap
 ``pool_ranker`` (the critic by default), picks the P sets of U it finds worst, fresh each
 round; only these are scored by ``score_estimator`` and p_miss is over them. An adversarial

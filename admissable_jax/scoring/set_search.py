@@ -42,8 +42,8 @@ def first_copies(rows: jax.Array, among: jax.Array) -> jax.Array:
     """``among`` (m,) where no earlier row of ``among`` is the same set as this (m, d) 0/1 row:
     the rows sorted by their features packed 32 to a word (the ``among`` rows first, equal
     sets in row order), each compared with the one before it. O(m log m) in time and O(m)
-    in memory, where comparing every pair of rows held (m, m) matrices (Ant at b = d:
-    11,025 rows, 0.66 GiB)."""
+    in memory, where comparing every pair of rows held (m, m) matrices (Ant at b = d: 11,025
+    rows; a pool's scoring program held 0.75 GiB of temporaries with them, 0.54 without)."""
     m, d = rows.shape
     words = -(-d // 32)
     bits = jnp.pad(rows > 0.5, ((0, 0), (0, 32 * words - d))).reshape(m, words, 32).astype(jnp.uint32)
