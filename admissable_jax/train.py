@@ -47,15 +47,19 @@ class TrainResult:
         return bool(self.scores) and self.scores[-1]["env_steps"] >= self.config.planned_steps
 
     def summary(self) -> str:
-        """One line: how far the run got, its last min_u a_u and clean return, where it is
-        (an adversarial run's l where it is not the paper's 0)."""
+        """One line: how far the run got, its last min_u a_u (with a pool: the pool's lowest
+        a_u, an upper bound on min_u a_u) and clean return, where it is (an adversarial run's
+        l where it is not the paper's 0)."""
         last = self.scores[-1]
         state = "done" if self.finished else f"paused ({self.config.planned_steps} planned; resume=true continues)"
         mode = self.config.missingness
         if mode == "adversarial" and self.config.lower_bound != 0:
             mode += f" (l = {number_text(float(self.config.lower_bound))})"
-        return (f"{state}: {self.config.env} {mode} seed {self.config.seed}, "
-                f"{last['env_steps']} env steps, min_u a_u {last['min_score']:.1f} (u = {last['argmin_set']}), "
+        worst = f"min_u a_u {last['min_score']:.1f} (u = {last['argmin_set']})"
+        if self.config.pool_size:
+            worst = (f"lowest a_u of the pool {last['min_score']:.1f} (u = {last['argmin_set']}; "
+                     f"{self.config.pool_size} of {self.trainer.num_sets:,} sets scored)")
+        return (f"{state}: {self.config.env} {mode} seed {self.config.seed}, {last['env_steps']} env steps, {worst}, "
                 f"clean {last['clean_score']:.1f}; run in {self.run_dir}")
 
 

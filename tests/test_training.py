@@ -290,6 +290,8 @@ def test_candidate_pool_for_k2_search_draws_and_records(tmp_path, monkeypatch):
     result = train_fn(dataclasses.replace(config, total_steps=3000, score_every=1000, checkpoint_every=1))
     rows = result.scores
     assert len(rows) == 3 and all(len(set(row["sets"])) == 3 == len(row["scores"]) for row in rows)
+    assert f"lowest a_u of the pool {rows[-1]['min_score']:.1f} (u = {rows[-1]['argmin_set']}; 3 of 6 sets scored)" \
+        in result.summary()
     assert not any("mean_score" in row for row in rows)  # a pool's sets are the worst found: no average over U
     run = load_run(config.out)
     assert run.scores.shape == (3, 4) and np.allclose(run.p_miss.sum(axis=1), 2.0)  # each pair counts for 2 features
