@@ -23,6 +23,7 @@ from admissable_jax import TrainConfig, candidate_sets, make_env, mask_observati
 from admissable_jax.audit import audit, main as audit_main
 from admissable_jax.policies import load_policy
 from admissable_jax.scoring import beam_search_worst_sets, estimate_scores
+from admissable_jax.scoring.set_search import first_copies
 from admissable_jax.scoring.attribution import ShapleyPlan, plan_shapley, shapley_attribution
 from admissable_jax.scoring.worst_set import samples_to_separate
 
@@ -111,6 +112,14 @@ def test_beam_search_finds_the_known_worst_pair():
     few = beam_search_worst_sets(lambda rows: -rows.sum(axis=1), 3, 3, 3)
     np.testing.assert_array_equal(few.found, [True, False, False])
     np.testing.assert_array_equal(few.rows[0], [1, 1, 1])
+    # A level keeps the first copy of each set among its new candidates, features packed 32
+    # to a word: here d = 70, three words, sets that differ in the second or third word only.
+    sets = [(1, 40), (1, 69), (1, 40), (40, 69), (1, 69), (64,), (65,), (1, 40)]
+    rows = np.zeros((len(sets), 70), np.float32)
+    for row, hidden in zip(rows, sets):
+        row[list(hidden)] = 1
+    among = np.array([1, 1, 1, 0, 1, 1, 1, 1], bool)
+    np.testing.assert_array_equal(first_copies(rows, among), [1, 1, 0, 0, 0, 1, 1, 0])
     with pytest.raises(ValueError, match="need 1 <= k <= d = 4"):
         beam_search_worst_sets(rollout_scores, 4, k=5)
 
