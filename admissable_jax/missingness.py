@@ -17,10 +17,10 @@ import jax
 import jax.numpy as jnp
 
 from admissable_jax import method
-from admissable_jax.method import MAX_CANDIDATE_SETS, SetNumbering, candidate_sets, describe_set, num_candidate_sets
+from admissable_jax.method import SetNumbering, candidate_sets, describe_set, num_candidate_sets
 
-__all__ = ["MAX_CANDIDATE_SETS", "SetNumbering", "candidate_sets", "describe_set", "mask_observation",
-           "num_candidate_sets", "sample_distinct_sets", "sample_set_indices"]
+__all__ = ["SetNumbering", "candidate_sets", "describe_set", "mask_observation", "num_candidate_sets",
+           "sample_distinct_sets", "sample_set_indices"]
 
 
 def mask_observation(obs: jax.Array, hidden: jax.Array) -> jax.Array:
