@@ -153,7 +153,7 @@ class SetNumbering:
         first_of_size[sizes] = starts
         hidden = xp.astype(rows > 0.5, xp.int32)
         size = xp.sum(hidden, axis=-1)
-        before = hidden @ xp.asarray(np.triu(np.ones((d, d), np.int32), 1))  # hidden features before each one
+        before = xp.cumulative_sum(hidden, axis=-1) - hidden  # hidden features before each one (no integer matmul)
         still = xp.clip(size[..., None] - before, 0, self.k)
         flat = xp.reshape(xp.asarray(self._binomials), (-1,))
         terms = xp.take(flat, still * (d + 1) + xp.asarray(np.arange(d - 1, -1, -1, dtype=np.int32)))
