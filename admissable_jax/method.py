@@ -76,14 +76,11 @@ class SetNumbering:
     k: int = 1
     include_empty: bool = False
     up_to_k: bool = False
+    count: int = dataclasses.field(init=False)  # |U|, counted (and k checked) at construction
 
     def __post_init__(self):
-        num_candidate_sets(self.num_features, self.k, self.include_empty, self.up_to_k)
-
-    @functools.cached_property
-    def count(self) -> int:
-        """|U|."""
-        return num_candidate_sets(self.num_features, self.k, self.include_empty, self.up_to_k)
+        object.__setattr__(self, "count", num_candidate_sets(self.num_features, self.k, self.include_empty,
+                                                             self.up_to_k))
 
     @property
     def listed(self) -> bool:

@@ -30,6 +30,7 @@ from __future__ import annotations
 import chex
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from admissable_jax import replay
@@ -108,10 +109,10 @@ class Trainer:
 
     # --- pieces -------------------------------------------------------------------------
     @property
-    def hidden_sets(self) -> jax.Array:
-        """U listed: the (|U|, d) 0/1 rows in U's order; ValueError beyond MAX_CANDIDATE_SETS
-        sets (a pool's U is numbered, never listed)."""
-        return jnp.asarray(self.sets.matrix)
+    def hidden_sets(self) -> np.ndarray:
+        """U listed: the (|U|, d) 0/1 rows in U's order, built once (``SetNumbering.matrix``);
+        ValueError beyond MAX_CANDIDATE_SETS sets (a pool's U is numbered, never listed)."""
+        return self.sets.matrix
 
     def hidden_rows(self, state: TrainState, set_index: jax.Array) -> jax.Array:
         """The 0/1 rows hidden for these set indices (all zeros when not masking)."""
