@@ -7,6 +7,7 @@
         total_steps=1000000 fallback_modes=adversarial,uniform or_longest=true deadline=1650
     python benchmarks/campaign.py plan env=ant seeds=5 total_steps=0 min_steps=200000 deadline=690
     python benchmarks/campaign.py projections seeds=5 deadline=690   # all of the above
+    python benchmarks/campaign.py profile env=hopper modes=adversarial,uniform,none seeds=5
 
 ``measure`` builds the experiment exactly as ``python -m admissable_jax.experiment`` would
 for these settings (every (seed, mode) pair vmapped in one program) and times its parts on
@@ -15,7 +16,11 @@ one scoring round as it comes (untrained policy: short episodes), one scoring ro
 every episode runs its full ``episode_length`` (the env built with Gymnasium's
 ``terminate_when_unhealthy=False``: the longest a round can take, as late in training), and
 saving and restoring the whole training state (replay buffers included) as a checkpoint.
-It appends one record to ``campaign_speed.jsonl`` in the results folder.
+It appends one record to ``campaign_speed.jsonl`` in the results folder. ``profile`` builds
+the same programs and runs one training chunk (learning on) and one full-length scoring round
+under JAX's profiler: per iteration of the chunk and per loop step of the round, the device's
+busy and idle time, its ops, and the costliest op kinds (``profile_trace``; a
+``campaign_profile`` record): where a latency-bound GPU loses its time.
 
 ``plan`` reads the newest matching record (same env, envs per pair, physics and device;
 the same number of pairs, else the fewest pairs above it: a program of fewer pairs does no
@@ -41,6 +46,7 @@ import os
 import sys
 import tempfile
 import time
+from typing import Any, Callable
 
 import jax
 
@@ -51,6 +57,7 @@ from admissable_jax.config import ExperimentConfig, pair_configs
 from admissable_jax.host_loop import TrainingLoop, make_trainer, pairs_init, queue_pieces
 from admissable_jax.placement import PairPlacement
 from admissable_jax.training import Trainer
+import profile_trace
 from common import COMMITTED_RESULTS_DIR, RESULTS_DIR, append_record, environment_record, timed
 
 REFUSED = 3  # plan's exit status for a run that does not fit
@@ -72,30 +79,53 @@ class PlanConfig(ExperimentConfig):
     speed_device: str = dataclasses.field(default="", metadata={"help": "plan from this device's speed records ('' = this device's), e.g. an H100's on an H200 that has none"})
 
 
-def measure(config: MeasureConfig) -> int:
+@dataclasses.dataclass
+class ProfileConfig(ExperimentConfig):
+    trace_dir: str = dataclasses.field(default="", metadata={"help": "keep the profiler's trace in this folder ('' = a temporary one, deleted)"})
+    top: int = dataclasses.field(default=15, metadata={"help": "the costliest op kinds listed per part"})
+
+
+@dataclasses.dataclass
+class Programs:
+    """An experiment's programs as its host loop compiles them, and its fresh state."""
+
+    pairs: list
+    trainer: Trainer
+    loop: TrainingLoop
+    state: Any
+    compile_s: float
+    score_full: Callable  # the scoring round on an env that never terminates: every round at full length
+
+    def chunk(self, state):
+        """One interval as the experiment trains it: its pieces queued at once."""
+        state, piece_metrics = queue_pieces(self.loop.run_piece, state, self.loop.pieces)
+        return state, jax.tree.map(lambda *parts: jax.numpy.concatenate(parts, axis=1), *piece_metrics)
+
+
+def compile_programs(config: ExperimentConfig) -> Programs:
+    """The experiment's own programs for these settings, compiled by its host loop (the state
+    donated to each), so that the run that follows finds them in the compilation cache."""
     pairs = pair_configs(config)
     placement = PairPlacement.over(len(pairs), config.devices)
     trainer = make_trainer(pairs[0], num_runs=placement.pairs_per_device)
-    # The experiment's own programs, compiled by its host loop (the state donated to each), so
-    # that the run measured here finds them in the compilation cache and starts compiled.
     loop = TrainingLoop(trainer, pairs[0], [], None, pairs_init(trainer, pairs, placement), placement)
     start = time.perf_counter()
     loop.compile()
     state = loop.init()
     compile_s = time.perf_counter() - start
-    # Every round at full length: the same scoring on an env that never terminates.
     endless = Trainer(make_env(trainer.spec.env, dataclasses.replace(trainer.spec.env_options, terminate_when_unhealthy=False)),
                       trainer.spec)
     score_full = loop.program(endless.score_and_update).lower(state).compile()
+    return Programs(pairs, trainer, loop, state, compile_s, score_full)
 
-    def chunk(state):  # one interval as the experiment trains it: its pieces queued at once
-        state, piece_metrics = queue_pieces(loop.run_piece, state, loop.pieces)
-        return state, jax.tree.map(lambda *parts: jax.numpy.concatenate(parts, axis=1), *piece_metrics)
 
-    (state, _), first_chunk_s = timed(chunk, state)  # learning starts within it
+def measure(config: MeasureConfig) -> int:
+    programs = compile_programs(config)
+    pairs, trainer, chunk, compile_s = programs.pairs, programs.trainer, programs.chunk, programs.compile_s
+    (state, _), first_chunk_s = timed(chunk, programs.state)  # learning starts within it
     (state, metrics), chunk_s = timed(chunk, state)
-    (state, scores, _), score_s = timed(loop.score_and_update, state)
-    (state, full), score_full_s = timed(score_full, state)
+    (state, scores, _), score_s = timed(programs.loop.score_and_update, state)
+    (state, full), score_full_s = timed(programs.score_full, state)
     with tempfile.TemporaryDirectory() as directory:
         checkpoints = Checkpoints(directory)
         _, save_s = timed(lambda: checkpoints.save(1, state))
@@ -120,6 +150,51 @@ def measure(config: MeasureConfig) -> int:
         f"({record['score_loop_steps']} loop steps), at full length {score_full_s:.2f} s "
         f"({record['score_full_loop_steps']} loop steps); checkpoint save {save_s:.1f} s, restore {restore_s:.1f} s"
     )
+    return 0
+
+
+CHUNK_PART, SCORING_PART = "campaign:chunk", "campaign:scoring"
+
+
+def profile(config: ProfileConfig) -> int:
+    """One training chunk (learning on) and one full-length scoring round of the experiment's
+    own programs under JAX's profiler, after a warm-up of each: where the device's time goes
+    (``profile_trace``). Appends a ``campaign_profile`` record."""
+    programs = compile_programs(config)
+    first = programs.pairs[0]
+    state = programs.state
+    # Warm-up, up to the first chunk that learns throughout: the one that starts at or past
+    # learning_starts (each iteration learns once more env steps than that are collected).
+    for _ in range(max(1, math.ceil(first.learning_starts / first.score_every))):
+        state, _ = programs.chunk(state)
+    state, _ = jax.block_until_ready(programs.score_full(state))
+    options = jax.profiler.ProfileOptions()
+    options.python_tracer_level = 0  # the device's ops and our two annotations are what is read
+    with tempfile.TemporaryDirectory() as scratch:
+        folder = config.trace_dir or scratch
+        with jax.profiler.trace(folder, profiler_options=options):
+            with jax.profiler.TraceAnnotation(CHUNK_PART):
+                state, metrics = jax.block_until_ready(programs.chunk(state))
+            with jax.profiler.TraceAnnotation(SCORING_PART):
+                state, full = jax.block_until_ready(programs.score_full(state))
+        trace = profile_trace.read_profile(folder)
+        where, ops = profile_trace.device_ops(trace)
+        windows = {part: profile_trace.annotation(trace, part) for part in (CHUNK_PART, SCORING_PART)}
+    iterations = first.score_every // first.num_envs
+    parts = [profile_trace.summarize_part(ops, CHUNK_PART, windows[CHUNK_PART], iterations, config.top),
+             profile_trace.summarize_part(ops, SCORING_PART, windows[SCORING_PART], int(full.loop_steps.max()), config.top)]
+    record = {
+        "env": programs.trainer.env.gymnasium_id or first.env, "physics": programs.trainer.env.physics_name,
+        "pairs": len(programs.pairs), "num_envs": first.num_envs, "score_episodes": first.score_episodes,
+        "score_every": first.score_every, "updates_per_iteration": programs.trainer.spec.updates_per_iteration,
+        "chunk_learned_share": float(metrics["learned"].mean()), "ops_from": where, "parts": parts,
+    }
+    append_record("campaign_profile", record)
+    print(f"{record['env']} ({record['physics']}), {len(programs.pairs)} pairs x {first.num_envs} envs; ops from {where}; "
+          f"a step is an iteration of the chunk ({record['updates_per_iteration']} updates per pair) or a loop step "
+          f"of the scoring round")
+    for part in parts:
+        print(profile_trace.describe(part))
     return 0
 
 
@@ -253,7 +328,8 @@ def projections(config: PlanConfig) -> int:
     return 0
 
 
-VERBS = {"measure": (MeasureConfig, measure), "plan": (PlanConfig, plan), "projections": (PlanConfig, projections)}
+VERBS = {"measure": (MeasureConfig, measure), "profile": (ProfileConfig, profile), "plan": (PlanConfig, plan),
+         "projections": (PlanConfig, projections)}
 
 
 def main(argv: list[str]) -> int:
@@ -264,7 +340,7 @@ def main(argv: list[str]) -> int:
     verb, rest = argv[0], argv[1:]
     config_type, action = VERBS[verb]
     config = parse_args(config_type, rest, f"benchmarks/campaign.py {verb}", __doc__.splitlines()[0])
-    if verb == "measure":
+    if verb in ("measure", "profile"):
         enable_compilation_cache()  # as the experiment it measures: its programs then start the run compiled
     try:
         return action(config)

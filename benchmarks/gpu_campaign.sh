@@ -8,8 +8,9 @@
 #             physics (125, 1,250 and 10,000 worlds; graph modes), scoring rounds (untrained and
 #             full-length; and full-length checking for running episodes every 10 steps only),
 #             training (1 and 15 runs), Brax SAC (and its update alone against
-#             ours: CAMPAIGN_ONLY=brax-update runs just that); last, steps 2-4 projected for a
-#             whole lease (campaign.py projections)
+#             ours: CAMPAIGN_ONLY=brax-update runs just that); the Hopper and Ant runs' device
+#             time op by op (campaign.py profile; CAMPAIGN_ONLY=^profile- runs just these);
+#             last, steps 2-4 projected for a whole lease (campaign.py projections)
 #   hopper    experiment env=hopper seeds=5 modes=adversarial,uniform,none total_steps=1000000
 #             (the 10 adversarial/uniform pairs if the 15 cannot finish in the time left; if
 #             neither can, the 15 pairs for the longest run that fits, at least 200k env steps)
@@ -181,6 +182,10 @@ worker() {
       stage measure-hopper 300 $py benchmarks/campaign.py measure env=hopper modes=$ALL "${sizes[@]}"
       stage measure-walker2d 300 $py benchmarks/campaign.py measure env=walker2d modes=$ALL "${sizes[@]}"
       stage measure-ant 300 $py benchmarks/campaign.py measure env=ant modes=$PAIRED "${sizes[@]}"
+      # The same runs' device time, op by op, for one chunk and one full-length scoring round:
+      # where a latency-bound GPU waits (CAMPAIGN_ONLY=^profile- runs just these, before a step).
+      stage profile-hopper 300 $py benchmarks/campaign.py profile env=hopper modes=$ALL "${sizes[@]}"
+      stage profile-ant 300 $py benchmarks/campaign.py profile env=ant modes=$PAIRED "${sizes[@]}"
       for env in hopper ant walker2d; do
         modes=$graph_modes; [ "$env" = walker2d ] && modes=default
         stage "physics-$env" 300 $py benchmarks/physics_throughput.py env=$env physics=warp batches=$worlds \

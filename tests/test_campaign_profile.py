@@ -1,0 +1,84 @@
+"""``benchmarks/campaign.py profile``: where an experiment's device time goes, op by op."""
+
+import json
+import os
+from types import SimpleNamespace
+
+import campaign  # benchmarks/ is on the tests' path (conftest.py)
+import common
+import profile_trace
+
+
+def _event(name, start_us, duration_us, **stats):
+    return SimpleNamespace(name=name, start_ns=start_us * 1000, duration_ns=duration_us * 1000, stats=list(stats.items()))
+
+
+def _profile(*planes):
+    return SimpleNamespace(planes=[SimpleNamespace(name=name, lines=[SimpleNamespace(name=line, events=events)
+                                                                     for line, events in lines.items()])
+                                   for name, lines in planes])
+
+
+ANNOTATIONS = ("/host:CPU", {"python": [_event("campaign:chunk", 0, 100), _event("campaign:scoring", 100, 200)]})
+
+
+def _summaries(profile, steps=(5, 4)):
+    where, ops = profile_trace.device_ops(profile)
+    return where, [profile_trace.summarize_part(ops, part, profile_trace.annotation(profile, part), count, top=5)
+                   for part, count in zip((campaign.CHUNK_PART, campaign.SCORING_PART), steps)]
+
+
+def test_a_gpu_trace_is_summed_per_part_from_its_stream_lines():
+    """Busy time is the union of the streams' kernels and copies (overlaps once), clipped to
+    each part; kinds are HLO ops without their numbering, else the kernel's name; a derived
+    line spanning the whole trace is not a stream, so it counts neither as busy nor as an op."""
+    gpu = ("/device:GPU:0", {
+        "Stream #1(Kernel)": [_event("loop_fusion_kernel", 10, 20, hlo_op="fusion.1"),
+                              _event("loop_fusion_kernel", 40, 10, hlo_op="fusion.2"),
+                              _event("smooth_kernel_forward", 150, 100), _event("fusion_kernel", 290, 30, hlo_op="fusion.7")],
+        "Stream #2(MemcpyD2H)": [_event("MemcpyD2H", 20, 15)],
+        "XLA Ops": [_event("fusion.1", 0, 300)],
+    })
+    where, (chunk, scoring) = _summaries(_profile(ANNOTATIONS, gpu))
+    assert where == "/device:GPU:0"
+    assert (chunk["wall_ms"], chunk["busy_ms"], chunk["ops"], chunk["steps"]) == (0.1, 0.035, 3, 5)
+    assert (chunk["busy_us_per_step"], chunk["idle_us_per_step"], chunk["ops_per_step"]) == (7.0, 13.0, 0.6)
+    assert [(row["op"], row["ms"], row["count"]) for row in chunk["costliest"]] == [("fusion", 0.03, 2), ("MemcpyD2H", 0.015, 1)]
+    # The scoring part ends at 300 µs: the kernel running past it counts 10 of its 30 µs.
+    assert (scoring["busy_ms"], scoring["ops"], scoring["busy_share"]) == (0.11, 2, 0.55)
+    assert [row["op"] for row in scoring["costliest"]] == ["smooth_kernel_forward", "fusion"]
+    assert "campaign:scoring: wall 0.2 ms, device busy 0.1 ms (55%); 2 ops = 0.5 per step" in profile_trace.describe(scoring)
+
+
+def test_xla_cpu_thunks_count_once_and_runtime_events_not_at_all():
+    """On XLA:CPU a while thunk spans the thunks it runs and the executor's own events name no
+    HLO op: only the leaves count. A trace with neither device planes nor thunks says so."""
+    cpu = ("/host:CPU", {
+        "python": ANNOTATIONS[1]["python"],
+        "tf_XLAEigen/1": [_event("ThunkExecutor::Execute", 0, 60), _event("while.3", 2, 48, hlo_op="while.3"),
+                          _event("copy.1", 5, 5, hlo_op="copy.1"), _event("add.2", 20, 10, hlo_op="add.2")],
+    })
+    where, (chunk, _) = _summaries(_profile(cpu))
+    assert where == "XLA:CPU worker threads"
+    assert sorted((row["op"], row["ms"]) for row in chunk["costliest"]) == [("add", 0.01), ("copy", 0.005)]
+    # A GPU traced without CUPTI has no device planes, nor XLA:CPU thunks: said, not summed as idle.
+    assert profile_trace.device_ops(_profile(ANNOTATIONS))[0].startswith("no device ops in the trace")
+
+
+def test_profile_of_an_experiment_records_both_parts(tmp_path, monkeypatch, capsys):
+    """The experiment's own programs, a training chunk that learns throughout and a scoring
+    round at full length, traced and summed into one record (point mass, JAX physics)."""
+    monkeypatch.setattr(common, "RESULTS_DIR", str(tmp_path))
+    status = campaign.main(["profile", "env=point_mass", "physics=jax", "seeds=1", "modes=adversarial,uniform",
+                            "score_every=40", "num_envs=4", "learning_starts=48", "batch_size=32", "hidden_size=32",
+                            "buffer_size=1000", "score_episodes=2", "episode_length=10", "top=4"])
+    assert status == 0
+    with open(os.path.join(tmp_path, "campaign_profile.jsonl")) as file:
+        (record,) = [json.loads(line) for line in file]
+    assert (record["pairs"], record["chunk_learned_share"], record["ops_from"]) == (2, 1.0, "XLA:CPU worker threads")
+    chunk, scoring = record["parts"]
+    assert (chunk["part"], chunk["steps"], scoring["part"], scoring["steps"]) == (
+        campaign.CHUNK_PART, 10, campaign.SCORING_PART, 10)  # 40 env steps of 4 envs; episodes of 10 steps
+    for part in (chunk, scoring):
+        assert part["ops"] > 0 and 0 < part["busy_ms"] <= part["wall_ms"] and len(part["costliest"]) == 4
+    assert f"{campaign.CHUNK_PART}: wall {chunk['wall_ms']:,.1f} ms" in capsys.readouterr().out
