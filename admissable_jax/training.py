@@ -155,10 +155,12 @@ class Trainer:
         sample_keys, update_keys = jnp.moveaxis(
             jax.vmap(jax.random.split)(jax.random.split(rng, self.spec.updates_per_iteration)), 1, 0
         )
-        batches = jax.vmap(lambda key: self._minibatch(state, key))(sample_keys)
+        with jax.named_scope("minibatches"):
+            batches = jax.vmap(lambda key: self._minibatch(state, key))(sample_keys)
 
         def one_update(sac_state, batch_and_key):
-            return self.agent.update(sac_state, *batch_and_key)
+            with jax.named_scope("updates"):
+                return self.agent.update(sac_state, *batch_and_key)
 
         def updates(sac_state, batches, update_keys):
             sac_state, metrics = jax.lax.scan(one_update, sac_state, (batches, update_keys))
@@ -192,26 +194,32 @@ class Trainer:
         """One step of every env under its episode's u (paper §3: u is drawn from p_miss at
         each episode start and held for the episode), the transitions stored with u's index,
         then ``updates_per_iteration`` SAC updates once learning has started. Pure: a
-        ``lax.scan`` body (the second argument is the scanned-over slot, unused)."""
+        ``lax.scan`` body (the second argument is the scanned-over slot, unused). Its parts
+        carry JAX named scopes, by which a profile sums the device's time
+        (``benchmarks/campaign.py profile``); they change no computation."""
         rng, act_rng, reset_rng, set_rng, learn_rng = jax.random.split(state.rng, 5)
-        actions = self._act(state, act_rng)
-        stepped = jax.vmap(self.env.step)(state.env_states, actions)
-        buffer = replay.insert(
-            state.buffer,
-            replay.Transitions(
-                obs=state.env_states.obs,
-                set_index=state.set_index,
-                action=actions,
-                reward=stepped.reward,
-                next_obs=stepped.obs,
-                terminated=stepped.terminated,
-            ),
-        )
+        with jax.named_scope("act"):
+            actions = self._act(state, act_rng)
+        with jax.named_scope("env_step"):
+            stepped = jax.vmap(self.env.step)(state.env_states, actions)
+        with jax.named_scope("replay_insert"):
+            buffer = replay.insert(
+                state.buffer,
+                replay.Transitions(
+                    obs=state.env_states.obs,
+                    set_index=state.set_index,
+                    action=actions,
+                    reward=stepped.reward,
+                    next_obs=stepped.obs,
+                    terminated=stepped.terminated,
+                ),
+            )
         done = stepped.done
-        env_states = jax.vmap(reset_where_done, (None, 0, 0))(
-            self.env, stepped, jax.random.split(reset_rng, self.spec.num_envs)
-        )
-        new_sets = self._draw_sets(set_rng, state.p_miss, state.pool, state.adversarial)
+        with jax.named_scope("episode_starts"):  # resets where an episode ended, and their sets u
+            env_states = jax.vmap(reset_where_done, (None, 0, 0))(
+                self.env, stepped, jax.random.split(reset_rng, self.spec.num_envs)
+            )
+            new_sets = self._draw_sets(set_rng, state.p_miss, state.pool, state.adversarial)
         state = state.replace(
             buffer=buffer,
             env_states=env_states,
@@ -219,7 +227,8 @@ class Trainer:
             env_steps=state.env_steps + self.spec.num_envs,
             rng=rng,
         )
-        sac_state, learn_metrics = self._learn(state, learn_rng)
+        with jax.named_scope("learn"):
+            sac_state, learn_metrics = self._learn(state, learn_rng)
         learned = self._learning(state)
         state = state.replace(
             sac=sac_state,

@@ -181,8 +181,10 @@ def profile(config: ProfileConfig) -> int:
         where, ops = profile_trace.device_ops(trace)
         windows = {part: profile_trace.annotation(trace, part) for part in (CHUNK_PART, SCORING_PART)}
     iterations = first.score_every // first.num_envs
-    parts = [profile_trace.summarize_part(ops, CHUNK_PART, windows[CHUNK_PART], iterations, config.top),
-             profile_trace.summarize_part(ops, SCORING_PART, windows[SCORING_PART], int(full.loop_steps.max()), config.top)]
+    parts = [profile_trace.summarize_part(ops, CHUNK_PART, windows[CHUNK_PART], iterations, config.top,
+                                          profile_trace.op_sources(programs.loop.run_piece.as_text())),
+             profile_trace.summarize_part(ops, SCORING_PART, windows[SCORING_PART], int(full.loop_steps.max()), config.top,
+                                          profile_trace.op_sources(programs.score_full.as_text()))]
     record = {
         "env": programs.trainer.env.gymnasium_id or first.env, "physics": programs.trainer.env.physics_name,
         "pairs": len(programs.pairs), "num_envs": first.num_envs, "score_episodes": first.score_episodes,

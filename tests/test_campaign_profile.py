@@ -4,6 +4,8 @@ import json
 import os
 from types import SimpleNamespace
 
+import jax
+
 import campaign  # benchmarks/ is on the tests' path (conftest.py)
 import common
 import profile_trace
@@ -50,6 +52,45 @@ def test_a_gpu_trace_is_summed_per_part_from_its_stream_lines():
     assert "campaign:scoring: wall 0.2 ms, device busy 0.1 ms (55%); 2 ops = 0.5 per step" in profile_trace.describe(scoring)
 
 
+def test_ops_are_counted_under_the_longest_scope_of_ours_their_name_stack_starts_with():
+    """An op's source is read from its HLO metadata, through JAX's transformations and past
+    Flax's and MJX's own scopes; an op XLA added counts as its computation's most common
+    source (none where nothing there names one), and kernels naming no HLO op are another
+    library's."""
+    hlo = "\n".join([
+        '  %fusion.3 = f32[8]{0} fusion(%p), kind=kLoop, metadata={op_name="jit(run_piece)/while/body/closed_call/'
+        'learn/vmap()/updates/transpose(jvp(Actor))/Dense_0/dot_general"}',
+        '  %fusion.4 = f32[8]{0} fusion(%p), metadata={op_name="jit(run_piece)/while/body/learn/minibatches/gather"}',
+        '  ROOT %select.1 = f32[8]{0} select(%a, %b, %c), metadata={op_name="jit(run_piece)/while/body/closed_call/'
+        'vmap()/env_step/forward/solve/while/body/select_n"}',
+        '  %add.2 = f32[] add(%x, %y), metadata={op_name="jit(run_piece)/while/body/closed_call/add"}',
+        '  %copy.5 = f32[8]{0} copy(%p)',
+        '}',
+        '',
+        '%region_7.2 (p: f32[8]) -> f32[8] {',
+        '  %reduce-window.1 = f32[8,1]{1,0} reduce-window(%a, %b), window={size=32x1}, to_apply=%region_9',
+        '  %copy.6 = f32[8]{0} copy(%reduce-window.1)',
+        '  %select.2 = f32[8]{0} select(%a, %b, %c), metadata={op_name="jit(run_piece)/env_step/forward/select_n"}',
+        '  %select.3 = f32[8]{0} select(%a, %b, %c), metadata={op_name="jit(run_piece)/env_step/forward/select_n"}',
+        '  ROOT %add.3 = f32[8]{0} add(%a, %b), metadata={op_name="jit(run_piece)/while/body/learn/add"}',
+        '}',
+        '',
+        '%region_8.3 (p: f32[8]) -> f32[8] {',
+        '  ROOT %copy.7 = f32[8]{0} copy(%p)',
+    ])
+    sources = profile_trace.op_sources(hlo)
+    # In the second computation the ops XLA added count as its most common source, env_step.
+    assert sources == {"fusion.3": "learn/updates", "fusion.4": "learn/minibatches", "select.1": "env_step",
+                       "add.2": profile_trace.UNSCOPED, "copy.5": "learn/updates", "reduce-window.1": "env_step",
+                       "copy.6": "env_step", "select.2": "env_step", "select.3": "env_step", "add.3": "learn",
+                       "copy.7": profile_trace.NO_SOURCE}
+    ops = [profile_trace.Op("t", "fusion", 0, 4, "fusion.3"), profile_trace.Op("t", "copy", 4, 5, "copy.7"),
+           profile_trace.Op("t", "smooth_kernel", 5, 8), profile_trace.Op("t", "fusion", 8, 10, "fusion.3")]
+    part = profile_trace.summarize_part(ops, "chunk", (0, 10), 2, top=3, sources=sources)
+    assert [(row["source"], row["ms"], row["ops_per_step"]) for row in part["by_source"]] == [
+        ("learn/updates", 0.006, 1.0), (profile_trace.NOT_LAUNCHED_BY_XLA, 0.003, 0.5), (profile_trace.NO_SOURCE, 0.001, 0.5)]
+
+
 def test_xla_cpu_thunks_count_once_and_runtime_events_not_at_all():
     """On XLA:CPU a while thunk spans the thunks it runs and the executor's own events name no
     HLO op: only the leaves count. A trace with neither device planes nor thunks says so."""
@@ -69,9 +110,16 @@ def test_profile_of_an_experiment_records_both_parts(tmp_path, monkeypatch, caps
     """The experiment's own programs, a training chunk that learns throughout and a scoring
     round at full length, traced and summed into one record (point mass, JAX physics)."""
     monkeypatch.setattr(common, "RESULTS_DIR", str(tmp_path))
-    status = campaign.main(["profile", "env=point_mass", "physics=jax", "seeds=1", "modes=adversarial,uniform",
-                            "score_every=40", "num_envs=4", "learning_starts=48", "batch_size=32", "hidden_size=32",
-                            "buffer_size=1000", "score_episodes=2", "episode_length=10", "top=4"])
+    # Compiled afresh: a program from the persistent cache keeps the names of the code that
+    # compiled it (metadata is not part of the cache key), so an older cache could hide a scope.
+    cached = jax.config.jax_enable_compilation_cache
+    jax.config.update("jax_enable_compilation_cache", False)
+    try:
+        status = campaign.main(["profile", "env=point_mass", "physics=jax", "seeds=1", "modes=adversarial,uniform",
+                                "score_every=40", "num_envs=4", "learning_starts=48", "batch_size=32", "hidden_size=32",
+                                "buffer_size=1000", "score_episodes=2", "episode_length=10", "top=4"])
+    finally:
+        jax.config.update("jax_enable_compilation_cache", cached)
     assert status == 0
     with open(os.path.join(tmp_path, "campaign_profile.jsonl")) as file:
         (record,) = [json.loads(line) for line in file]
@@ -81,4 +129,8 @@ def test_profile_of_an_experiment_records_both_parts(tmp_path, monkeypatch, caps
         campaign.CHUNK_PART, 10, campaign.SCORING_PART, 10)  # 40 env steps of 4 envs; episodes of 10 steps
     for part in (chunk, scoring):
         assert part["ops"] > 0 and 0 < part["busy_ms"] <= part["wall_ms"] and len(part["costliest"]) == 4
+    # Every scope the two programs name is found.
+    assert {"act", "env_step", "replay_insert", "episode_starts", "learn/minibatches", "learn/updates"} <= {
+        row["source"] for row in chunk["by_source"]}
+    assert {"score_policy", "score_env_step"} <= {row["source"] for row in scoring["by_source"]}
     assert f"{campaign.CHUNK_PART}: wall {chunk['wall_ms']:,.1f} ms" in capsys.readouterr().out

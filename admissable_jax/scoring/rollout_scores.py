@@ -111,8 +111,10 @@ def score_by_rollout(
 
     def step(carry, _=None):
         states, episode, alive = carry["states"], carry["episode"], carry["alive"]
-        actions = policy(params, mask_observation(states.obs, episode_hidden[episode]))
-        states = jax.vmap(env.step)(states, actions)
+        with jax.named_scope("score_policy"):
+            actions = policy(params, mask_observation(states.obs, episode_hidden[episode]))
+        with jax.named_scope("score_env_step"):
+            states = jax.vmap(env.step)(states, actions)
         finished = alive & (states.terminated | (states.step_count >= max_steps))
         record_at = jnp.where(finished, episode, num_episodes)  # out of range: dropped
         returns = carry["returns"].at[record_at].set(states.episode_metrics["return"], mode="drop")
