@@ -19,8 +19,9 @@ saving and restoring the whole training state (replay buffers included) as a che
 It appends one record to ``campaign_speed.jsonl`` in the results folder. ``profile`` builds
 the same programs and runs one training chunk (learning on) and one full-length scoring round
 under JAX's profiler: per iteration of the chunk and per loop step of the round, the device's
-busy and idle time, its ops, and the costliest op kinds (``profile_trace``; a
-``campaign_profile`` record): where a latency-bound GPU loses its time.
+busy and idle time, its ops, the costliest op kinds and the time by our programs' named
+scopes (``profile_trace``; a ``campaign_profile`` record): where a latency-bound GPU loses
+its time.
 
 ``plan`` reads the newest matching record (same env, envs per pair, physics and device;
 the same number of pairs, else the fewest pairs above it: a program of fewer pairs does no
