@@ -198,6 +198,10 @@ def profile(config: ProfileConfig) -> int:
           f"of the scoring round")
     for part in parts:
         print(profile_trace.describe(part))
+    if not profile_trace.names_our_scopes(parts):
+        print("warning: no op names a scope of ours: the programs came from a compilation cache that older code "
+              "filled (metadata is no part of its key); for the time by source, run again with "
+              "JAX_COMPILATION_CACHE_DIR set to an empty folder")
     return 0
 
 

@@ -182,6 +182,12 @@ def summarize_part(ops: list[Op], name: str, window: tuple[float, float], steps:
     }
 
 
+def names_our_scopes(parts: list[dict]) -> bool:
+    """Whether any op of these parts ran in a scope of ours: not when the programs came from
+    a persistent cache that code without those scopes filled (metadata is no part of its key)."""
+    return any(row["source"] in OUR_SCOPES for part in parts for row in part["by_source"])
+
+
 def describe(part: dict) -> str:
     """A part's summary in lines, for the log."""
     lines = [f"{part['part']}: wall {part['wall_ms']:,.1f} ms, device busy {part['busy_ms']:,.1f} ms "
