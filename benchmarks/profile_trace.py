@@ -24,8 +24,6 @@ import re
 from typing import Any
 
 NUMBERED = re.compile(r"([._]\d+)+$")  # fusion.12, copy_3: one op kind
-
-
 # Name-stack segments that JAX's transformations add; the others are named scopes (ours
 # below, Flax's modules, MJX's functions), and the last segment of an op's name is its primitive.
 TRANSFORMATION = re.compile(r"^(\w*jit\(.*\)|vmap\(.*\)|pmap\(.*\)|transpose\(.*\)|jvp\(.*\)|while|body|cond|"
@@ -76,7 +74,7 @@ def device_ops(profile: Any) -> tuple[str, list[Op]]:
     ops = [_op(f"{plane.name}/{line.name}", event) for plane in profile.planes for line in plane.lines
            if line.name.startswith("tf_XLA") for event in line.events if _stat(event, "hlo_op") is not None]
     if not ops:
-        return "no device ops in the trace (a GPU's need NVIDIA's CUPTI library)", []
+        return "no device ops in the trace (a GPU's are traced through NVIDIA's CUPTI library)", []
     return "XLA:CPU worker threads", leaves(ops)
 
 
@@ -89,9 +87,9 @@ def _op(track: str, event: Any) -> Op:
 
 def op_sources(hlo_text: str) -> dict[str, str]:
     """Each instruction of a compiled program's HLO (``compiled.as_text()``) by the scope of
-    ours its metadata's name stack starts with (``OUR_SCOPES``). Ops that XLA added name no
-    source (copies, a cumulative sum's reduce-windows): they count under the source most
-    common in the computation they sit in (a solver's loop body: ``env_step``). A program
+    ours its metadata's name stack starts with (``OUR_SCOPES``). Ops that XLA added or rewrote
+    without a name (copies, reduce-windows) count under the source most common in the
+    computation they sit in (a solver's loop body: ``env_step``). A program
     from JAX's persistent cache keeps the names of the code that compiled it: metadata is
     not part of the cache key."""
     members: dict[str, list[tuple[str, str | None]]] = collections.defaultdict(list)
@@ -114,6 +112,7 @@ def op_sources(hlo_text: str) -> dict[str, str]:
 
 
 def _scope(op_name: str) -> str:
+    """The longest scope of ours that an op's name stack (transformations left out) starts with."""
     path = "/".join(segment for segment in op_name.split("/")[:-1] if not TRANSFORMATION.match(segment))
     ours = [scope for scope in OUR_SCOPES if path == scope or path.startswith(scope + "/")]
     return max(ours, key=len) if ours else UNSCOPED
