@@ -52,7 +52,7 @@ from typing import Any, Callable
 import jax
 
 from admissable_jax.checkpointing import Checkpoints
-from admissable_jax.cli import enable_compilation_cache, exit_with, parse_args
+from admissable_jax.cli import enable_compilation_cache, exit_with, parse_args, report
 from admissable_jax.envs import env_spec, make_env, resolve_physics
 from admissable_jax.config import ExperimentConfig, pair_configs
 from admissable_jax.host_loop import TrainingLoop, make_trainer, pairs_init, queue_pieces
@@ -166,7 +166,10 @@ def profile(config: ProfileConfig) -> int:
     state = programs.state
     # Warm-up, up to the first chunk that learns throughout: the one that starts at or past
     # learning_starts (each iteration learns once more env steps than that are collected).
-    for _ in range(max(1, math.ceil(first.learning_starts / first.score_every))):
+    warm_chunks = max(1, math.ceil(first.learning_starts / first.score_every))
+    report(f"warming up: {warm_chunks} chunk(s) of {first.score_every} env steps per pair and a full-length scoring "
+           f"round, then both traced")
+    for _ in range(warm_chunks):
         state, _ = programs.chunk(state)
     state, _ = jax.block_until_ready(programs.score_full(state))
     options = jax.profiler.ProfileOptions()
