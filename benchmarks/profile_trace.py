@@ -32,6 +32,7 @@ TRANSFORMATION = re.compile(r"^(\w*jit\(.*\)|vmap\(.*\)|pmap\(.*\)|transpose\(.*
 # rollout's step): an op is counted under the longest of these its name stack starts with.
 OUR_SCOPES = ("act", "env_step", "replay_insert", "episode_starts", "learn", "learn/minibatches", "learn/updates",
               "score_policy", "score_env_step")
+SOURCE_KINDS = 3  # the op kinds listed per source: the ones it runs most often
 NOT_LAUNCHED_BY_XLA = "(kernels that name no HLO op: a library's, such as MuJoCo Warp's)"
 NO_SOURCE = "(no JAX source: ops XLA added where nothing names one)"
 UNSCOPED = "(outside our scopes: the loops' own bookkeeping)"
@@ -161,12 +162,14 @@ def summarize_part(ops: list[Op], name: str, window: tuple[float, float], steps:
     busy = busy_us([(a, b) for a, b, _ in inside])
     kinds: dict[str, list] = collections.defaultdict(lambda: [0.0, 0])
     by_source: dict[str, list] = collections.defaultdict(lambda: [0.0, 0])
+    source_kinds: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
     for a, b, op in inside:
         kinds[op.kind][0] += b - a
         kinds[op.kind][1] += 1
         source = NOT_LAUNCHED_BY_XLA if op.hlo_op is None else (sources or {}).get(op.hlo_op, NO_SOURCE)
         by_source[source][0] += b - a
         by_source[source][1] += 1
+        source_kinds[source][op.kind] += 1
     wall, summed = end - start, sum(b - a for a, b, _ in inside)
     return {
         "part": name, "steps": steps, "wall_ms": round(wall / 1e3, 3), "busy_ms": round(busy / 1e3, 3),
@@ -177,7 +180,9 @@ def summarize_part(ops: list[Op], name: str, window: tuple[float, float], steps:
                        "count": count} for kind, (us, count) in sorted(kinds.items(), key=lambda item: -item[1][0])[:top]],
         "by_source": [] if sources is None else [
             {"source": source, "ms": round(us / 1e3, 3), "share": round(us / summed, 4) if summed else 0.0,
-             "ops_per_step": round(count / steps, 1)} for source, (us, count) in sorted(by_source.items(), key=lambda item: -item[1][0])],
+             "ops_per_step": round(count / steps, 1),
+             "most_run": [{"op": kind, "per_step": round(n / steps, 1)} for kind, n in source_kinds[source].most_common(SOURCE_KINDS)]}
+            for source, (us, count) in sorted(by_source.items(), key=lambda item: -item[1][0])],
     }
 
 
@@ -185,6 +190,10 @@ def names_our_scopes(parts: list[dict]) -> bool:
     """Whether any op of these parts ran in a scope of ours: not when the programs came from
     a persistent cache that code without those scopes filled (metadata is no part of its key)."""
     return any(row["source"] in OUR_SCOPES for part in parts for row in part["by_source"])
+
+
+def _most_run(source_row: dict) -> str:
+    return ", ".join(f"{kind['per_step']:,.1f} {kind['op']}" for kind in source_row["most_run"])
 
 
 def describe(part: dict) -> str:
@@ -196,7 +205,8 @@ def describe(part: dict) -> str:
     lines.append("  costliest op kinds (ms, share of the ops' summed time, count):")
     lines += [f"  {row['ms']:10,.2f} ms {row['share']:6.1%} {row['count']:9,}x  {row['op']}" for row in part["costliest"]]
     if part["by_source"]:
-        lines.append("  by JAX source (ms, share of the ops' summed time, ops per step):")
+        lines.append("  by JAX source (ms, share of the ops' summed time, ops per step; its most run op kinds per step):")
         lines += [f"  {row['ms']:10,.2f} ms {row['share']:6.1%} {row['ops_per_step']:9,.1f}   {row['source']}"
+                  f"    ({_most_run(row)})"
                   for row in part["by_source"]]
     return "\n".join(lines)

@@ -89,6 +89,10 @@ def test_ops_are_counted_under_the_longest_scope_of_ours_their_name_stack_starts
     part = profile_trace.summarize_part(ops, "chunk", (0, 10), 2, top=3, sources=sources)
     assert [(row["source"], row["ms"], row["ops_per_step"]) for row in part["by_source"]] == [
         ("learn/updates", 0.006, 1.0), (profile_trace.NOT_LAUNCHED_BY_XLA, 0.003, 0.5), (profile_trace.NO_SOURCE, 0.001, 0.5)]
+    # Each source names the op kinds it runs most, per step.
+    assert [row["most_run"] for row in part["by_source"]] == [
+        [{"op": "fusion", "per_step": 1.0}], [{"op": "smooth_kernel", "per_step": 0.5}], [{"op": "copy", "per_step": 0.5}]]
+    assert "1.0 fusion" in profile_trace.describe(part)
     # Programs compiled by code without our scopes (a stale compilation cache) are told apart.
     stale = profile_trace.summarize_part(ops, "chunk", (0, 10), 2, top=3, sources={"fusion.3": profile_trace.UNSCOPED})
     assert profile_trace.names_our_scopes([part]) and not profile_trace.names_our_scopes([stale])

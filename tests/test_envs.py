@@ -22,6 +22,7 @@ import pytest
 from admissable_jax import make_env
 from admissable_jax.envs import MAX_EPISODE_STEPS, EnvOptions, contact_frames, settotalmass_warning_dropped
 from admissable_jax.envs.parity import gymnasium_transitions, step_from_state
+from admissable_jax.envs.physics import in_one_flat_batch
 
 ENV_NAMES = ("hopper", "walker2d", "ant", "halfcheetah")
 TERMINATING_ENV_NAMES = ("hopper", "walker2d", "ant")  # HalfCheetah has no health rule
@@ -220,6 +221,62 @@ def _assert_unbatched_step_matches_batched(env, gym, batched, step_counts):
         np.testing.assert_allclose(np.asarray(single.obs), np.asarray(batched.obs[i]), atol=1e-5)
         np.testing.assert_allclose(float(single.reward), float(batched.reward[i]), atol=1e-5)
         assert bool(single.done) == bool(batched.done[i])
+
+
+def test_one_flat_batch_under_nested_vmap():
+    """``in_one_flat_batch``: however deep the vmaps, the wrapped function is vmapped once, over
+    all their members in row-major order (an FFI call sees one flat batch), unbatched inputs
+    reach every member, and each member's result is the function's."""
+    seen_batches = []
+
+    def world(x, scale):  # a host callback stands in for the FFI: it sees the batch it is given
+        def host(x, scale):
+            seen_batches.append(x.shape[:-1])
+            return (x * scale[..., None]).astype(x.dtype)
+
+        return jax.pure_callback(host, jax.ShapeDtypeStruct(x.shape, x.dtype), x, scale, vmap_method="broadcast_all")
+
+    x = jnp.arange(2 * 3 * 4 * 5, dtype=jnp.float32).reshape(2, 3, 4, 5)
+    scale = jnp.asarray([1.0, 2.0, 3.0, 4.0])
+    out = jax.jit(jax.vmap(jax.vmap(jax.vmap(in_one_flat_batch(world), in_axes=(0, 0)), in_axes=(0, None)),
+                           in_axes=(0, None)))(x, scale)
+    assert seen_batches == [(24,)]
+    np.testing.assert_array_equal(np.asarray(out), np.asarray(x * scale[:, None]))
+    assert np.asarray(in_one_flat_batch(world)(x[0, 0, 0], scale[0])).tolist() == np.asarray(x[0, 0, 0]).tolist()
+    assert seen_batches[-1] == ()
+
+
+def test_warp_frame_loop_runs_one_flat_batch_under_nested_vmap():
+    """An experiment vmaps pairs × envs. MJX flattens such a batch for Warp inside each
+    ``mj_step``, and XLA then copied every data field into and out of the FFI call each frame
+    (about 900 copies per Hopper env step, ``benchmarks/NOTES.md``); our step flattens once,
+    so its frame loop carries the flat batch."""
+    env = make_env("hopper", physics="warp", max_batch=6)
+    keys = jax.random.split(jax.random.key(0), 6).reshape(2, 3)
+    states = jax.vmap(jax.vmap(env.reset))(keys)
+    jaxpr = jax.make_jaxpr(jax.vmap(jax.vmap(env.step)))(states, jnp.zeros((2, 3, env.action_size)))
+    frame_loops = [eqn for eqn in _equations(jaxpr.jaxpr) if eqn.primitive.name in ("scan", "while")
+                   and any(inner.primitive.name == "ffi_call" for inner in _equations(eqn))]
+    assert frame_loops, "no loop around Warp's FFI step"
+    for loop in frame_loops:
+        batch_shapes = {var.aval.shape[:2] for var in loop.outvars if len(var.aval.shape) >= 2}
+        assert (2, 3) not in batch_shapes and (6,) in {shape[:1] for shape in batch_shapes}, batch_shapes
+
+
+def _equations(jaxpr_or_equation):
+    """Every equation inside a jaxpr or an equation (its loop bodies, calls, branches), however deep."""
+    if isinstance(jaxpr_or_equation, jax.extend.core.JaxprEqn):
+        inner = [param for value in jaxpr_or_equation.params.values()
+                 for param in (value if isinstance(value, (list, tuple)) else (value,))]
+        for jaxpr in inner:
+            if isinstance(jaxpr, jax.extend.core.ClosedJaxpr):
+                jaxpr = jaxpr.jaxpr
+            if isinstance(jaxpr, jax.extend.core.Jaxpr):
+                yield from _equations(jaxpr)
+        return
+    for eqn in jaxpr_or_equation.eqns:
+        yield eqn
+        yield from _equations(eqn)
 
 
 def test_make_env_names_and_spaces(tmp_path, monkeypatch, capfd):

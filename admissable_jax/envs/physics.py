@@ -21,12 +21,18 @@ lives here:
   leaves them out (``None``), and :meth:`Physics.step` lends them back from the template
   for the step. They are rewritten by every step's collision pass, so nothing is lost; and
   env states stay plain pytrees, every leaf per world, on both backends.
+- A Warp step is an FFI call that updates its data in place, over one flat batch of worlds:
+  under nested ``vmap`` (an experiment's pairs × envs) MJX flattens the batch inside every
+  ``mj_step``, and XLA then copies each of the data's fields into and out of the call, every
+  frame. So a Warp :meth:`Physics.step` flattens the batch once per env step instead
+  (:func:`in_one_flat_batch`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import io
+from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
@@ -40,6 +46,7 @@ from mujoco.mjx._src import collision_driver, constraint  # noqa: E402
 from mujoco.mjx._src import forward as mjx_forward  # noqa: E402
 from mujoco.mjx._src import scan as mjx_scan  # noqa: E402
 from mujoco.mjx._src.types import IntegratorType  # noqa: E402
+from jax.custom_batching import custom_vmap  # noqa: E402
 
 from admissable_jax.envs import contact_frames  # noqa: E402
 from admissable_jax.envs.options import warp_installed  # noqa: E402
@@ -103,6 +110,9 @@ class Physics:
             self._capacity_mask = _capacity_mask()
         else:
             raise ValueError(f"unknown physics implementation {impl!r}")
+        # Warp's FFI calls: one flat batch whatever the vmaps (see the module's docstring).
+        batched = in_one_flat_batch if impl == "warp" else (lambda world_fn: world_fn)
+        self._data, self._step = batched(self._world_data), batched(self._world_step)
 
     def __repr__(self) -> str:
         sizes = ""
@@ -123,6 +133,9 @@ class Physics:
         normalized free-joint quaternions back into qpos; C MuJoCo normalizes a copy, so the
         raw qpos is kept (Gymnasium's reset obs holds it).
         """
+        return self._data(qpos, qvel)
+
+    def _world_data(self, qpos: jax.Array, qvel: jax.Array) -> mjx.Data:
         data = self.data_template.replace(qpos=qpos, qvel=qvel)
         data = mjx.kinematics(self.model, data).replace(qpos=qpos)
         return self._without_shared(data)
@@ -135,6 +148,9 @@ class Physics:
 
     def step(self, data: mjx.Data, ctrl: jax.Array) -> mjx.Data:
         """``frame_skip`` × ``mj_step`` with ``ctrl``, then contact forces if the env reads them."""
+        return self._step(data, ctrl)
+
+    def _world_step(self, data: mjx.Data, ctrl: jax.Array) -> mjx.Data:
         data = self._with_shared(data).replace(ctrl=ctrl)
         data = jax.lax.fori_loop(0, self.frame_skip, lambda _, d: self._mj_step(d), data)
         if self.contact_forces and self.impl == "jax":
@@ -205,6 +221,43 @@ def _rungekutta4_step(model: mjx.Model, data: mjx.Data) -> mjx.Data:
     qvel_sum, qacc_sum, act_dot_sum = sums
     last = last.replace(qpos=start.qpos, qvel=start.qvel, act=start.act, time=start.time)
     return mjx_forward._advance(model, last, act_dot_sum, qacc_sum, qvel_sum)  # pylint: disable=protected-access
+
+
+def in_one_flat_batch(world_fn: Callable[..., Any]) -> Callable[..., Any]:
+    """``world_fn`` (one world's arrays in, one world's out) that, under any nesting of
+    ``vmap``, runs as a single ``vmap`` over one flat batch of all the worlds.
+
+    Each vmap level's batch axis is merged into the next one's by a reshape around the whole
+    call, not inside it, and unbatched inputs are broadcast to the batch (a Warp call writes
+    every world's data). Results equal ``world_fn``'s under the same vmaps, world by world.
+    """
+
+    def broadcast(axis_size: int, in_batched: Any, args: tuple) -> tuple:
+        return jax.tree.map(lambda leaf, batched: leaf if batched else jnp.broadcast_to(leaf, (axis_size, *jnp.shape(leaf))),
+                            args, tuple(in_batched))
+
+    @custom_vmap
+    def worlds(*args):  # every leaf: worlds on its leading axis
+        return jax.vmap(world_fn)(*args)
+
+    @worlds.def_vmap
+    def worlds_batched(axis_size: int, in_batched: list[Any], *args):
+        outer = broadcast(axis_size, in_batched, args)
+        worlds_each = jax.tree.leaves(outer)[0].shape[1]
+        merged = worlds(*jax.tree.map(lambda leaf: leaf.reshape((axis_size * worlds_each, *leaf.shape[2:])), outer))
+        out = jax.tree.map(lambda leaf: leaf.reshape((axis_size, worlds_each, *leaf.shape[1:])), merged)
+        return out, jax.tree.map(lambda _: True, out)
+
+    @custom_vmap
+    def world(*args):
+        return world_fn(*args)
+
+    @world.def_vmap
+    def world_batched(axis_size: int, in_batched: list[Any], *args):
+        out = worlds(*broadcast(axis_size, in_batched, args))
+        return out, jax.tree.map(lambda _: True, out)
+
+    return world
 
 
 def _warp_graph_mode(name: str | None):
