@@ -7,6 +7,8 @@ iteration before learning starts: measured on 2 cores, a vmapped Hopper iteratio
 then cost 80-85% of one that learns, 5-6x one that skips the updates
 (``benchmarks/train_throughput.py before_learning=true``, ``benchmarks/NOTES.md``).
 :func:`lazy_cond` branches on whether any member takes the expensive branch instead.
+Its batching rule's broadcast of unbatched operands, :func:`broadcast_unbatched`, serves the
+physics' own ``custom_vmap`` too (``envs.physics.in_one_flat_batch``).
 """
 
 from __future__ import annotations
@@ -32,9 +34,7 @@ def lazy_cond(predicate: jax.Array, true_fun: Callable[..., Any], false_fun: Cal
     @branch.def_vmap
     def branch_batched(axis_size: int, in_batched: list[Any], predicate, *operands):
         predicate_batched, *operands_batched = in_batched
-        operands = [jax.tree.map(lambda leaf, batched: leaf if batched else jnp.broadcast_to(leaf, (axis_size, *jnp.shape(leaf))),
-                                 operand, batched)
-                    for operand, batched in zip(operands, operands_batched)]
+        operands = broadcast_unbatched(axis_size, operands, tuple(operands_batched))
         true_batched, false_batched = jax.vmap(true_fun), jax.vmap(false_fun)
         if not predicate_batched:
             out = lazy_cond(predicate, true_batched, false_batched, *operands)
@@ -49,3 +49,10 @@ def lazy_cond(predicate: jax.Array, true_fun: Callable[..., Any], false_fun: Cal
         return out, jax.tree.map(lambda _: True, out)
 
     return branch(predicate, *operands)
+
+
+def broadcast_unbatched(axis_size: int, tree: Any, in_batched: Any) -> Any:
+    """In a ``custom_vmap`` rule: every leaf of ``tree`` that came in unbatched (its
+    ``in_batched`` flag False) broadcast along a new leading batch axis of ``axis_size``."""
+    return jax.tree.map(lambda leaf, batched: leaf if batched else jnp.broadcast_to(leaf, (axis_size, *jnp.shape(leaf))),
+                        tree, in_batched)

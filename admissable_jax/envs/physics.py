@@ -37,6 +37,7 @@ from typing import Any, Callable
 import jax
 import jax.numpy as jnp
 import mujoco
+from jax.custom_batching import custom_vmap
 
 # MJX prints an import failure when warp-lang is absent; physics=jax needs no Warp (and
 # physics=warp says clearly when it is missing), so keep that line out of users' output.
@@ -46,8 +47,8 @@ from mujoco.mjx._src import collision_driver, constraint  # noqa: E402
 from mujoco.mjx._src import forward as mjx_forward  # noqa: E402
 from mujoco.mjx._src import scan as mjx_scan  # noqa: E402
 from mujoco.mjx._src.types import IntegratorType  # noqa: E402
-from jax.custom_batching import custom_vmap  # noqa: E402
 
+from admissable_jax.branching import broadcast_unbatched  # noqa: E402
 from admissable_jax.envs import contact_frames  # noqa: E402
 from admissable_jax.envs.options import warp_installed  # noqa: E402
 
@@ -232,17 +233,13 @@ def in_one_flat_batch(world_fn: Callable[..., Any]) -> Callable[..., Any]:
     every world's data). Results equal ``world_fn``'s under the same vmaps, world by world.
     """
 
-    def broadcast(axis_size: int, in_batched: Any, args: tuple) -> tuple:
-        return jax.tree.map(lambda leaf, batched: leaf if batched else jnp.broadcast_to(leaf, (axis_size, *jnp.shape(leaf))),
-                            args, tuple(in_batched))
-
     @custom_vmap
     def worlds(*args):  # every leaf: worlds on its leading axis
         return jax.vmap(world_fn)(*args)
 
     @worlds.def_vmap
     def worlds_batched(axis_size: int, in_batched: list[Any], *args):
-        outer = broadcast(axis_size, in_batched, args)
+        outer = broadcast_unbatched(axis_size, args, tuple(in_batched))
         worlds_each = jax.tree.leaves(outer)[0].shape[1]
         merged = worlds(*jax.tree.map(lambda leaf: leaf.reshape((axis_size * worlds_each, *leaf.shape[2:])), outer))
         out = jax.tree.map(lambda leaf: leaf.reshape((axis_size, worlds_each, *leaf.shape[1:])), merged)
@@ -254,7 +251,7 @@ def in_one_flat_batch(world_fn: Callable[..., Any]) -> Callable[..., Any]:
 
     @world.def_vmap
     def world_batched(axis_size: int, in_batched: list[Any], *args):
-        out = worlds(*broadcast(axis_size, in_batched, args))
+        out = worlds(*broadcast_unbatched(axis_size, args, tuple(in_batched)))
         return out, jax.tree.map(lambda _: True, out)
 
     return world
