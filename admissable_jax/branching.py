@@ -7,8 +7,10 @@ iteration before learning starts: measured on 2 cores, a vmapped Hopper iteratio
 then cost 80-85% of one that learns, 5-6x one that skips the updates
 (``benchmarks/train_throughput.py before_learning=true``, ``benchmarks/NOTES.md``).
 :func:`lazy_cond` branches on whether any member takes the expensive branch instead.
-Its batching rule's broadcast of unbatched operands, :func:`broadcast_unbatched`, serves the
-physics' own ``custom_vmap`` too (``envs.physics.in_one_flat_batch``).
+:func:`while_any` is a loop that stays one loop under ``vmap``: every member steps while any
+runs, with no per-member select of the carry. Their batching rules' broadcast of unbatched
+operands, :func:`broadcast_unbatched`, serves the physics' own ``custom_vmap`` too
+(``envs.physics.in_one_flat_batch``).
 """
 
 from __future__ import annotations
@@ -49,6 +51,34 @@ def lazy_cond(predicate: jax.Array, true_fun: Callable[..., Any], false_fun: Cal
         return out, jax.tree.map(lambda _: True, out)
 
     return branch(predicate, *operands)
+
+
+def while_any(cond_fun: Callable[..., Any], body_fun: Callable[..., Any], init: Any, *operands: Any) -> Any:
+    """``jax.lax.while_loop`` with ``cond_fun(carry, *operands)`` and ``body_fun(carry,
+    *operands)``; under ``vmap`` with a batched condition, every member runs the body while
+    any member's condition holds, its own included.
+
+    JAX's batching of a ``while_loop`` instead keeps each member's old carry once its own
+    condition fails: a select of every carry leaf after every body, which keeps the old carry
+    alive across the body, so an in-place step inside (Warp's physics) is handed a copy of
+    each leaf. For a body whose results stop changing once its member's condition fails (a
+    scoring rollout's steps after its last episode ended), nothing else differs. Nested vmaps
+    loop while any member of any level runs. ``operands`` are read-only inputs: the two
+    functions must close over no traced values.
+    """
+
+    @custom_vmap
+    def loop(init, *operands):
+        return jax.lax.while_loop(lambda carry: cond_fun(carry, *operands), lambda carry: body_fun(carry, *operands), init)
+
+    @loop.def_vmap
+    def loop_batched(axis_size: int, in_batched: list[Any], init, *operands):
+        init, *operands = broadcast_unbatched(axis_size, (init, *operands), tuple(in_batched))
+        cond_each, body_each = jax.vmap(cond_fun), jax.vmap(body_fun)
+        out = while_any(lambda carry, *operands: jnp.any(cond_each(carry, *operands)), body_each, init, *operands)
+        return out, jax.tree.map(lambda _: True, out)
+
+    return loop(init, *operands)
 
 
 def broadcast_unbatched(axis_size: int, tree: Any, in_batched: Any) -> Any:

@@ -24,10 +24,12 @@ import re
 from typing import Any
 
 NUMBERED = re.compile(r"([._]\d+)+$")  # fusion.12, copy_3: one op kind
-# Name-stack segments that JAX's transformations add; the others are named scopes (ours
+# Name-stack segments that JAX's transformations add, once unwrapped (WRAPPER: a scope entered
+# under a transformation carries it around its name); the others are named scopes (ours
 # below, Flax's modules, MJX's functions), and the last segment of an op's name is its primitive.
-TRANSFORMATION = re.compile(r"^(\w*jit\(.*\)|vmap\(.*\)|pmap\(.*\)|transpose\(.*\)|jvp\(.*\)|while|body|cond|"
-                            r"closed_call|branch_\d+_fun|checkpoint|remat|custom_jvp_call|custom_vjp_call|shard_map)$")
+WRAPPER = re.compile(r"^(?:vmap|pmap|transpose|jvp)\((.*)\)$")
+TRANSFORMATION = re.compile(r"^(\w*jit\(.*\)|while|body|cond|closed_call|branch_\d+_fun|checkpoint|remat|custom_jvp_call|"
+                            r"custom_vjp_call|shard_map)$")
 # The scopes admissable_jax's programs name (training.Trainer.iteration and the scoring
 # rollout's step): an op is counted under the longest of these its name stack starts with.
 OUR_SCOPES = ("act", "env_step", "replay_insert", "episode_starts", "learn", "learn/minibatches", "learn/updates",
@@ -112,9 +114,18 @@ def op_sources(hlo_text: str) -> dict[str, str]:
     return sources
 
 
+def _unwrapped(segment: str) -> str:
+    """A name-stack segment without the transformations wrapped around it: a scope entered
+    inside ``jax.vmap`` reads ``vmap(score_env_step)``, a gradient's ``transpose(jvp(Actor))``."""
+    while wrapped := WRAPPER.match(segment):
+        segment = wrapped.group(1)
+    return segment
+
+
 def _scope(op_name: str) -> str:
     """The longest scope of ours that an op's name stack (transformations left out) starts with."""
-    path = "/".join(segment for segment in op_name.split("/")[:-1] if not TRANSFORMATION.match(segment))
+    segments = (_unwrapped(segment) for segment in op_name.split("/")[:-1])
+    path = "/".join(segment for segment in segments if segment and not TRANSFORMATION.match(segment))
     ours = [scope for scope in OUR_SCOPES if path == scope or path.startswith(scope + "/")]
     return max(ours, key=len) if ours else UNSCOPED
 

@@ -64,6 +64,8 @@ def test_ops_are_counted_under_the_longest_scope_of_ours_their_name_stack_starts
         '  ROOT %select.1 = f32[8]{0} select(%a, %b, %c), metadata={op_name="jit(run_piece)/while/body/closed_call/'
         'vmap()/env_step/forward/solve/while/body/select_n"}',
         '  %add.2 = f32[] add(%x, %y), metadata={op_name="jit(run_piece)/while/body/closed_call/add"}',
+        '  %add.4 = f32[] add(%x, %y), metadata={op_name="jit(spread_call)/vmap(jit(_scores))/while/body/'
+        'vmap(score_env_step)/vmap()/reshape"}',
         '  %copy.5 = f32[8]{0} copy(%p)',
         '}',
         '',
@@ -79,9 +81,10 @@ def test_ops_are_counted_under_the_longest_scope_of_ours_their_name_stack_starts
         '  ROOT %copy.7 = f32[8]{0} copy(%p)',
     ])
     sources = profile_trace.op_sources(hlo)
-    # In the second computation the ops XLA added count as its most common source, env_step.
+    # A scope entered under jax.vmap reads vmap(score_env_step). In the second computation the
+    # ops XLA added count as its most common source, env_step.
     assert sources == {"fusion.3": "learn/updates", "fusion.4": "learn/minibatches", "select.1": "env_step",
-                       "add.2": profile_trace.UNSCOPED, "copy.5": "learn/updates", "reduce-window.1": "env_step",
+                       "add.2": profile_trace.UNSCOPED, "add.4": "score_env_step", "copy.5": "learn/updates", "reduce-window.1": "env_step",
                        "copy.6": "env_step", "select.2": "env_step", "select.3": "env_step", "add.3": "learn",
                        "copy.7": profile_trace.NO_SOURCE}
     ops = [profile_trace.Op("t", "fusion", 0, 4, "fusion.3"), profile_trace.Op("t", "copy", 4, 5, "copy.7"),

@@ -28,6 +28,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from admissable_jax import TrainConfig, candidate_sets, make_env, mask_observation, score_missingness, train_fn
+from admissable_jax.branching import while_any
 from admissable_jax.checkpointing import CheckpointError, Checkpoints, OtherStateLayout
 from admissable_jax.envs import observation_names
 from admissable_jax.host_loop import TrainingDiverged
@@ -354,6 +355,25 @@ def test_score_missingness_equals_a_plain_loop_and_finds_the_used_feature(caplog
         np.testing.assert_allclose(checked.returns, reference.returns, rtol=1e-6)
         assert int(checked.loop_steps) == int(reference.loop_steps)
 
+    # Vmapped rollouts whose episodes end at different times (a policy that pushes harder
+    # leaves the arena sooner) step together until the last ends: each member's results are its own.
+    pushes = jnp.asarray([0.3, 1.0])
+    pusher = lambda push, masked_obs: jnp.stack([push + 0.0 * masked_obs[0], 0.0])
+    for reference_slots in (None, 4):
+        one_rollout = lambda push: score_missingness(env, pusher, push, rng, hidden_sets, n_episodes, num_slots=reference_slots)
+        together = jax.jit(jax.vmap(one_rollout))(pushes)
+        if reference_slots is None:  # no per-member select of the carry (JAX's batching of a while_loop: one per leaf)
+            selects = [jax.jit(program).lower(arg).as_text().count("stablehlo.select")
+                       for program, arg in ((one_rollout, pushes[0]), (jax.vmap(one_rollout), pushes))]
+            assert selects[0] == selects[1], selects
+        alone = [score_missingness(env, pusher, push, rng, hidden_sets, n_episodes, num_slots=reference_slots)
+                 for push in pushes]
+        assert int(alone[1].loop_steps) < int(alone[0].loop_steps)
+        for member, result in enumerate(alone):
+            np.testing.assert_array_equal(together.lengths[member], result.lengths)
+            np.testing.assert_allclose(together.returns[member], result.returns, rtol=1e-6)
+            assert int(together.loop_steps[member]) == int(result.loop_steps)
+
     step = jax.jit(env.step)
     policy = jax.jit(_feature_zero_controller)
     keys = jax.random.split(rng, n_episodes)
@@ -371,6 +391,31 @@ def test_score_missingness_equals_a_plain_loop_and_finds_the_used_feature(caplog
     assert int(scored.argmin) == 0
     assert float(scored.scores[0]) < float(scored.clean_score) - 1.0
     np.testing.assert_allclose(scored.scores[1:], scored.clean_score, rtol=1e-6)
+
+
+def test_while_any_steps_every_member_while_any_runs():
+    """``branching.while_any``: unbatched, a ``while_loop``; vmapped (nested too), every member
+    runs the body while any member's condition holds, with no per-member select of the carry,
+    so results that stop changing with a member's own condition are the ``while_loop``'s."""
+
+    def cond(carry, limit, _):
+        return carry["own"] < limit
+
+    def body(carry, limit, increment):
+        runs = carry["own"] < limit
+        return {"own": carry["own"] + runs.astype(jnp.int32) * increment, "every": carry["every"] + 1}
+
+    start = {"own": jnp.zeros((), jnp.int32), "every": jnp.zeros((), jnp.int32)}
+    loop = lambda limit, increment: while_any(cond, body, start, limit, increment)
+    assert jax.jit(loop)(3, 1) == {"own": 3, "every": 3}
+    limits = jnp.asarray([[1, 2], [3, 7]])
+    for vmapped, increment in ((jax.vmap(jax.vmap(loop, in_axes=(0, None)), in_axes=(0, None)), 1),
+                               (jax.vmap(jax.vmap(loop)), jnp.ones((2, 2), jnp.int32))):
+        out = jax.jit(vmapped)(limits, increment)
+        np.testing.assert_array_equal(out["own"], limits)  # as the while_loop's, member by member
+        np.testing.assert_array_equal(out["every"], jnp.full((2, 2), 7))  # every member ran all 7 bodies
+        hlo = jax.jit(vmapped).lower(limits, increment).as_text()
+        assert hlo.count("stablehlo.while") == 1 and "stablehlo.select" not in hlo, "a select of each member's carry"
 
 
 def test_checkpoint_resume_continues_exactly(tmp_path, capsys):

@@ -5,7 +5,8 @@ a_u = v̂_u^π(s_0): the mean undiscounted return of N episodes of the determini
 with the features in u hidden, run to termination or the env's step limit. All
 (|U| + 1) · N episodes (the +1 is the clean case, nothing hidden) run in one jitted
 rollout: a ``lax.while_loop`` over time that steps a pool of ``num_slots`` environments
-at once (vmapped) and stops once every episode is done. With fewer slots than episodes, a
+at once (vmapped) and stops once every episode is done (vmapped rollouts, once every one
+of theirs is: :func:`~admissable_jax.branching.while_any`). With fewer slots than episodes, a
 slot whose episode ends starts the next unstarted one at the following step, so the pool
 stays full of live episodes instead of stepping finished ones until the longest ends.
 Episode i starts from the same initial state for every u (common random numbers), so
@@ -29,6 +30,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from admissable_jax.branching import while_any
 from admissable_jax.missingness import mask_observation
 
 PolicyFn = Callable[[Any, jax.Array], jax.Array]  # (params, masked_obs (2·d,)) -> action
@@ -99,17 +101,17 @@ def score_by_rollout(
     initial = jax.vmap(env.reset)(jax.random.split(rng, n_episodes))
     policy = jax.vmap(policy_fn, in_axes=(None, 0))
 
-    def initial_states(episode: jax.Array):
+    def initial_states(initial, episode: jax.Array):
         return jax.tree.map(lambda x: x[episode % n_episodes], initial)
 
-    def refilled(states, refill, episode):
-        fresh = initial_states(jnp.minimum(episode, num_episodes - 1))
+    def refilled(states, refill, episode, initial):
+        fresh = initial_states(initial, jnp.minimum(episode, num_episodes - 1))
         return jax.tree.map(lambda new, old: jnp.where(_rows(refill, old), new, old), fresh, states)
 
-    def cond(carry):
+    def cond(carry, *_):
         return jnp.any(carry["alive"])
 
-    def step(carry, _=None):
+    def step(carry, params, episode_hidden, initial):
         states, episode, alive = carry["states"], carry["episode"], carry["alive"]
         with jax.named_scope("score_policy"):
             actions = policy(params, mask_observation(states.obs, episode_hidden[episode]))
@@ -124,31 +126,34 @@ def score_by_rollout(
         refill = finished & (next_episode < num_episodes)
         if num_slots < num_episodes:  # else every episode started at step 0: nothing to refill
             episode = jnp.where(refill, next_episode, episode)
-            states = jax.lax.cond(jnp.any(refill), refilled, lambda states, *_: states, states, refill, episode)
+            states = jax.lax.cond(jnp.any(refill), refilled, lambda states, *_: states, states, refill, episode, initial)
         return {
             "states": states, "episode": episode, "alive": jnp.where(finished, refill, alive),
             "next_episode": carry["next_episode"] + finished.sum(), "returns": returns,
             "lengths": lengths, "loop_steps": carry["loop_steps"] + jnp.any(alive),
             "capacity_exceeded": carry["capacity_exceeded"] | (jnp.any(alive) & env.capacity_exceeded(states)),
-        }, None
+        }
 
-    def body(carry):
+    def body(carry, *operands):
         if steps_per_check == 1:
-            carry = step(carry)[0]
+            carry = step(carry, *operands)
         else:
-            carry = jax.lax.scan(step, carry, None, length=steps_per_check)[0]
+            carry = jax.lax.scan(lambda carry, _: (step(carry, *operands), None), carry, None, length=steps_per_check)[0]
         if progress is not None:  # each finished slot moved next_episode on by one
             jax.debug.callback(progress, carry["next_episode"] - num_slots)
         return carry
 
     slots = jnp.arange(num_slots)
     carry = {
-        "states": initial_states(slots), "episode": slots, "alive": jnp.ones(num_slots, bool),
+        "states": initial_states(initial, slots), "episode": slots, "alive": jnp.ones(num_slots, bool),
         "next_episode": jnp.asarray(num_slots, jnp.int32), "returns": jnp.zeros(num_episodes),
         "lengths": jnp.zeros(num_episodes, jnp.int32), "loop_steps": jnp.zeros((), jnp.int32),
         "capacity_exceeded": jnp.zeros((), bool),
     }
-    carry = jax.lax.while_loop(cond, body, carry)
+    # A finished rollout's steps change none of its results (nothing is alive), so vmapped
+    # rollouts (an experiment's pairs) step together while any runs: no per-pair select of
+    # the carry, which would hand Warp's in-place step a copy of every field each step.
+    carry = while_any(cond, body, carry, params, episode_hidden, initial)
     returns = carry["returns"].reshape(num_rows, n_episodes)
     lengths = carry["lengths"].reshape(num_rows, n_episodes)
     means = returns.mean(axis=1)
