@@ -25,7 +25,6 @@ update:
 from __future__ import annotations
 
 import dataclasses
-import sys
 import time
 
 import jax
@@ -36,7 +35,7 @@ from brax.training.agents.sac import train as brax_sac_train
 
 from admissable_jax.cli import parse_args
 from admissable_jax.envs import MjxEnv, make_env
-from common import append_record, compiled_updates, peak_host_memory_mb, update_flops
+from common import append_record, compiled_updates, peak_host_memory_mb, run_benchmark, update_flops
 
 
 def _device_put_replicated(tree, devices):
@@ -205,4 +204,4 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    run_benchmark(main)

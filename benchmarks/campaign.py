@@ -161,6 +161,8 @@ def profile(config: ProfileConfig) -> int:
     """One training chunk (learning on) and one full-length scoring round of the experiment's
     own programs under JAX's profiler, after a warm-up of each: where the device's time goes
     (``profile_trace``). Appends a ``campaign_profile`` record."""
+    if config.top < 1:
+        raise ValueError(f"top must be >= 1, got {config.top}")
     programs = compile_programs(config)
     first = programs.pairs[0]
     state = programs.state

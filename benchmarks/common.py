@@ -14,6 +14,7 @@ from typing import Any, Callable
 import jax
 import mujoco
 
+from admissable_jax.cli import exit_with, run_from_cli
 from admissable_jax.provenance import package_versions, source_commit
 
 # Where records go: benchmarks/results, or BENCHMARK_RESULTS_DIR (the campaign's smoke runs).
@@ -74,3 +75,12 @@ def compiled_updates(update: Callable, state: Any, batch: Any, count: int) -> Ca
         lambda s, k: (update(s, batch, k), None), state, jax.random.split(key, count))[0])
     jax.block_until_ready(many(state, jax.random.key(1)))
     return lambda: jax.block_until_ready(many(state, jax.random.key(2)))
+
+
+def run_benchmark(main: Callable[[list[str]], int | None]) -> None:
+    """Run a benchmark's ``main`` on the command line's arguments as the package runs its
+    commands (``run_from_cli``): bad input found past the keys' parsing (a bad value, a
+    missing run directory) ends it with one line and exit status 2, not a traceback; the
+    records it appended before stay."""
+    result, status = run_from_cli(main, sys.argv[1:], interrupted="interrupted; the records appended so far stay")
+    exit_with(status or result or 0)

@@ -10,7 +10,6 @@ peak is the process's. Appends a record to benchmarks/results/load_policy_memory
 
 from __future__ import annotations
 
-import sys
 import time
 
 import jax
@@ -18,7 +17,7 @@ import numpy as np
 
 from admissable_jax.cli import fail
 from admissable_jax.policies import load_policy
-from common import append_record, peak_host_memory_mb
+from common import append_record, peak_host_memory_mb, run_benchmark
 
 
 def main(argv: list[str]) -> None:
@@ -34,4 +33,4 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    run_benchmark(main)

@@ -13,7 +13,6 @@ benchmarks/results/physics_deviation.jsonl. With no overrides it measures the de
 from __future__ import annotations
 
 import dataclasses
-import sys
 import time
 
 import jax
@@ -23,7 +22,7 @@ from admissable_jax.cli import parse_args
 from admissable_jax.envs import make_env
 from admissable_jax.envs.parity import gymnasium_transitions, step_from_states
 from admissable_jax.rollout import random_rollout
-from common import append_record
+from common import append_record, run_benchmark
 
 
 @dataclasses.dataclass
@@ -71,4 +70,4 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    run_benchmark(main)

@@ -17,7 +17,6 @@ our env layer over the physics it wraps (the Warp issue's target: <= 1.15 on a G
 from __future__ import annotations
 
 import dataclasses
-import sys
 import time
 
 import jax
@@ -26,7 +25,7 @@ import jax.numpy as jnp
 from admissable_jax.cli import parse_args
 from admissable_jax.envs import EnvOptions, canonical_env_name, make_env, resolve_physics
 from admissable_jax.rollout import random_rollout
-from common import append_record
+from common import append_record, run_benchmark
 
 
 @dataclasses.dataclass
@@ -101,4 +100,4 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    run_benchmark(main)

@@ -18,12 +18,11 @@ SB3's ``evaluate_policy``). Appends a record to benchmarks/results/sb3_sac.jsonl
 from __future__ import annotations
 
 import dataclasses
-import sys
 import time
 
 from admissable_jax.cli import parse_args
 from admissable_jax.envs import make_env
-from common import append_record, peak_host_memory_mb
+from common import append_record, peak_host_memory_mb, run_benchmark
 
 
 @dataclasses.dataclass
@@ -88,4 +87,4 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    run_benchmark(main)

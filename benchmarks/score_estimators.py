@@ -20,7 +20,6 @@ It appends one record per (run, checkpoint, estimator) to ``results/score_estima
 from __future__ import annotations
 
 import dataclasses
-import sys
 import time
 
 import jax
@@ -31,7 +30,7 @@ from admissable_jax.envs import make_env
 from admissable_jax.method import inverse_score_p_miss
 from admissable_jax.policies import load_policy
 from admissable_jax.scoring import estimate_scores, score_missingness
-from common import append_record, timed
+from common import append_record, run_benchmark, timed
 
 
 @dataclasses.dataclass
@@ -114,4 +113,4 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    run_benchmark(main)

@@ -33,7 +33,6 @@ record to benchmarks/results/scoring_round.jsonl.
 from __future__ import annotations
 
 import dataclasses
-import sys
 import time
 
 import jax
@@ -49,7 +48,7 @@ from admissable_jax.missingness import mask_observation, num_candidate_sets
 from admissable_jax.run_spec import RunSpec
 from admissable_jax.scoring import score_missingness
 from admissable_jax.training import Trainer
-from common import append_record, peak_host_memory_mb, timed
+from common import append_record, peak_host_memory_mb, run_benchmark, timed
 
 
 @dataclasses.dataclass
@@ -65,6 +64,14 @@ class ScoringBenchConfig:
     ceiling: bool = dataclasses.field(default=True, metadata={"help": "also time the pure-physics ceiling (zero actions, no policy)"})
     sequential: bool = dataclasses.field(default=False, metadata={"help": "also time the paper-style sequential Gymnasium loop"})
     steps_per_check: int = dataclasses.field(default=1, metadata={"help": "rollout steps between checks whether an episode still runs (score_missingness)"})
+
+
+def _validate(bench: ScoringBenchConfig) -> None:
+    for key in ("n_episodes", "max_steps", "steps_per_check"):
+        if getattr(bench, key) < 1:
+            raise ValueError(f"{key} must be >= 1, got {getattr(bench, key)}")
+    if bench.slots < -1:
+        raise ValueError(f"slots must be -1 (the backend's default), 0 (all episodes) or >= 1, got {bench.slots}")
 
 
 def _compile_and_run(env, policy_fn, params, bench, hidden_sets, slots) -> tuple[object, float, float, float]:
@@ -100,7 +107,7 @@ def _policy_seconds(policy_fn, params, hidden: jax.Array, loop_steps: int) -> fl
 
 
 def main(argv: list[str]) -> None:
-    bench = parse_args(ScoringBenchConfig, argv, "benchmarks/scoring_round.py", __doc__.splitlines()[0])
+    bench = parse_args(ScoringBenchConfig, argv, "benchmarks/scoring_round.py", __doc__.splitlines()[0], _validate)
     config = TrainConfig(env=bench.env, num_envs=8, buffer_size=8, learning_starts=256, progress=False,
                          physics=bench.physics).resolved()
     if bench.run:  # its sets (k, up_to_k, the empty set) and network sizes
@@ -211,4 +218,4 @@ def _saved_sizes(run_dir: str) -> dict:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    run_benchmark(main)

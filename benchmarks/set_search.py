@@ -13,14 +13,13 @@ of ``repeats`` runs, XLA's temporaries and the sets ranked; one record per width
 from __future__ import annotations
 
 import dataclasses
-import sys
 import time
 
 import jax
 
 from admissable_jax.cli import parse_args
 from admissable_jax.scoring import beam_search_worst_sets
-from common import append_record, timed
+from common import append_record, run_benchmark, timed
 
 
 @dataclasses.dataclass
@@ -52,4 +51,4 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    run_benchmark(main)

@@ -30,7 +30,7 @@ import numpy as np
 
 from admissable_jax.cli import parse_args
 from admissable_jax.scoring.attribution import plan_shapley, shapley_attribution
-from common import append_record
+from common import append_record, run_benchmark
 
 
 @dataclasses.dataclass
@@ -94,4 +94,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))
+    run_benchmark(main)

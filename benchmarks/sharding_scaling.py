@@ -26,7 +26,7 @@ from admissable_jax.cli import parse_args
 from admissable_jax.config import TrainConfig
 from admissable_jax.host_loop import make_trainer, pairs_init
 from admissable_jax.placement import PairPlacement
-from common import append_record, timed
+from common import append_record, run_benchmark, timed
 
 
 @dataclasses.dataclass
@@ -103,4 +103,4 @@ def _has_accelerator() -> bool:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    run_benchmark(main)

@@ -15,7 +15,6 @@ simulators disagreeing under this policy.
 from __future__ import annotations
 
 import dataclasses
-import sys
 
 import jax
 import numpy as np
@@ -25,7 +24,7 @@ from admissable_jax.missingness import describe_set
 from admissable_jax.policies import load_policy
 from admissable_jax.scoring import score_missingness
 from admissable_jax.wrappers import score_policy
-from common import append_record
+from common import append_record, run_benchmark
 
 
 @dataclasses.dataclass
@@ -75,4 +74,4 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    run_benchmark(main)

@@ -31,7 +31,7 @@ import tempfile
 import time
 
 from admissable_jax.cli import parse_args
-from common import append_record
+from common import append_record, run_benchmark
 
 MODULES = ("admissable_jax", "admissable_jax.config", "admissable_jax.train", "admissable_jax.experiment",
            "admissable_jax.plot", "admissable_jax.audit", "admissable_jax.wrappers", "admissable_jax.envs.physics")
@@ -114,4 +114,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))
+    run_benchmark(main)

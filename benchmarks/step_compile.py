@@ -14,7 +14,6 @@ the same random controls, and appends the compile times and the largest differen
 from __future__ import annotations
 
 import dataclasses
-import sys
 import time
 
 import jax
@@ -23,7 +22,7 @@ from mujoco import mjx
 
 from admissable_jax.cli import parse_args
 from admissable_jax.envs import canonical_env_name, make_env
-from common import append_record
+from common import append_record, run_benchmark
 
 
 @dataclasses.dataclass
@@ -74,4 +73,4 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    run_benchmark(main)

@@ -26,7 +26,7 @@ import tempfile
 import time
 
 from admissable_jax.cli import parse_args
-from common import append_record
+from common import append_record, run_benchmark
 
 
 @dataclasses.dataclass
@@ -81,4 +81,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    run_benchmark(main)

@@ -30,7 +30,6 @@ benchmarks/results/train_throughput.jsonl.
 from __future__ import annotations
 
 import dataclasses
-import sys
 import time
 
 import jax
@@ -43,7 +42,7 @@ from admissable_jax.config import TrainConfig
 from admissable_jax.rollout import random_rollout
 from admissable_jax.host_loop import make_trainer, take_pair
 from admissable_jax.training import Trainer
-from common import append_record, compiled_updates, peak_host_memory_mb, timed, update_flops
+from common import append_record, compiled_updates, peak_host_memory_mb, run_benchmark, timed, update_flops
 
 
 @dataclasses.dataclass
@@ -202,4 +201,4 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    run_benchmark(main)

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import collections
 import dataclasses
-import sys
 
 import jax
 import jax.numpy as jnp
@@ -25,7 +24,7 @@ import numpy as np
 
 from admissable_jax.cli import parse_args
 from admissable_jax.envs import canonical_env_name, make_env, reset_where_done
-from common import append_record
+from common import append_record, run_benchmark
 
 
 @dataclasses.dataclass
@@ -116,4 +115,4 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    run_benchmark(main)

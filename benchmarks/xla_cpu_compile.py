@@ -32,7 +32,7 @@ import tempfile
 import time
 
 from admissable_jax.cli import parse_args
-from common import append_record
+from common import append_record, run_benchmark
 
 PROGRAMS = ("hopper", "walker2d", "ant", "point_mass")
 FLAG = "--xla_cpu_use_fusion_emitters"
@@ -122,4 +122,4 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    run_benchmark(main)

@@ -1,6 +1,13 @@
-"""benchmarks/campaign.py's plans from the speed records on main (no training, no GPU)."""
+"""benchmarks/campaign.py's plans from the speed records on main (no training, no GPU), and
+bad input to the benchmarks' command lines."""
+
+import sys
+
+import pytest
 
 import campaign  # benchmarks/ is on the tests' path (conftest.py)
+import common
+import scoring_round
 
 
 H100 = "speed_device=gpu:NVIDIA H100 80GB HBM3"
@@ -35,3 +42,21 @@ def test_the_next_lease_is_planned_from_the_committed_h100_record(capsys):
     # An hour holds more than max_steps: the longest run stops there.
     status = campaign.main(["plan", *HOPPER_ON_THE_GPU, "total_steps=0", "max_steps=200000", "deadline=3600", H100])
     assert status == 0 and capsys.readouterr().out.strip().splitlines()[-1] == "modes=adversarial,uniform,none total_steps=200000"
+
+
+def test_a_benchmark_refuses_bad_input_in_one_line(monkeypatch, capsys):
+    """Bad input ends a benchmark with one line and exit status 2, not a traceback or a run:
+    a key's bad value when the keys are parsed (the benchmark's own check), and one that only
+    the package finds later (``common.run_benchmark``)."""
+    monkeypatch.setattr(sys, "argv", ["benchmarks/scoring_round.py", "n_episodes=0"])
+    with pytest.raises(SystemExit) as parsed:
+        common.run_benchmark(scoring_round.main)
+    assert parsed.value.code == 2 and capsys.readouterr().err.endswith("error: n_episodes must be >= 1, got 0\n")
+    statuses = []
+    monkeypatch.setattr(common, "exit_with", statuses.append)
+    monkeypatch.setattr(sys, "argv", ["benchmarks/scoring_round.py", "env=nope"])
+    common.run_benchmark(scoring_round.main)
+    error = capsys.readouterr().err
+    assert statuses == [2] and error.startswith("error: unknown env 'nope'") and error.count("\n") == 1
+    assert campaign.main(["profile", "top=0"]) == 2  # before anything compiles
+    assert capsys.readouterr().err == "error: top must be >= 1, got 0\n"
