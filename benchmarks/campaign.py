@@ -52,14 +52,14 @@ from typing import Any, Callable
 import jax
 
 from admissable_jax.checkpointing import Checkpoints
-from admissable_jax.cli import enable_compilation_cache, exit_with, parse_args, report
+from admissable_jax.cli import enable_compilation_cache, parse_args, report
 from admissable_jax.envs import env_spec, make_env, resolve_physics
 from admissable_jax.config import ExperimentConfig, pair_configs
 from admissable_jax.host_loop import TrainingLoop, make_trainer, pairs_init, queue_pieces
 from admissable_jax.placement import PairPlacement
 from admissable_jax.training import Trainer
 import profile_trace
-from common import COMMITTED_RESULTS_DIR, RESULTS_DIR, append_record, environment_record, timed
+from common import COMMITTED_RESULTS_DIR, RESULTS_DIR, append_record, environment_record, run_benchmark, timed
 
 REFUSED = 3  # plan's exit status for a run that does not fit
 ALL_MODES, PAIRED_MODES = "adversarial,uniform,none", "adversarial,uniform"
@@ -354,12 +354,8 @@ def main(argv: list[str]) -> int:
     config = parse_args(config_type, rest, f"benchmarks/campaign.py {verb}", __doc__.splitlines()[0])
     if verb in ("measure", "profile"):
         enable_compilation_cache()  # as the experiment it measures: its programs then start the run compiled
-    try:
-        return action(config)
-    except ValueError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    return action(config)
 
 
 if __name__ == "__main__":
-    exit_with(main(sys.argv[1:]))
+    run_benchmark(main)  # bad input (a ValueError): one line, exit 2

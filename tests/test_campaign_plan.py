@@ -15,7 +15,7 @@ HOPPER_ON_THE_GPU = ["env=hopper", "modes=adversarial,uniform,none", "physics=wa
                      "score_every=5000", "checkpoint_every=20", "min_steps=200000", "max_steps=1000000"]
 
 
-def test_the_next_lease_is_planned_from_the_committed_h100_record(capsys):
+def test_the_next_lease_is_planned_from_the_committed_h100_record(capsys, monkeypatch):
     """The hopper step's plan as the next lease will make it, in one process, from the H100
     speed record on main (read through speed_device here, as on an H200 that has none): 1M
     env steps fit neither with the 15 pairs nor with the 10, so the longest run of the 15:
@@ -32,8 +32,12 @@ def test_the_next_lease_is_planned_from_the_committed_h100_record(capsys):
 
     # On a device with no record of its own (an H200 lease), the refusal names the device
     # that has one, so the next call plans from it.
-    assert campaign.main(["plan", *HOPPER_ON_THE_GPU, "total_steps=1000000", "deadline=1650",
-                          "speed_device=gpu:NVIDIA H200"]) == 2
+    statuses = []
+    monkeypatch.setattr(common, "exit_with", statuses.append)
+    monkeypatch.setattr(sys, "argv", ["benchmarks/campaign.py", "plan", *HOPPER_ON_THE_GPU, "total_steps=1000000",
+                                      "deadline=1650", "speed_device=gpu:NVIDIA H200"])
+    common.run_benchmark(campaign.main)
+    assert statuses == [2]
     refusal = capsys.readouterr().err.strip()
     assert "\n" not in refusal and refusal.endswith(
         "the same shape was measured on gpu:NVIDIA H100 80GB HBM3: plan from it with speed_device= "
@@ -58,5 +62,6 @@ def test_a_benchmark_refuses_bad_input_in_one_line(monkeypatch, capsys):
     common.run_benchmark(scoring_round.main)
     error = capsys.readouterr().err
     assert statuses == [2] and error.startswith("error: unknown env 'nope'") and error.count("\n") == 1
-    assert campaign.main(["profile", "top=0"]) == 2  # before anything compiles
-    assert capsys.readouterr().err == "error: top must be >= 1, got 0\n"
+    monkeypatch.setattr(sys, "argv", ["benchmarks/campaign.py", "profile", "top=0"])
+    common.run_benchmark(campaign.main)  # refused before anything compiles
+    assert statuses == [2, 2] and capsys.readouterr().err == "error: top must be >= 1, got 0\n"
