@@ -20,10 +20,12 @@ writes, e.g. ``png,svg``):
 * ``p_miss_<mode>.*`` — the adversary's distribution over time (mean over seeds), or a
   note that it stayed uniform; for a run with a candidate pool (``pool_size`` > 0), whose
   scored sets change every round, both heatmaps have a row per feature instead: the lowest
-  a_u of the pool's sets that hide it (blank where none does) and the p_miss mass on them;
+  a_u of the pool's sets that hide it (blank where none does) and the p_miss mass on them,
+  and so does a U of more than ``MOST_ROWS`` sets (Ant at k = 2), over all its sets;
 * ``final_scores.*`` — where each mode is weak at the end: the last scoring's a_u per hidden
-  set (per feature with a pool), the modes' bars side by side, mean over seeds with 95%
-  t-intervals (:func:`~admissable_jax.results.final_scores`);
+  set (per feature with a pool; of a U of more than ``MOST_ROWS`` sets the ``LOWEST_BARS``
+  lowest), the modes' bars side by side, mean over seeds with 95% t-intervals
+  (:func:`~admissable_jax.results.final_scores`);
 * ``summary.md`` (CLI) — :func:`~admissable_jax.results.summary_table`: final and AUC
   min_u a_u, final mean_u a_u (the average over U), clean return and the set most often
   worst at the end per mode, and
@@ -57,6 +59,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from matplotlib.backend_bases import FigureCanvasBase  # noqa: E402
+from matplotlib.ticker import FuncFormatter  # noqa: E402
 import numpy as np  # noqa: E402
 
 from admissable_jax.cli import exit_with, fail, parse_args  # noqa: E402
@@ -64,8 +67,8 @@ from admissable_jax.envs import ENV_SPECS  # noqa: E402
 from admissable_jax.errors import INTERRUPTED, UnusableDirectory, make_directory, remove_if_unused  # noqa: E402
 from admissable_jax.results import (  # noqa: E402
     ADVERSARY_SETTINGS, Run, aligned, comparison_section, differing_settings, final_scores, find_runs, group_curves,
-    load_run, load_runs, mean_and_interval, mode_differences, moving_average, numbers_in_order,
-    shared_records, summary_table, trained_on, write_tables,
+    load_run, load_runs, mean_and_interval, mode_differences, moving_average, numbers_in_order, per_feature_of_sets,
+    shared_records, steps_text, summary_table, trained_on, write_tables,
 )
 
 MODE_COLORS = {"adversarial": "tab:blue", "uniform": "tab:red", "none": "tab:gray"}
@@ -73,6 +76,10 @@ MODE_COLORMAPS = {"adversarial": "Blues", "uniform": "Reds", "none": "Greys"}  #
 # Figure 1's smoothing: "a moving average over 40 records" of a 1M-step run scored every ζ = 5000.
 PAPER_WINDOW, PAPER_RECORDS = 40, 200
 LINE_STYLES = ("-", "--", ":", "-.")
+# A heatmap row (and a bar) per candidate set up to this many sets (Ant's 105 at k = 1); a
+# larger U (Ant at k = 2: 5,460) is drawn per feature, as a pool is, and its bars are the
+# LOWEST_BARS sets of lowest a_u.
+MOST_ROWS, LOWEST_BARS = 120, 40
 
 
 def curve_colors(curves: list[tuple[str, str]]) -> dict[tuple[str, str], Any]:
@@ -151,6 +158,12 @@ def _cell_edges(steps: np.ndarray) -> np.ndarray:
     return np.concatenate([[2 * steps[0] - middles[0]], middles, [2 * steps[-1] - middles[-1]]])
 
 
+def env_steps_axis(ax, label: str = "env steps") -> None:
+    """Label ``ax``'s x axis as env steps, its ticks short (:func:`~admissable_jax.results.steps_text`)."""
+    ax.set_xlabel(label)
+    ax.xaxis.set_major_formatter(FuncFormatter(steps_text))
+
+
 def _heatmap(ax, figure, steps: np.ndarray, values: np.ndarray, names: list[str], label: str) -> None:
     """Sets (rows, named) × scoring steps (columns, centred on their steps)."""
     image = ax.pcolormesh(_cell_edges(steps), np.arange(len(names) + 1) - 0.5, values.T, cmap="viridis", shading="flat")
@@ -216,7 +229,7 @@ def draw_curves(ax, runs: list[Run], attribute: str, window: int, per_seed: bool
             ax.plot(steps, seed_curve, color=color, linestyle=style, linewidth=0.6, alpha=0.45)
         ax.fill_between(steps, low, high, color=color, alpha=0.2, linewidth=0)
         ax.plot(steps, values.mean(axis=0), ".", color=color, alpha=0.35, markersize=3)
-    ax.set_xlabel("env steps")
+    env_steps_axis(ax)
     ax.grid(alpha=0.3)
     ax.legend()
 
@@ -288,29 +301,35 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0,
     written += _save(figure, out_dir, "min_score", formats)
 
     for (_, mode, variant), mode_runs in curves.items():
-        names = mode_runs[0].set_names
+        run = mode_runs[0]
+        by_feature = not run.pooled and len(run.set_names) > MOST_ROWS
+        names = run.features if by_feature else run.set_names
         height = max(4.0, 0.12 * len(names) + 1.5)
-        labels = (("lowest $a_u$ of the pool's sets hiding it", "$p_{miss}$ mass on them") if mode_runs[0].pooled
+        sets = "the pool's sets" if run.pooled else f"the {len(run.set_names):,} sets"
+        labels = ((f"lowest $a_u$ of {sets} hiding it", "$p_{miss}$ mass on them") if run.pooled or by_feature
                   else ("$a_u$", "$p_{miss}(u)$"))
         over_seeds = " (mean over seeds)" if len(mode_runs) > 1 else ""
         for attribute, label, name in zip(("scores", "p_miss"), (f"{text}{over_seeds}" for text in labels),
                                           ("scores", "p_miss")):
             steps, values = aligned(mode_runs, attribute)
+            values = values.mean(axis=0)
+            if by_feature:
+                values = per_feature_of_sets(values, run.set_members, attribute)
             figure, ax = plt.subplots(figsize=(10, height))
             ax.set_title(f"{envs[0]}, {mode} missingness{f', {variant}' if variant else ''} "
                          f"({_seeds(len(mode_runs))}): {label}")
-            if attribute == "p_miss" and all(run.uniform_draws for run in mode_runs):
-                every = ("every set of U drawn alike" if mode_runs[0].pooled else
-                         f"1/{values.shape[-1]} = {1.0 / values.shape[-1]:.4f} for every u")
+            if attribute == "p_miss" and all(seed_run.uniform_draws for seed_run in mode_runs):
+                every = ("every set of U drawn alike" if run.pooled else
+                         f"1/{len(run.set_names)} = {1.0 / len(run.set_names):.4f} for every u")
                 ax.text(0.5, 0.5, f"$p_{{miss}}$ stayed uniform: {every},\nat all {len(steps)} scorings "
                         f"({int(steps[0])} to {int(steps[-1])} env steps)",
                         ha="center", va="center", transform=ax.transAxes, fontsize=12)
                 ax.set_axis_off()
                 figure.set_size_inches(10, 2.5)
             else:
-                _heatmap(ax, figure, steps, values.mean(axis=0), names, label)
-                ax.set_xlabel("env steps (each column one scoring)")
-                ax.set_ylabel("feature (over the pool's sets hiding it)" if mode_runs[0].pooled else "hidden features u")
+                _heatmap(ax, figure, steps, values, names, label)
+                env_steps_axis(ax, "env steps (each column one scoring)")
+                ax.set_ylabel(f"feature (over {sets} hiding it)" if run.pooled or by_feature else "hidden features u")
             written += _save(figure, out_dir, f"{name}_{mode}" + (f"_{_file_name(variant)}" if variant else ""), formats)
 
     # Where each mode is weak at the end: a_u per hidden set, the modes' bars side by side
@@ -327,9 +346,16 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0,
 
 def _final_scores_figure(env: str, names: list[str], group: list[list[Run]]):
     """Bars per hidden set (x) and curve (side by side, the mode's colour): the last record's
-    a_u; with a pool only the features some pooled set hides."""
+    a_u; with a pool only the features some pooled set hides; of a U of more than
+    ``MOST_ROWS`` sets the ``LOWEST_BARS`` whose lowest a_u over the curves is lowest, lowest
+    first."""
     finals = [final_scores(curve_runs) for curve_runs in group]
-    shown = np.flatnonzero(np.isfinite(np.stack([mean for _, mean, _, _ in finals])).any(axis=0))
+    means = np.stack([mean for _, mean, _, _ in finals])
+    shown = np.flatnonzero(np.isfinite(means).any(axis=0))
+    lowest = ""
+    if len(shown) > MOST_ROWS:
+        lowest = f"the {LOWEST_BARS} lowest of {len(shown):,} sets; "
+        shown = shown[np.argsort(np.nanmin(means[:, shown], axis=0), kind="stable")[:LOWEST_BARS]]
     names = [names[i] for i in shown]
     x, width = np.arange(len(names)), 0.8 / len(group)
     variants = sorted({curve_runs[0].variant for curve_runs in group})
@@ -347,7 +373,8 @@ def _final_scores_figure(env: str, names: list[str], group: list[list[Run]]):
     ax.set_xlim(-0.6, len(names) - 0.4)
     ax.set_ylabel("lowest $a_u$ of the pool's sets hiding it" if group[0][0].pooled else "$a_u$")
     ax.set_title(f"{env}: the last scoring's $a_u$ per hidden {'feature' if group[0][0].pooled else 'set'} "
-                 f"({'mean over seeds; bars: 95% t-interval' if seeded else 'one seed per curve: no interval'})", fontsize=10)
+                 f"({lowest}{'mean over seeds; bars: 95% t-interval' if seeded else 'one seed per curve: no interval'})",
+                 fontsize=10)
     ax.grid(alpha=0.3, axis="y")
     ax.legend(fontsize=8)
     return figure

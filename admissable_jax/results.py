@@ -67,6 +67,8 @@ class Run:
     clean_score: np.ndarray  # (T,)
     p_miss: np.ndarray  # (T, |U|); with a pool (T, d): the p_miss mass on the pool's sets hiding each feature
     set_names: list[str]  # (|U|,) the hidden features of each candidate set; with a pool each feature's name
+    set_members: np.ndarray  # (|U|, d) bool: which features each set hides; with a pool the identity
+    features: list[str]  # (d,) the observation's feature names
     worst_sets: list[str]  # (T,) the set of lowest a_u at each scoring, by its features' names
     score_episodes: int  # N: episodes behind each a_u
     pooled: bool = False  # scores and p_miss are per feature (a run with a candidate pool)
@@ -83,8 +85,24 @@ class Run:
 
 def set_names(features: list[str], k: int, include_empty: bool, up_to_k: bool = False) -> list[str]:
     """A name per candidate set u, in the runs' order: its hidden features' names."""
-    rows = candidate_sets(len(features), k, include_empty, up_to_k)
-    return [" + ".join(features[i] for i in np.flatnonzero(row)) or "nothing hidden" for row in rows]
+    return names_of_sets(features, candidate_sets(len(features), k, include_empty, up_to_k))
+
+
+def names_of_sets(features: list[str], members: np.ndarray) -> list[str]:
+    """A name per row of ``members`` ((|U|, d) 0/1): the names of the features it hides."""
+    return [" + ".join(features[i] for i in np.flatnonzero(row)) or "nothing hidden" for row in members]
+
+
+def per_feature_of_sets(values: np.ndarray, members: np.ndarray, attribute: str) -> np.ndarray:
+    """(T, |U|) a_u (``attribute`` ``scores``) or p_miss (``p_miss``) of every candidate set
+    as (T, d) per feature: the lowest a_u of the sets that hide it (NaN where none does), or
+    the p_miss mass on them. The view that a pooled run's rows give (:func:`per_feature`),
+    for a U too large to draw a row per set (Ant at k = 2: 5,460 sets)."""
+    members = np.asarray(members, bool)
+    if attribute == "p_miss":
+        return values @ members
+    return np.stack([values[:, hiding].min(axis=1) if hiding.any() else np.full(len(values), np.nan)
+                     for hiding in members.T], axis=1)
 
 
 def load_run(path: str) -> Run:
@@ -104,14 +122,15 @@ def load_run(path: str) -> Run:
     pooled = "sets" in rows[0]
     features = recorded_observation_names(path) or observation_names(str(config.env))
     if pooled:  # per feature; at each scoring the pool's set of lowest a_u, named
-        names = features
+        names, members = features, np.eye(len(features), dtype=bool)
         scores, p_miss = per_feature(rows, len(names))
         mean_score = np.full(len(rows), np.nan)
         worst_sets = [" + ".join(features[i] for i in parse_set(row["sets"][int(np.argmin(row["scores"]))]))
                       for row in rows]
     else:
         up_to_k = bool(config.get("up_to_k", False))  # a config written before the key: exactly k
-        names = set_names(features, int(config.k), bool(config.include_empty_set), up_to_k)
+        members = candidate_sets(len(features), int(config.k), bool(config.include_empty_set), up_to_k).astype(bool)
+        names = names_of_sets(features, members)
         if scores.ndim != 2 or scores.shape[1] != len(names) or p_miss.shape != scores.shape:
             raise ValueError(f"{scores_path}: each row must hold {len(names)} scores and p_miss values (one per set "
                              f"of {config.env} with k={config.k}{', up_to_k' * up_to_k}), "
@@ -121,7 +140,8 @@ def load_run(path: str) -> Run:
     return Run(
         path=path, env=str(config.env), mode=str(config.missingness), seed=int(config.seed),
         env_steps=column("env_steps"), scores=scores, min_score=column("min_score"), mean_score=mean_score,
-        clean_score=column("clean_score"), p_miss=p_miss, set_names=names, worst_sets=worst_sets,
+        clean_score=column("clean_score"), p_miss=p_miss, set_names=names, set_members=members,
+        features=list(features), worst_sets=worst_sets,
         score_episodes=int(config.score_episodes), pooled=pooled, uniform_draws=uniform_draws,
         settings={key: setting_text(value) for key, value in {**dataclasses.asdict(TrainConfig()), **config}.items()
                   if key not in NOT_SETTINGS
@@ -232,6 +252,15 @@ def final_scores(curve_runs: list[Run]) -> tuple[int, np.ndarray, np.ndarray, np
     scored no set hiding the feature."""
     steps, values = aligned(curve_runs, "scores")  # (seeds, records, sets)
     return (int(steps[-1]), *mean_and_interval(values[:, -1, :]))
+
+
+def steps_text(steps: float, _position: object = None) -> str:
+    """An env-step count as a figure's axis labels it: 0, 2.5k, 20k, 250k, 1M, 1.5M (as a
+    matplotlib ``FuncFormatter``: a 1M-step run's six-digit ticks crowd a narrow panel)."""
+    for scale, suffix in ((1e6, "M"), (1e3, "k")):
+        if abs(steps) >= scale:
+            return f"{steps / scale:.4g}{suffix}"
+    return f"{steps:.4g}"
 
 
 def estimate(values: np.ndarray) -> str:

@@ -13,11 +13,11 @@ from omegaconf import OmegaConf
 
 from admissable_jax.config import TrainConfig
 from admissable_jax.envs import observation_names
-from admissable_jax.plot import _cell_edges, _final_scores_figure, _heatmap, _seeds, curve_colors, draw_curves, \
-    effective_window, main, plot_envs_side_by_side, plot_runs
+from admissable_jax.plot import LOWEST_BARS, _cell_edges, _final_scores_figure, _heatmap, _seeds, curve_colors, \
+    draw_curves, effective_window, main, plot_envs_side_by_side, plot_runs
 from admissable_jax.results import (
     Difference, final_scores, find_runs, format_comparison, load_run, mean_and_interval, mode_differences,
-    moving_average, set_names, summary_table,
+    moving_average, per_feature_of_sets, set_names, steps_text, summary_table,
 )
 
 
@@ -358,3 +358,47 @@ def test_plots_say_what_they_show(tmp_path, capsys, monkeypatch):
     assert capsys.readouterr().err.strip().splitlines()[-1] == (
         f"error: {narrow}/scores.jsonl: each row must hold 11 scores and p_miss values (one per set of hopper "
         "with k=1), got (3,) and (3,)")
+
+
+def test_long_runs_and_large_candidate_sets_stay_readable(tmp_path, monkeypatch):
+    """A 1M-step run's axis reads 200k ... 1M (its six-digit ticks overlapped on a narrow
+    panel); a U of more sets than a figure can give a row each (Walker2d at k = 2: 136) is
+    drawn per feature, as a pool is, with its lowest sets as the bars (Ant at k = 2 drew
+    two 76,000-pixel heatmaps in 141 s)."""
+    import matplotlib.pyplot as plt
+
+    assert [steps_text(steps) for steps in (0, 500, 2500, 20000, 255000, 1e6, 1.5e6)] == [
+        "0", "500", "2.5k", "20k", "255k", "1M", "1.5M"]
+    long_run = load_run(_fake_run(str(tmp_path / "long"), "adversarial", 0, records=200))
+    figure, ax = plt.subplots(figsize=(5.5, 4))
+    draw_curves(ax, [long_run], "min_score", 40)
+    figure.canvas.draw()
+    low, high = ax.get_xlim()
+    assert [label.get_text() for label, tick in zip(ax.get_xticklabels(), ax.get_xticks()) if low <= tick <= high] == [
+        "0", "200k", "400k", "600k", "800k", "1M"]
+    plt.close(figure)
+
+    # Per feature: the lowest a_u of the sets hiding it and the p_miss mass on them.
+    members = np.array([[1, 1, 0, 0], [0, 1, 1, 0], [1, 0, 1, 0]])
+    np.testing.assert_allclose(per_feature_of_sets(np.array([[5.0, 2.0, 7.0]]), members, "scores"), [[5, 2, 2, np.nan]])
+    np.testing.assert_allclose(per_feature_of_sets(np.array([[0.2, 0.3, 0.5]]), members, "p_miss"), [[0.7, 0.5, 0.8, 0]])
+
+    pairs = load_run(_fake_run(str(tmp_path / "pairs"), "adversarial", 0, records=3, sets=136, env="walker2d", k=2))
+    features = observation_names("walker2d")
+    drawn = []
+    monkeypatch.setattr("admissable_jax.plot._save", lambda figure, out_dir, name, formats: drawn.append((name, figure)) or [])
+    plot_runs([pairs.path], str(tmp_path / "figures"))
+    heatmaps = {name: figure.axes[0] for name, figure in drawn if name in ("scores_adversarial", "p_miss_adversarial")}
+    for name, ax in heatmaps.items():
+        assert ax.get_ylim() == (-0.5, len(features) - 0.5) and ax.get_ylabel() == "feature (over the 136 sets hiding it)"
+        assert [label.get_text() for label in ax.get_yticklabels()] == features
+    rows = per_feature_of_sets(pairs.scores, pairs.set_members, "scores")
+    np.testing.assert_allclose(heatmaps["scores_adversarial"].collections[0].get_array().reshape(len(features), -1),
+                               rows.T)
+    bars_axis = dict(drawn)["final_scores"].axes[0]
+    lowest = np.argsort(pairs.scores[-1], kind="stable")[:LOWEST_BARS]
+    assert [label.get_text() for label in bars_axis.get_xticklabels()] == [pairs.set_names[i] for i in lowest]
+    np.testing.assert_allclose([bar.get_height() for bar in bars_axis.patches], pairs.scores[-1][lowest])
+    assert f"the {LOWEST_BARS} lowest of 136 sets" in bars_axis.get_title()
+    for _, figure in drawn:
+        plt.close(figure)

@@ -282,7 +282,9 @@ def over_training_chart(results: list[AuditResult], path: str) -> str:
         means = [result.mean(k) for result in results]
         if not any(math.isnan(mean) for mean in means):
             ax.plot(steps, means, color=color, linestyle=":", marker=".", label=f"k = {k}: mean $a_u$ over the sets")
-    ax.set_xlabel("checkpoint (env steps)")
+    from admissable_jax.plot import env_steps_axis
+
+    env_steps_axis(ax, "checkpoint (env steps)")
     ax.set_ylabel(f"return ({results[0].n_episodes} episodes per set)")
     ax.set_title(f"{results[0].env}: robustness over training", fontsize=10)
     ax.grid(alpha=0.3)
