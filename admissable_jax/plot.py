@@ -174,7 +174,7 @@ def _heatmap(ax, figure, steps: np.ndarray, values: np.ndarray, names: list[str]
     labelled = (np.arange(len(names)) if len(names) <= 40 else drawn if len(drawn) <= 40
                 else np.arange(0, len(names), int(np.ceil(len(names) / 40))))
     ax.set_yticks(labelled, [names[i] for i in labelled], fontsize=8 if len(names) <= 40 else 6)
-    ax.set_ylim(-0.5, len(names) - 0.5)
+    ax.set_ylim(len(names) - 0.5, -0.5)  # the first row on top, as the observation lists it
 
 
 DEFAULT_FORMATS = ("png", "pdf")
@@ -322,7 +322,7 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0,
                 every = ("every set of U drawn alike" if run.pooled else
                          f"1/{len(run.set_names)} = {1.0 / len(run.set_names):.4f} for every u")
                 ax.text(0.5, 0.5, f"$p_{{miss}}$ stayed uniform: {every},\nat all {len(steps)} scorings "
-                        f"({int(steps[0])} to {int(steps[-1])} env steps)",
+                        f"({steps_text(steps[0])} to {steps_text(steps[-1])} env steps)",
                         ha="center", va="center", transform=ax.transAxes, fontsize=12)
                 ax.set_axis_off()
                 figure.set_size_inches(10, 2.5)
@@ -368,7 +368,7 @@ def _final_scores_figure(env: str, names: list[str], group: list[list[Run]]):
         ax.bar(x + (index - (len(group) - 1) / 2) * width, mean, width, yerr=[mean - low, high - mean] if seeded else None,
                capsize=1.5 if len(names) <= 40 else 0, color=colors[run.mode, run.variant], alpha=0.75,
                hatch=("", "//", "..", "xx")[variants.index(run.variant) % 4],
-               label=f"{run.curve} ({_seeds(len(curve_runs))}, {steps} env steps)")
+               label=f"{run.curve} ({_seeds(len(curve_runs))}, {steps_text(steps)} env steps)")
     ax.set_xticks(x, names, rotation=60, ha="right", fontsize=7 if len(names) <= 40 else 5)
     ax.set_xlim(-0.6, len(names) - 0.4)
     ax.set_ylabel("lowest $a_u$ of the pool's sets hiding it" if group[0][0].pooled else "$a_u$")

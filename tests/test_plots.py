@@ -390,7 +390,7 @@ def test_long_runs_and_large_candidate_sets_stay_readable(tmp_path, monkeypatch)
     plot_runs([pairs.path], str(tmp_path / "figures"))
     heatmaps = {name: figure.axes[0] for name, figure in drawn if name in ("scores_adversarial", "p_miss_adversarial")}
     for name, ax in heatmaps.items():
-        assert ax.get_ylim() == (-0.5, len(features) - 0.5) and ax.get_ylabel() == "feature (over the 136 sets hiding it)"
+        assert ax.get_ylim() == (len(features) - 0.5, -0.5) and ax.get_ylabel() == "feature (over the 136 sets hiding it)"
         assert [label.get_text() for label in ax.get_yticklabels()] == features
     rows = per_feature_of_sets(pairs.scores, pairs.set_members, "scores")
     np.testing.assert_allclose(heatmaps["scores_adversarial"].collections[0].get_array().reshape(len(features), -1),
