@@ -49,8 +49,11 @@ class ConfigFile:
 
 
 def help_text(config_cls: type, program: str, summary: str, config_file: ConfigFile | None = None) -> str:
-    """Usage line, summary and one line per key: name, type, default and description."""
-    lines = [f"usage: python -m {program} [key=value ...]", "", summary, "", "keys:"]
+    """Usage line, summary and one line per key: name, type, default and description.
+    ``program`` is a module (``admissable_jax.train``: ``python -m``) or a script's path
+    (``benchmarks/campaign.py plan``: ``python``)."""
+    runner = "python" if program.split()[0].endswith(".py") else "python -m"
+    lines = [f"usage: {runner} {program} [key=value ...]", "", summary, "", "keys:"]
     defaults = config_cls()
     for field in dataclasses.fields(config_cls):
         default = getattr(defaults, field.name)

@@ -71,7 +71,7 @@ def measure(config: StopLatencyConfig) -> dict:
 
 
 def main(argv: list[str]) -> int:
-    record = measure(parse_args(StopLatencyConfig, argv, program="python benchmarks/stop_latency.py",
+    record = measure(parse_args(StopLatencyConfig, argv, program="benchmarks/stop_latency.py",
                                 summary="How soon a running experiment answers SIGTERM."))
     second = f" ({record['exited_after_second_s']} s after the second)" if "second_after_s" in record else ""
     print(f"SIGTERM handled after {record['handled_s']} s; exited after {record['exited_s']} s{second} "

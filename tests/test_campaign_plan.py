@@ -65,3 +65,7 @@ def test_a_benchmark_refuses_bad_input_in_one_line(monkeypatch, capsys):
     monkeypatch.setattr(sys, "argv", ["benchmarks/campaign.py", "profile", "top=0"])
     common.run_benchmark(campaign.main)  # refused before anything compiles
     assert statuses == [2, 2] and capsys.readouterr().err == "error: top must be >= 1, got 0\n"
+    monkeypatch.setattr(sys, "argv", ["benchmarks/campaign.py", "plan", "--help"])  # a script, not a module
+    with pytest.raises(SystemExit) as helped:
+        common.run_benchmark(campaign.main)
+    assert helped.value.code == 0 and capsys.readouterr().out.startswith("usage: python benchmarks/campaign.py plan [key")
