@@ -160,7 +160,7 @@ def score_policy(env_id: str, policy: Callable[[np.ndarray], Any], k: int = 1, n
         resetting = np.zeros(num_envs, bool)  # next step is the vector env's autoreset of this slot
         obs, _ = envs.reset(seed=seed)
         loop_steps = 0
-        with tqdm(total=total, unit="episode", disable=not progress) as bar:  # closed before any error line
+        with tqdm(total=total, unit="episode", disable=not progress, smoothing=0) as bar:  # closed before any error line
             while (episode_of_slot < total).any():
                 masked = mask_observation(np.asarray(obs, np.float32), rows[np.minimum(episode_of_slot, total - 1) // n_episodes])
                 actions = policy(masked)

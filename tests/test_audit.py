@@ -324,6 +324,12 @@ def test_a_ctrl_c_stops_the_audits_rollout_at_its_next_report(ctrl_cs, monkeypat
     assert 0 < len(reports) < steps and not watch._WATCHES
     assert closed_in_main_thread == [True] * (ctrl_cs - 1) + [False]
     assert not [record for record in caplog.records if record.name.startswith("jax")]
+    # The bar's time left is at the audit's average rate: slots end episodes in bursts, and
+    # tqdm's default smoothing swung a Hopper audit's from 5 to 26 minutes and back.
+    bursty = watch._Watch(100, draw=True)
+    bursty.report(10)
+    assert bursty.bar.smoothing == 0
+    bursty.close()
 
 
 def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):

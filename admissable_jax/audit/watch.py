@@ -43,8 +43,8 @@ class _Watch:
         if self.stop.is_set():
             raise RolloutStopped
         if self.draw:
-            if self.bar is None:
-                self.bar = tqdm(total=self.total, unit="episode")
+            if self.bar is None:  # smoothing=0: the rate and time left over the audit so far, not its last burst
+                self.bar = tqdm(total=self.total, unit="episode", dynamic_ncols=True, smoothing=0)
             self.bar.update(max(0, finished - self.bar.n))
 
     def close(self) -> None:
