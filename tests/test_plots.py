@@ -274,17 +274,19 @@ def test_plots_say_what_they_show(tmp_path, capsys, monkeypatch):
             effective_window(runs, bad)
     # Heatmap cells are centred on their scoring steps.
     np.testing.assert_allclose(_cell_edges(np.array([5000.0, 10000.0, 15000.0])), [2500, 7500, 12500, 17500])
-    # Ant's 105 rows: all labelled would overlap, so a pool's heatmap (blank where no pooled
-    # set hides the feature) names the rows it draws, and a full one every third row.
+    # Ant's 105 rows are each named, in the observation's order from the top (a pool's
+    # heatmap too, blank where no pooled set hides the feature): a label every third row
+    # left the row of a dark cell to be counted.
     import matplotlib.pyplot as plt
 
     names = set_names(observation_names("ant"), 1, False)
     pooled = np.full((3, 105), np.nan)
     pooled[:, [28, 29, 31]] = [[-1.0, -2.0, -3.0]] * 3
-    for values, rows in ((pooled, [28, 29, 31]), (np.zeros((3, 105)), list(range(0, 105, 3)))):
+    for values in (pooled, np.zeros((3, 105))):
         figure, ax = plt.subplots()
         _heatmap(ax, figure, np.array([5000.0, 10000.0, 15000.0]), values, names, "a_u")
-        assert [label.get_text() for label in ax.get_yticklabels()] == [names[row] for row in rows]
+        assert [label.get_text() for label in ax.get_yticklabels()] == names
+        assert ax.get_ylim() == (104.5, -0.5)
         plt.close(figure)
     # Rows carry Gymnasium's observation names; one seed is "1 seed".
     assert runs[0].set_names[:3] == ["torso z", "torso angle", "thigh joint angle"]
