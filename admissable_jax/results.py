@@ -83,13 +83,9 @@ class Run:
         return f"{self.mode}, {self.variant}" if self.variant else self.mode
 
 
-def set_names(features: list[str], k: int, include_empty: bool, up_to_k: bool = False) -> list[str]:
-    """A name per candidate set u, in the runs' order: its hidden features' names."""
-    return names_of_sets(features, candidate_sets(len(features), k, include_empty, up_to_k))
-
-
-def names_of_sets(features: list[str], members: np.ndarray) -> list[str]:
-    """A name per row of ``members`` ((|U|, d) 0/1): the names of the features it hides."""
+def set_names(features: list[str], members: np.ndarray) -> list[str]:
+    """A name per candidate set u (a row of ``members``, (|U|, d) 0/1, in the runs' order):
+    the names of the features it hides."""
     return [" + ".join(features[i] for i in np.flatnonzero(row)) or "nothing hidden" for row in members]
 
 
@@ -130,7 +126,7 @@ def load_run(path: str) -> Run:
     else:
         up_to_k = bool(config.get("up_to_k", False))  # a config written before the key: exactly k
         members = candidate_sets(len(features), int(config.k), bool(config.include_empty_set), up_to_k).astype(bool)
-        names = names_of_sets(features, members)
+        names = set_names(features, members)
         if scores.ndim != 2 or scores.shape[1] != len(names) or p_miss.shape != scores.shape:
             raise ValueError(f"{scores_path}: each row must hold {len(names)} scores and p_miss values (one per set "
                              f"of {config.env} with k={config.k}{', up_to_k' * up_to_k}), "

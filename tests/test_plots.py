@@ -13,12 +13,19 @@ from omegaconf import OmegaConf
 
 from admissable_jax.config import TrainConfig
 from admissable_jax.envs import observation_names
+from admissable_jax.method import candidate_sets
 from admissable_jax.plot import LOWEST_BARS, _cell_edges, _final_scores_figure, _heatmap, _seeds, curve_colors, \
     draw_curves, effective_window, main, plot_envs_side_by_side, plot_runs
 from admissable_jax.results import (
     Difference, final_scores, find_runs, format_comparison, load_run, mean_and_interval, mode_differences,
     moving_average, per_feature_of_sets, set_names, steps_text, summary_table,
 )
+
+
+def _names(env, k=1, include_empty=False):
+    """The names a run of ``env`` gives its candidate sets."""
+    features = observation_names(env)
+    return set_names(features, candidate_sets(len(features), k, include_empty))
 
 
 def _fake_run(root, mode, seed, records=12, sets=11, env="hopper", **settings):
@@ -99,7 +106,7 @@ def _check_tables(folder, run_dirs):
     expected_curves, expected_sets = [], []
     for path in sorted(run_dirs):
         config = OmegaConf.load(os.path.join(path, "config.yaml"))
-        names = set_names(observation_names(config.env), 1, False)
+        names = _names(config.env)
         with open(os.path.join(path, "scores.jsonl")) as file:
             for row in map(json.loads, file):
                 key = (config.env, config.missingness, str(config.seed), str(row["env_steps"]))
@@ -199,7 +206,7 @@ def test_summary_table_reports_final_and_auc_per_mode(tmp_path):
     # final: mean(40, 60) = 50, sd 14.142 → ± 127.1; AUC: mean(25, 40) = 32.5, sd 10.607 → ± 95.3;
     # final mean_u a_u: mean(90, 110) = 100 ± 127.1; clean: mean(100, 120) = 110 ± 127.1.
     # The last column: where the mode is weak at the end (set 0, the lowest in every row here).
-    worst = set_names(observation_names("hopper"), 1, False)[0]
+    worst = _names("hopper")[0]
     assert cells(adversarial) == ["hopper", "adversarial", "2", "20000", "50.0 ± 127.1", "32.5 ± 95.3", "100.0 ± 127.1",
                                   "110.0 ± 127.1", f"{worst} (2 of 2)"]
     # One seed: the values alone, no interval (AUC: mean(5, 6, 7, 8) = 6.5; mean_u a_u: 8 + 5 · 30 = 158).
@@ -279,7 +286,7 @@ def test_plots_say_what_they_show(tmp_path, capsys, monkeypatch):
     # left the row of a dark cell to be counted.
     import matplotlib.pyplot as plt
 
-    names = set_names(observation_names("ant"), 1, False)
+    names = _names("ant")
     pooled = np.full((3, 105), np.nan)
     pooled[:, [28, 29, 31]] = [[-1.0, -2.0, -3.0]] * 3
     for values in (pooled, np.zeros((3, 105))):
@@ -290,10 +297,10 @@ def test_plots_say_what_they_show(tmp_path, capsys, monkeypatch):
         plt.close(figure)
     # Rows carry Gymnasium's observation names; one seed is "1 seed".
     assert runs[0].set_names[:3] == ["torso z", "torso angle", "thigh joint angle"]
-    assert set_names(observation_names("hopper"), 2, True)[:2] == ["nothing hidden", "torso z + torso angle"]
+    assert _names("hopper", 2, True)[:2] == ["nothing hidden", "torso z + torso angle"]
     up_to_two = load_run(_fake_run(str(tmp_path / "up_to_k"), "adversarial", 0, records=2, sets=66, k=2, up_to_k=True))
     assert up_to_two.set_names[10:12] == [observation_names("hopper")[10], "torso z + torso angle"]  # 11 singles first
-    assert set_names(observation_names("ant"), 1, False)[27:30] == ["torso contact torque x", "torso contact torque y", "torso contact torque z"]
+    assert _names("ant")[27:30] == ["torso contact torque x", "torso contact torque y", "torso contact torque z"]
     assert _seeds(1) == "1 seed" and _seeds(5) == "5 seeds"
     # per_seed: each seed's own moving average, thin, after the mean's line (here one curve of 2 seeds).
     for per_seed in (False, True):
