@@ -350,7 +350,7 @@ def _final_scores_figure(env: str, names: list[str], group: list[list[Run]]):
     shown = np.flatnonzero(np.isfinite(means).any(axis=0))
     lowest = ""
     if len(shown) > MOST_ROWS:
-        lowest = f"the {LOWEST_BARS} lowest of {len(shown):,} sets; "
+        lowest = f"the {LOWEST_BARS} lowest of {len(shown):,} {'features' if group[0][0].pooled else 'sets'}; "
         shown = shown[np.argsort(np.nanmin(means[:, shown], axis=0), kind="stable")[:LOWEST_BARS]]
     names = [names[i] for i in shown]
     x, width = np.arange(len(names)), 0.8 / len(group)
