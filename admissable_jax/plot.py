@@ -298,11 +298,11 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0,
 
     for (_, mode, variant), mode_runs in curves.items():
         run = mode_runs[0]
-        by_feature = not run.pooled and len(run.set_names) > MOST_ROWS
+        by_feature = run.pooled or len(run.set_names) > MOST_ROWS  # a pool's rows are its features (members: the identity)
         names = run.features if by_feature else run.set_names
         height = max(4.0, 0.12 * len(names) + 1.5)
         sets = "the pool's sets" if run.pooled else f"the {len(run.set_names):,} sets"
-        labels = ((f"lowest $a_u$ of {sets} hiding it", "$p_{miss}$ mass on them") if run.pooled or by_feature
+        labels = ((f"lowest $a_u$ of {sets} hiding it", "$p_{miss}$ mass on them") if by_feature
                   else ("$a_u$", "$p_{miss}(u)$"))
         over_seeds = " (mean over seeds)" if len(mode_runs) > 1 else ""
         for attribute, label, name in zip(("scores", "p_miss"), (f"{text}{over_seeds}" for text in labels),
@@ -325,7 +325,7 @@ def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0,
             else:
                 _heatmap(ax, figure, steps, values, names, label)
                 env_steps_axis(ax, "env steps (each column one scoring)")
-                ax.set_ylabel(f"feature (over {sets} hiding it)" if run.pooled or by_feature else "hidden features u")
+                ax.set_ylabel(f"feature (over {sets} hiding it)" if by_feature else "hidden features u")
             written += _save(figure, out_dir, f"{name}_{mode}" + (f"_{_file_name(variant)}" if variant else ""), formats)
 
     # Where each mode is weak at the end: a_u per hidden set, the modes' bars side by side
