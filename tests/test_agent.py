@@ -93,6 +93,13 @@ def test_one_gradient_step_matches_stable_baselines3():
         jax.tree.map(close, ours, theirs)
     close(new.log_alpha, recorded["after/log_ent_coef"][0])
 
+    # Polyak: the target twins move τ = 0.005 of the way to the updated critics. SB3 starts
+    # them equal to the critics, so that move (at most 1.5e-6 here) hides inside the
+    # tolerance above: compare the move itself, to a few float32 roundings (1e-7).
+    moved = lambda after: jax.tree.map(lambda a, b: np.asarray(a) - np.asarray(b), after, target_critic)
+    jax.tree.map(functools.partial(np.testing.assert_allclose, rtol=0, atol=1e-7),
+                 moved(new.target_critic_params), moved(_flax_params(recorded, "after")[2]))
+
     # Hand-computed: Adam's first step moves log α by the learning rate against the sign of
     # its gradient −mean(log π + H̄), H̄ = −|A|: up while the entropy −log π is below H̄.
     gradient = -np.mean(recorded["sb3/log_prob"] - action_size)
