@@ -1,7 +1,7 @@
 """Score estimators beyond the paper's rollout (critic, horizon) and the robustness audit.
 
 All on the pure-JAX point mass (seconds to compile), with hand-computed expectations: a
-critic that is a known function, a horizon of one step, and the audit's report against its
+critic that is a known function, horizons of one and two steps, and the audit's report against its
 JSON and against ``score_missingness``.
 """
 
@@ -43,30 +43,32 @@ def known_critic(params, masked_obs, action):
     return jnp.stack([q, q + 1.0])
 
 
-def test_critic_and_one_step_horizon_estimates_by_hand():
+def test_critic_and_horizon_estimates_by_hand():
+    """â_u = Σ_{t<H} γ^t r_t + γ^H · alive_H · min(Q1, Q2) at H = 0, 1 and 2, stepped by hand
+    (H = 2 is the first where an undiscounted sum of rewards differs)."""
     rng = jax.random.key(3)
     starts = jax.vmap(ENV.reset)(jax.random.split(rng, N))
     rows = jnp.concatenate([SETS, jnp.zeros((1, 4))])  # every set, then the clean case
-    gain = jnp.asarray(0.8)
+    gain, gamma = jnp.asarray(0.8), 0.9
 
-    critic = estimate_scores(ENV, steer, gain, known_critic, None, rng, SETS, N, horizon=0)
-    one_step = estimate_scores(ENV, steer, gain, known_critic, None, rng, SETS, N, horizon=1, gamma=0.9)
-    for row_index, hidden in enumerate(rows):
-        expected_critic, expected_one_step = [], []
-        for i in range(N):
-            start = jax.tree.map(lambda x: x[i], starts)
-            masked = mask_observation(start.obs, hidden)
-            action = steer(gain, masked)
-            expected_critic.append(masked.sum() + action.sum())  # min of the twins
-            after = ENV.step(start, action)
-            masked_after = mask_observation(after.obs, hidden)
-            alive = not bool(after.terminated)
-            expected_one_step.append(after.reward + 0.9 * alive * (masked_after.sum() + steer(gain, masked_after).sum()))
-        np.testing.assert_allclose(critic.returns[row_index], expected_critic, rtol=1e-5)
-        np.testing.assert_allclose(one_step.returns[row_index], expected_one_step, rtol=1e-5)
-    np.testing.assert_allclose(critic.scores, critic.returns[:-1].mean(1), rtol=1e-6)
-    np.testing.assert_allclose(critic.clean_score, critic.returns[-1].mean(), rtol=1e-6)
-    assert int(critic.loop_steps) == 0 and int(one_step.loop_steps) == 1
+    def by_hand(start, hidden, horizon):
+        state, discounted, alive = start, 0.0, True
+        for t in range(horizon):
+            if alive:
+                state = ENV.step(state, steer(gain, mask_observation(state.obs, hidden)))
+                discounted += gamma**t * float(state.reward)
+                alive = not bool(state.terminated) and int(state.step_count) < ENV.max_episode_steps
+        masked = mask_observation(state.obs, hidden)
+        return discounted + gamma**horizon * alive * float(masked.sum() + steer(gain, masked).sum())  # min of the twins
+
+    for horizon in (0, 1, 2):
+        estimates = estimate_scores(ENV, steer, gain, known_critic, None, rng, SETS, N, horizon=horizon, gamma=gamma)
+        for row_index, hidden in enumerate(rows):
+            expected = [by_hand(jax.tree.map(lambda x: x[i], starts), hidden, horizon) for i in range(N)]
+            np.testing.assert_allclose(estimates.returns[row_index], expected, rtol=1e-5)
+        np.testing.assert_allclose(estimates.scores, estimates.returns[:-1].mean(1), rtol=1e-6)
+        np.testing.assert_allclose(estimates.clean_score, estimates.returns[-1].mean(), rtol=1e-6)
+        assert int(estimates.loop_steps) == horizon
 
 
 def test_full_horizon_without_discount_is_the_papers_rollout():
