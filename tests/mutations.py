@@ -1,0 +1,193 @@
+"""Break the method on purpose, one place at a time, and check that a test fails.
+
+    python tests/mutations.py                  # every mutation below (8 minutes on 2 cores, warm caches)
+    python tests/mutations.py tau_doubled ...  # these only
+
+A test earns its place by failing when the behaviour it names is broken. Each mutation below
+is a small, plausible bug in the paper's method, the SAC update, scoring, the envs or the
+statistics the figures report. For each, this script copies the working tree (tracked and
+untracked files, as git lists them) to a temporary folder, writes the bug there (the working
+tree is never touched), and runs the tests: first the file named beside the mutation, where
+it was caught before, then, if that file passes, the whole suite. It prints one JSON line per
+mutation and exits 1 if any survives, naming it. Record of the last pass:
+``tests/data/mutations.jsonl``.
+
+Not part of the test command (pytest collects ``test_*.py`` only): each mutation recompiles
+what it touches, minutes where the suite takes seconds per file.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+# name: (file, text, its replacement, the test file that caught it last)
+MUTATIONS: dict[str, tuple[str, str, str, str]] = {
+    # The paper's mechanism (§3): u per episode, masking, the adversary's p_miss.
+    "u_redrawn_every_step": ("admissable_jax/training.py", "set_index=jnp.where(done, new_sets, state.set_index)",
+                             "set_index=new_sets", "test_mechanism.py"),
+    "stored_with_set_zero": ("admissable_jax/training.py", "set_index=state.set_index,\n",
+                             "set_index=jnp.zeros_like(state.set_index),\n", "test_mechanism.py"),
+    "mode_none_masks": ("admissable_jax/training.py",
+                        "return self.sets.rows(set_index) * state.masking.astype(jnp.float32)",
+                        "return self.sets.rows(set_index)", "test_mechanism.py"),
+    "next_obs_unmasked": ("admissable_jax/training.py", "next_obs=mask_observation(batch.next_obs, hidden),",
+                          "next_obs=mask_observation(batch.next_obs, 0 * hidden),", "test_mechanism.py"),
+    "next_obs_is_obs": ("admissable_jax/training.py", "next_obs=stepped.obs,", "next_obs=state.env_states.obs,",
+                        "test_mechanism.py"),
+    "uniform_mode_draws_from_pool": ("admissable_jax/training.py", "jnp.where(adversarial, self.spec.pool_explore, 1.0)",
+                                     "jnp.where(adversarial, self.spec.pool_explore, 0.0)", "test_training.py"),
+    "uniform_mode_updates_p_miss": ("admissable_jax/adversary.py",
+                                    "jnp.where(adversarial, inverse_score_p_miss(scores, lower_bound, epsilon), p_miss)",
+                                    "inverse_score_p_miss(scores, lower_bound, epsilon)", "test_missingness.py"),
+    "uniform_runs_as_adversarial": ("admissable_jax/host_loop.py",
+                                    'return config.seed, mode == "adversarial", mode != "none", config.lower_bound',
+                                    'return config.seed, mode != "none", mode != "none", config.lower_bound',
+                                    "test_hopper_pipelines.py"),
+    "scores_below_l_not_clipped": ("admissable_jax/method.py", "xp.maximum(scores - lower_bound, 0.0) + epsilon",
+                                   "xp.abs(scores - lower_bound) + epsilon", "test_missingness.py"),
+    "p_miss_proportional_not_inverse": ("admissable_jax/method.py",
+                                        "weights = 1.0 / (xp.maximum(scores - lower_bound, 0.0) + epsilon)",
+                                        "weights = (xp.maximum(scores - lower_bound, 0.0) + epsilon)",
+                                        "test_missingness.py"),
+    "hidden_features_not_zeroed": ("admissable_jax/method.py", "xp.concat([obs * (1 - hidden), hidden], axis=-1)",
+                                   "xp.concat([obs, hidden], axis=-1)", "test_missingness.py"),
+    "indicator_inverted": ("admissable_jax/method.py", "xp.concat([obs * (1 - hidden), hidden], axis=-1)",
+                           "xp.concat([obs * (1 - hidden), 1 - hidden], axis=-1)", "test_missingness.py"),
+    "wrapper_uniform_updates_p_miss": ("admissable_jax/wrappers.py", 'if self.mode == "adversarial":\n            self.p_miss',
+                                       'if True:\n            self.p_miss', "test_wrappers.py"),
+    "wrapper_draws_uniformly": ("admissable_jax/wrappers.py", "int(rng.choice(len(self.p_miss), p=self.p_miss))",
+                                "int(rng.choice(len(self.p_miss)))", "test_wrappers.py"),
+    # Training's schedule and SAC (SB3's semantics).
+    "learning_starts_one_early": ("admissable_jax/training.py", "return state.env_steps > self.spec.learning_starts",
+                                  "return state.env_steps >= self.spec.learning_starts", "test_hopper_pipelines.py"),
+    "random_actions_one_late": ("admissable_jax/training.py", "jnp.where(state.env_steps < self.spec.learning_starts",
+                                "jnp.where(state.env_steps <= self.spec.learning_starts", "test_mechanism.py"),
+    "interval_one_iteration_long": ("admissable_jax/run_spec.py",
+                                    "iterations_per_scoring=config.score_every // config.num_envs,",
+                                    "iterations_per_scoring=config.score_every // config.num_envs + 1,",
+                                    "test_hopper_pipelines.py"),
+    "episodes_restart_only_on_termination": ("admissable_jax/envs/state.py", "jnp.where(state.done, new, old)",
+                                             "jnp.where(state.terminated, new, old)", "test_mechanism.py"),
+    "replay_samples_empty_rows": ("admissable_jax/replay.py", "0, jnp.maximum(buffer.size, 1))",
+                                  "0, buffer.data.reward.shape[0])", "test_agent.py"),
+    "bootstrap_through_termination": ("admissable_jax/sac_losses.py", "1.0 - terminated.astype(jnp.float32)",
+                                      "1.0 + 0.0 * terminated.astype(jnp.float32)", "test_agent.py"),
+    "no_entropy_in_target": ("admissable_jax/sac_losses.py", "(next_q - alpha * next_log_prob)",
+                             "(next_q - 0.0 * alpha * next_log_prob)", "test_agent.py"),
+    "alpha_loss_sign": ("admissable_jax/sac_losses.py", "return -jnp.mean(log_alpha * jax.lax.stop_gradient(",
+                        "return jnp.mean(log_alpha * jax.lax.stop_gradient(", "test_agent.py"),
+    "no_tanh_correction": ("admissable_jax/agent.py", "jnp.sum(gaussian_log_prob - log_det, axis=-1)",
+                           "jnp.sum(gaussian_log_prob - 0 * log_det, axis=-1)", "test_agent.py"),
+    "tau_doubled": ("admissable_jax/agent.py", "state.target_critic_params, hp.tau)",
+                    "state.target_critic_params, 2 * hp.tau)", "test_agent.py"),
+    # Scoring: a_u, its estimators, and what the records report.
+    "scoring_start_states_differ_per_set": ("admissable_jax/scoring/rollout_scores.py",
+                                            "return jax.tree.map(lambda x: x[episode % n_episodes], initial)",
+                                            "return jax.tree.map(lambda x: x[(episode // n_episodes + episode) "
+                                            "% n_episodes], initial)", "test_training.py"),
+    "scoring_episodes_end_at_999": ("admissable_jax/scoring/rollout_scores.py", "(states.step_count >= max_steps)",
+                                    "(states.step_count >= max_steps - 1)", "test_training.py"),
+    "clean_case_hides_a_feature": ("admissable_jax/scoring/rollout_scores.py", "jnp.zeros((1, num_features))]",
+                                   "jnp.eye(1, num_features)]", "test_mechanism.py"),
+    "min_score_is_the_mean": ("admissable_jax/scoring/rollout_scores.py", "return jnp.min(self.scores)",
+                              "return jnp.mean(self.scores)", "test_hopper_pipelines.py"),
+    "estimate_bootstraps_max_twin": ("admissable_jax/scoring/value_estimates.py", "gamma**horizon * jnp.min(q, axis=-1)",
+                                     "gamma**horizon * jnp.max(q, axis=-1)", "test_audit.py"),
+    "estimate_undiscounted": ("admissable_jax/scoring/value_estimates.py",
+                              "jnp.where(alive, gamma**t * states.reward, 0.0)", "jnp.where(alive, states.reward, 0.0)",
+                              "test_audit.py"),
+    "shapley_weights_unnormalised": ("admissable_jax/scoring/attribution.py",
+                                     "math.factorial(d - s - 1) / math.factorial(d)",
+                                     "math.factorial(d - s - 1) / math.factorial(d - 1)", "test_audit.py"),
+    "beam_keeps_the_highest": ("admissable_jax/scoring/set_search.py", "order = jnp.argsort(scores, stable=True)[:b]",
+                               "order = jnp.argsort(-scores, stable=True)[:b]", "test_audit.py"),
+    # The envs' v5 semantics (Gymnasium's *_v5.py).
+    "hopper_angle_range_wider": ("admissable_jax/envs/planar_walkers.py", "healthy_angle_range = (-0.2, 0.2)",
+                                 "healthy_angle_range = (-0.25, 0.25)", "test_envs.py"),
+    "walker2d_z_range_higher": ("admissable_jax/envs/planar_walkers.py", "healthy_z_range = (0.8, 2.0)",
+                                "healthy_z_range = (0.8, 2.5)", "test_envs.py"),
+    "ant_contact_cost_doubled": ("admissable_jax/envs/ant.py", "_CONTACT_COST_WEIGHT = 5e-4",
+                                 "_CONTACT_COST_WEIGHT = 1e-3", "test_envs.py"),
+    # The statistics of the figures and FIGURE1.md.
+    "interval_normal_not_t": ("admissable_jax/results.py", "stats.t.ppf(0.5 + confidence / 2, n - 1)",
+                              "stats.norm.ppf(0.5 + confidence / 2)", "test_plots.py"),
+    "interval_population_std": ("admissable_jax/results.py", "curves.std(axis=0, ddof=1)",
+                                "curves.std(axis=0, ddof=0)", "test_plots.py"),
+    "students_t_not_welchs": ("admissable_jax/results.py", "equal_var=False)", "equal_var=True)", "test_plots.py"),
+    "auc_is_the_final_value": ("admissable_jax/results.py", "{estimate(minimum.mean(axis=1))}",
+                               "{estimate(minimum[:, -1])}", "test_plots.py"),
+    "moving_average_window_plus_one": ("admissable_jax/results.py",
+                                       "np.minimum(np.arange(1, values.shape[-1] + 1), window)",
+                                       "np.minimum(np.arange(1, values.shape[-1] + 1), window + 1)", "test_plots.py"),
+}
+
+
+def copy_tree(destination: str) -> None:
+    """The working tree's tracked and untracked (not ignored) files, as they are now."""
+    listed = subprocess.run(["git", "ls-files", "-co", "--exclude-standard", "-z"], cwd=REPO, check=True,
+                            capture_output=True, text=True).stdout.split("\0")
+    for path in filter(None, listed):
+        if os.path.isfile(os.path.join(REPO, path)):
+            os.makedirs(os.path.dirname(os.path.join(destination, path)), exist_ok=True)
+            shutil.copy2(os.path.join(REPO, path), os.path.join(destination, path))
+
+
+def run_tests(tree: str, paths: list[str]) -> tuple[bool, list[str]]:
+    """(whether they all passed, the failed tests' ids) for pytest on ``paths`` of ``tree``,
+    stopping at the first failure."""
+    env = dict(os.environ, PYTHONPATH=tree, JAX_PLATFORMS="cpu")
+    result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider", "--rootdir", tree,
+                             "-c", os.path.join(tree, "pyproject.toml"), *paths],
+                            cwd=tree, env=env, capture_output=True, text=True)
+    failed = [line.split()[1] for line in result.stdout.splitlines() if line.startswith(("FAILED", "ERROR"))]
+    return result.returncode == 0, failed
+
+
+def check(name: str) -> dict:
+    """Write mutation ``name`` into a copy of the tree and run its test file, then the suite."""
+    path, text, replacement, first_file = MUTATIONS[name]
+    start = time.time()
+    with tempfile.TemporaryDirectory(prefix="mutation-") as tree:
+        copy_tree(tree)
+        source = open(os.path.join(tree, path)).read()
+        if source.count(text) != 1:
+            raise SystemExit(f"mutation {name}: {path} holds its text {source.count(text)} times, not once: update it")
+        with open(os.path.join(tree, path), "w") as file:
+            file.write(source.replace(text, replacement))
+        imported = subprocess.run([sys.executable, "-c", "import admissable_jax; print(admissable_jax.__file__)"],
+                                  cwd=tree, env=dict(os.environ, PYTHONPATH=tree), capture_output=True, text=True).stdout
+        if not os.path.realpath(imported.strip()).startswith(os.path.realpath(tree)):
+            raise SystemExit(f"the tests would import admissable_jax from {imported.strip()}, not the mutated copy")
+        passed, failed = run_tests(tree, [os.path.join(tree, "tests", first_file)])
+        if passed:
+            passed, failed = run_tests(tree, [os.path.join(tree, "tests")])
+    return {"mutation": name, "file": path, "caught": not passed, "by": failed[:3], "seconds": round(time.time() - start)}
+
+
+def main(names: list[str]) -> int:
+    unknown = [name for name in names if name not in MUTATIONS]
+    if unknown:
+        print(f"unknown mutation {unknown[0]!r}: the names are MUTATIONS' keys in tests/mutations.py", file=sys.stderr)
+        return 2
+    survivors = []
+    for name in names or list(MUTATIONS):
+        row = check(name)
+        print(json.dumps(row), flush=True)
+        if not row["caught"]:
+            survivors.append(name)
+    if survivors:
+        print(f"no test failed for: {', '.join(survivors)}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
