@@ -1,6 +1,6 @@
 """Break the method on purpose, one place at a time, and check that a test fails.
 
-    python tests/mutations.py                  # every mutation below (8 minutes on 2 cores, warm caches)
+    python tests/mutations.py                  # every mutation below (15 minutes on 2 cores, warm caches)
     python tests/mutations.py tau_doubled ...  # these only
 
 A test earns its place by failing when the behaviour it names is broken. Each mutation below
@@ -65,6 +65,11 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                        'if True:\n            self.p_miss', "test_wrappers.py"),
     "wrapper_draws_uniformly": ("admissable_jax/wrappers.py", "int(rng.choice(len(self.p_miss), p=self.p_miss))",
                                 "int(rng.choice(len(self.p_miss)))", "test_wrappers.py"),
+    "draws_ignore_p_miss": ("admissable_jax/training.py", "return sample_set_indices(rng, p_miss, shape)",
+                            "return sample_set_indices(rng, jnp.ones_like(p_miss) / p_miss.shape[0], shape)",
+                            "test_mechanism.py"),
+    "lower_bound_ignored": ("admissable_jax/training.py", "state.adversarial, state.lower_bound, self.spec.epsilon",
+                            "state.adversarial, 0.0, self.spec.epsilon", "test_experiment.py"),
     # Training's schedule and SAC (SB3's semantics).
     "learning_starts_one_early": ("admissable_jax/training.py", "return state.env_steps > self.spec.learning_starts",
                                   "return state.env_steps >= self.spec.learning_starts", "test_hopper_pipelines.py"),
@@ -88,6 +93,10 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                            "jnp.sum(gaussian_log_prob - 0 * log_det, axis=-1)", "test_agent.py"),
     "tau_doubled": ("admissable_jax/agent.py", "state.target_critic_params, hp.tau)",
                     "state.target_critic_params, 2 * hp.tau)", "test_agent.py"),
+    "truncation_stored_as_termination": ("admissable_jax/training.py", "terminated=stepped.terminated,",
+                                         "terminated=stepped.done,", "test_mechanism.py"),
+    "target_entropy_halved": ("admissable_jax/agent.py", "self.target_entropy = -float(self.action_size)",
+                              "self.target_entropy = -0.5 * float(self.action_size)", "test_agent.py"),
     # Scoring: a_u, its estimators, and what the records report.
     "scoring_start_states_differ_per_set": ("admissable_jax/scoring/rollout_scores.py",
                                             "return jax.tree.map(lambda x: x[episode % n_episodes], initial)",
@@ -109,6 +118,15 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                      "math.factorial(d - s - 1) / math.factorial(d - 1)", "test_audit.py"),
     "beam_keeps_the_highest": ("admissable_jax/scoring/set_search.py", "order = jnp.argsort(scores, stable=True)[:b]",
                                "order = jnp.argsort(-scores, stable=True)[:b]", "test_audit.py"),
+    # The paper's settings and SB3's as the defaults a user gets.
+    "default_n_5": ("admissable_jax/config.py", 'setting(10, "N: deterministic', 'setting(5, "N: deterministic',
+                    "test_training.py"),
+    "default_zeta_2000": ("admissable_jax/config.py", 'setting(5000, "zeta', 'setting(2000, "zeta', "test_training.py"),
+    "default_epsilon_1e-3": ("admissable_jax/config.py", 'setting(1e-8, "eps', 'setting(1e-3, "eps', "test_training.py"),
+    "default_tau_doubled": ("admissable_jax/config.py", "tau: float = setting(0.005,", "tau: float = setting(0.01,",
+                            "test_training.py"),
+    "default_batch_128": ("admissable_jax/config.py", "batch_size: int = setting(256,", "batch_size: int = setting(128,",
+                          "test_training.py"),
     # The envs' v5 semantics (Gymnasium's *_v5.py).
     "hopper_angle_range_wider": ("admissable_jax/envs/planar_walkers.py", "healthy_angle_range = (-0.2, 0.2)",
                                  "healthy_angle_range = (-0.25, 0.25)", "test_envs.py"),
@@ -131,13 +149,17 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
 
 
 def copy_tree(destination: str) -> None:
-    """The working tree's tracked and untracked (not ignored) files, as they are now."""
+    """The working tree's tracked and untracked (not ignored) files, as they are now, in a
+    git repository of their own (staged, not committed)."""
     listed = subprocess.run(["git", "ls-files", "-co", "--exclude-standard", "-z"], cwd=REPO, check=True,
                             capture_output=True, text=True).stdout.split("\0")
     for path in filter(None, listed):
         if os.path.isfile(os.path.join(REPO, path)):
             os.makedirs(os.path.dirname(os.path.join(destination, path)), exist_ok=True)
             shutil.copy2(os.path.join(REPO, path), os.path.join(destination, path))
+    # Tests that list the tree by git (the device packs' room) must see the same files.
+    for command in (["git", "init", "-q"], ["git", "add", "-A"]):
+        subprocess.run(command, cwd=destination, check=True, capture_output=True)
 
 
 def run_tests(tree: str, paths: list[str]) -> tuple[bool, list[str]]:

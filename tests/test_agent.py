@@ -104,6 +104,11 @@ def test_one_gradient_step_matches_stable_baselines3():
     # its gradient −mean(log π + H̄), H̄ = −|A|: up while the entropy −log π is below H̄.
     gradient = -np.mean(recorded["sb3/log_prob"] - action_size)
     np.testing.assert_allclose(float(new.log_alpha - state.log_alpha), -3e-4 * np.sign(gradient), rtol=1e-3)
+    # The target H̄ = −|A| itself: at SB3's start log α = 0 the α loss is 0 whatever H̄, and
+    # Adam's first step sees only its gradient's sign, so value the loss at log α = 0.5.
+    _, shifted = jax.jit(agent.update_from_noise)(state.replace(log_alpha=jnp.asarray(0.5)), batch, actor_noise,
+                                                  next_noise)
+    close(shifted["alpha_loss"], -0.5 * np.mean(recorded["sb3/log_prob"] - action_size))
 
 
 def test_layers_start_as_pytorch_linear():
