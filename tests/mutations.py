@@ -1,6 +1,6 @@
 """Break the method on purpose, one place at a time, and check that a test fails.
 
-    python tests/mutations.py                  # every mutation below (15 minutes on 2 cores, warm caches)
+    python tests/mutations.py                  # every mutation below (about 16 minutes on 2 cores, warm caches)
     python tests/mutations.py tau_doubled ...  # these only
 
 A test earns its place by failing when the behaviour it names is broken. Each mutation below
@@ -70,6 +70,14 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                             "test_mechanism.py"),
     "lower_bound_ignored": ("admissable_jax/training.py", "state.adversarial, state.lower_bound, self.spec.epsilon",
                             "state.adversarial, 0.0, self.spec.epsilon", "test_experiment.py"),
+    "pool_never_explores": ("admissable_jax/training.py", "jnp.where(adversarial, self.spec.pool_explore, 1.0)",
+                            "jnp.where(adversarial, 0.0, 1.0)", "test_training.py"),
+    "experiment_seeds_all_first": ("admissable_jax/config.py", "missingness=mode, seed=seed,",
+                                   "missingness=mode, seed=config.first_seed,", "test_experiment.py"),
+    "scoring_policy_stochastic": ("admissable_jax/training.py",
+                                  "return self.agent.deterministic_action(actor_params, masked_obs)",
+                                  "return self.agent.sample_action(actor_params, masked_obs, jax.random.key(0))[0]",
+                                  "test_training.py"),
     # Training's schedule and SAC (SB3's semantics).
     "learning_starts_one_early": ("admissable_jax/training.py", "return state.env_steps > self.spec.learning_starts",
                                   "return state.env_steps >= self.spec.learning_starts", "test_hopper_pipelines.py"),
