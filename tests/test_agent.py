@@ -89,16 +89,17 @@ def test_one_gradient_step_matches_stable_baselines3():
     for ours, theirs in (("critic_loss", "critic_loss"), ("actor_loss", "actor_loss"), ("alpha_loss", "ent_coef_loss"),
                          ("alpha", "ent_coef")):
         close(metrics[ours], recorded[f"sb3/{theirs}"])
-    for ours, theirs in zip((new.actor_params, new.critic_params, new.target_critic_params), _flax_params(recorded, "after")):
+    after = _flax_params(recorded, "after")
+    for ours, theirs in zip((new.actor_params, new.critic_params, new.target_critic_params), after):
         jax.tree.map(close, ours, theirs)
     close(new.log_alpha, recorded["after/log_ent_coef"][0])
 
     # Polyak: the target twins move τ = 0.005 of the way to the updated critics. SB3 starts
     # them equal to the critics, so that move (at most 1.5e-6 here) hides inside the
     # tolerance above: compare the move itself, to a few float32 roundings (1e-7).
-    moved = lambda after: jax.tree.map(lambda a, b: np.asarray(a) - np.asarray(b), after, target_critic)
+    moved = lambda target: jax.tree.map(lambda a, b: np.asarray(a) - np.asarray(b), target, target_critic)
     jax.tree.map(functools.partial(np.testing.assert_allclose, rtol=0, atol=1e-7),
-                 moved(new.target_critic_params), moved(_flax_params(recorded, "after")[2]))
+                 moved(new.target_critic_params), moved(after[2]))
 
     # Hand-computed: Adam's first step moves log α by the learning rate against the sign of
     # its gradient −mean(log π + H̄), H̄ = −|A|: up while the entropy −log π is below H̄.

@@ -1,8 +1,8 @@
 """Score estimators beyond the paper's rollout (critic, horizon) and the robustness audit.
 
 All on the pure-JAX point mass (seconds to compile), with hand-computed expectations: a
-critic that is a known function, horizons of one and two steps, and the audit's report against its
-JSON and against ``score_missingness``.
+critic that is a known function, horizons of one and two steps, and the audit's report
+against its JSON and against ``score_missingness``.
 """
 
 from __future__ import annotations
