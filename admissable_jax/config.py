@@ -13,11 +13,14 @@ import os
 import jax
 
 from admissable_jax.adversary import MODES
+from admissable_jax.agent import SACHyperparams
 from admissable_jax.cli import RUN_LOCATION, ConfigFile, setting
 from admissable_jax.envs import canonical_env_name, env_physics, observation_size, short_env_name
 from admissable_jax.loggers import parse_logger_names
 from admissable_jax.method import check_exact_size, num_candidate_sets
 from admissable_jax.scoring import SCORE_ESTIMATORS
+
+SB3_SAC = SACHyperparams()
 
 
 @dataclasses.dataclass
@@ -53,13 +56,13 @@ class RunSettings:
     total_steps: int = setting(1_000_000, "env steps to train, over all envs (rounded up to a multiple of score_every)")
     num_envs: int = setting(0, "parallel envs; 0 = the largest divisor of score_every up to 8 on CPU, 128 on GPU (125 for 5000)")
     episode_length: int = setting(1000, "step limit of an episode (Gymnasium v5: 1000)")
-    # SAC (Stable-Baselines3 defaults)
-    learning_rate: float = setting(3e-4, "Adam learning rate (actor, critics, alpha)")
-    gamma: float = setting(0.99, "discount")
-    tau: float = setting(0.005, "Polyak coefficient of the target critics")
-    batch_size: int = setting(256, "minibatch size")
-    hidden_size: int = setting(256, "units per hidden layer")
-    hidden_layers: int = setting(2, "hidden layers per network")
+    # SAC: Stable-Baselines3's defaults, as agent.SACHyperparams holds them
+    learning_rate: float = setting(SB3_SAC.learning_rate, "Adam learning rate (actor, critics, alpha)")
+    gamma: float = setting(SB3_SAC.gamma, "discount")
+    tau: float = setting(SB3_SAC.tau, "Polyak coefficient of the target critics")
+    batch_size: int = setting(SB3_SAC.batch_size, "minibatch size")
+    hidden_size: int = setting(SB3_SAC.hidden_sizes[0], "units per hidden layer")
+    hidden_layers: int = setting(len(SB3_SAC.hidden_sizes), "hidden layers per network")
     buffer_size: int = setting(1_000_000, "replay capacity (transitions)")
     learning_starts: int = setting(10_000, "env steps of uniform random actions before learning (10,000: RL-Zoo's "
                                            "MuJoCo setting; SB3's library default is 100)")
