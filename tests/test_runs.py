@@ -17,6 +17,7 @@ import subprocess
 import sys
 import threading
 import time
+import types
 
 import jax
 import numpy as np
@@ -162,8 +163,8 @@ def test_settings_that_would_train_nonsense_are_refused_before_anything_is_writt
 def test_the_bar_moves_within_an_interval_and_names_what_runs(tmp_path, monkeypatch):
     """On a CPU one scoring interval can take many minutes. Its training runs as up to 10
     calls, and the bar advances after each one. The bar names the phase (training, scoring,
-    saving), and its clock keeps running through calls that advance nothing. The metrics
-    still cover the whole interval."""
+    saving: every checkpoint_every scorings and at the end), and its clock keeps running
+    through calls that advance nothing. The metrics still cover the whole interval."""
     assert [interval_pieces(n) for n in (1, 7, 10, 40, 125, 625, 1249)] == [1, 7, 10, 10, 5, 5, 1]
     said = []
 
@@ -177,14 +178,17 @@ def test_the_bar_moves_within_an_interval_and_names_what_runs(tmp_path, monkeypa
             return super().set_description_str(desc, refresh)
 
     monkeypatch.setattr(host_loop, "tqdm", RecordingBar)
-    result = train_fn(dataclasses.replace(RUN, total_steps=1000, checkpoint_every=2, progress=True, out=str(tmp_path / "r")))
-    # 500 env steps per interval over 4 envs: 125 iterations, as 5 calls of 100 env steps.
-    assert said == ["training", *[100] * 5, "scoring", ""] + ["training", *[100] * 5, "scoring", "saving", ""]
+    result = train_fn(dataclasses.replace(RUN, total_steps=1500, checkpoint_every=2, progress=True, out=str(tmp_path / "r")))
+    # 500 env steps per interval over 4 envs: 125 iterations, as 5 calls of 100 env steps;
+    # saved after the second scoring (checkpoint_every=2) and the third (the last).
+    interval = ["training", *[100] * 5, "scoring"]
+    assert said == [*interval, "", *interval, "saving", "", *interval, "saving", ""]
+    assert sorted(os.listdir(os.path.join(result.run_dir, "checkpoints"))) == ["1000", "1500"]
     with open(os.path.join(result.run_dir, "metrics.jsonl")) as file:
         rows = [json.loads(line) for line in file]
     # The gradient steps the metrics saw in each interval: none before learning_starts=500,
     # then 4 in each of the 125 iterations of all 5 calls.
-    assert [round(row["grad_steps_per_s"] / row["env_steps_per_s"] * 500) for row in rows] == [0, 500]
+    assert [round(row["grad_steps_per_s"] / row["env_steps_per_s"] * 500) for row in rows] == [0, 500, 500]
 
     class Clock:
         def __init__(self, disable):
@@ -375,12 +379,22 @@ def test_faults_of_long_runs_cost_nothing_finished(tmp_path, monkeypatch, capsys
 
     straight = train_fn(dataclasses.replace(RUN, out=str(tmp_path / "straight")))
 
-    # A time limit pauses after whole scoring intervals with a checkpoint; resume goes on to
-    # the same history as the uninterrupted run.
-    paused_dir = str(tmp_path / "paused")
-    paused = train_fn(dataclasses.replace(RUN, out=paused_dir, time_limit=1e-3))
+    # A time limit pauses before a scoring interval that would pass it, with a checkpoint
+    # though none is due; resume goes on to the same history as the uninterrupted run. On a
+    # stand-in clock each interval takes 10 s: after the first, 10 s spent and 10 more would
+    # pass 15 s.
+    paused_dir, clock, train_interval = str(tmp_path / "paused"), [0.0], TrainingLoop.train_interval
+
+    def ten_seconds_each(self, state, bar):
+        clock[0] += 10.0
+        return train_interval(self, state, bar)
+
+    with monkeypatch.context() as patched:
+        patched.setattr(TrainingLoop, "train_interval", ten_seconds_each)
+        patched.setattr(host_loop, "time", types.SimpleNamespace(perf_counter=lambda: clock[0]))
+        paused = train_fn(dataclasses.replace(RUN, out=paused_dir, time_limit=15, checkpoint_every=10))
     assert not paused.finished and _steps(paused_dir) == [500]
-    assert "paused at 500 of 2000 env steps" in capsys.readouterr().err
+    assert "paused at 500 of 2000 env steps: another scoring interval would pass time_limit=15 s" in capsys.readouterr().err
     assert sorted(os.listdir(os.path.join(paused_dir, "checkpoints"))) == ["500"]
 
     # A crash mid-append leaves a torn last line: resume drops it and says so; plot skips it

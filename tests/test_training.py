@@ -34,6 +34,7 @@ from admissable_jax.envs import observation_names
 from admissable_jax.host_loop import TrainingDiverged
 from admissable_jax.method import inverse_score_p_miss
 from admissable_jax.policies import load_policy
+from admissable_jax.run_directory import metrics_row
 from admissable_jax.run_spec import RunSpec
 from admissable_jax.training import Trainer
 
@@ -100,6 +101,16 @@ def test_run_directory_contents(point_mass_run):
         # Adversarial mode: p_miss after the update is the inverse-score distribution.
         inverse = 1.0 / np.maximum(np.array(row["scores"]), 0.0)
         np.testing.assert_allclose(row["p_miss"], inverse / inverse.sum(), rtol=1e-3)
+    # A metrics row of an interval that starts learning midway: its losses are the means over the
+    # iterations that learned (the warm-up's zeros left out), its returns per finished episode.
+    chunk = {"learned": np.array([0, 0, 1, 1]), "episodes": np.array([0, 1, 0, 1]),
+             "episode_return_sum": np.array([0.0, 10.0, 0.0, 30.0]), "episode_length_sum": np.array([0, 5, 0, 15]),
+             **{name: np.array([0.0, 0.0, 2.0, 4.0]) for name in ("critic_loss", "actor_loss", "alpha", "entropy", "q_mean")}}
+    row = metrics_row(1000, 8, chunk, 2.0, 1.0, TrainConfig(num_envs=4, score_every=1000), 1, 7)
+    assert row == {"env_steps": 1000, "grad_steps": 8, "episodes": 2, "episode_return": 20.0, "episode_length": 10.0,
+                   "env_steps_per_s": 500.0, "grad_steps_per_s": 4.0, "score_seconds": 1.0, "runs_in_program": 1,
+                   "state_fingerprint": 7, "critic_loss": 3.0, "actor_loss": 3.0, "alpha": 3.0, "entropy": 3.0,
+                   "q_mean": 3.0}
 
 
 def _tensorboard_events(directory: str) -> list:
@@ -513,8 +524,11 @@ def test_corrupt_checkpoint_and_divergence_keep_finished_work(tmp_path):
         POINT_MASS, total_steps=3000, score_every=500, learning_starts=600, learning_rate=1e6,
         checkpoint_every=1, out=out, hidden_size=32, logger="none",
     )
-    with pytest.raises(TrainingDiverged, match="last checkpoint \\(step 500\\) kept"):
+    with pytest.raises(TrainingDiverged) as diverged:
         train_fn(config)
+    # It names the first loss of the interval that became non-finite (critic, actor, alpha).
+    assert str(diverged.value) == (f"critic_loss became non-finite before env step 1000 in {out}; "
+                                   f"last checkpoint (step 500) kept in {out}/checkpoints")
     with open(os.path.join(out, "scores.jsonl")) as file:
         assert [json.loads(line)["env_steps"] for line in file] == [500]
 
