@@ -1,16 +1,17 @@
 """Break the method on purpose, one place at a time, and check that a test fails.
 
-    python tests/mutations.py                  # every mutation below (about 16 minutes on 2 cores, warm caches)
+    python tests/mutations.py                  # every mutation below (about 25 minutes on 2 cores, warm caches)
     python tests/mutations.py tau_doubled ...  # these only
 
 A test earns its place by failing when the behaviour it names is broken. Each mutation below
-is a small, plausible bug in the paper's method, the SAC update, scoring, the envs or the
-statistics the figures report. For each, this script copies the working tree (tracked and
-untracked files, as git lists them) to a temporary folder, writes the bug there (the working
-tree is never touched), and runs the tests: first the file named beside the mutation, where
-it was caught before, then, if that file passes, the whole suite. It prints one JSON line per
-mutation and exits 1 if any survives, naming it. Record of the last pass:
-``tests/data/mutations.jsonl``.
+is a small, plausible bug in the paper's method, the SAC update, scoring, the envs, the
+statistics the figures report, what keeps a run's finished work (checkpoints, resume,
+fast-forward, the records) or what reports on it (wrappers, audit, video). For each, this
+script copies the working tree (tracked and untracked files, as git lists them) to a
+temporary folder, writes the bug there (the working tree is never touched), and runs the
+tests: first the file named beside the mutation, where it was caught before, then, if that
+file passes, the whole suite. It prints one JSON line per mutation and exits 1 if any
+survives, naming it. Record of the last pass: ``tests/data/mutations.jsonl``.
 
 Not part of the test command (pytest collects ``test_*.py`` only): each mutation recompiles
 what it touches, minutes where the suite takes seconds per file.
@@ -126,6 +127,14 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                      "math.factorial(d - s - 1) / math.factorial(d - 1)", "test_audit.py"),
     "beam_keeps_the_highest": ("admissable_jax/scoring/set_search.py", "order = jnp.argsort(scores, stable=True)[:b]",
                                "order = jnp.argsort(-scores, stable=True)[:b]", "test_audit.py"),
+    "refill_skips_an_episode": ("admissable_jax/scoring/rollout_scores.py",
+                                "next_episode = carry[\"next_episode\"] + jnp.cumsum(finished) - 1",
+                                "next_episode = carry[\"next_episode\"] + jnp.cumsum(finished)", "test_training.py"),
+    "refilled_slots_stop": ("admissable_jax/scoring/rollout_scores.py", '"alive": jnp.where(finished, refill, alive)',
+                            '"alive": jnp.where(finished, False, alive)', "test_training.py"),
+    "set_index_without_its_size_block": ("admissable_jax/method.py",
+                                         "return xp.take(xp.asarray(first_of_size), size) + rank", "return rank",
+                                         "test_missingness.py"),
     # The paper's settings and SB3's as the defaults a user gets.
     "default_n_5": ("admissable_jax/config.py", 'setting(10, "N: deterministic', 'setting(5, "N: deterministic',
                     "test_training.py"),
@@ -191,6 +200,12 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "shapley_order_smallest_first": ("admissable_jax/audit/report.py",
                                      "key=lambda i: -attribution.values[i])",
                                      "key=lambda i: attribution.values[i])", "test_audit.py"),
+    "video_hidden_side_sees_everything": ("admissable_jax/video.py",
+                                          "action = policy(observations[side], hidden=sides[side])",
+                                          "action = policy(observations[side], hidden=())", "test_hopper_pipelines.py"),
+    "video_sides_start_apart": ("admissable_jax/video.py", "observations = [env.reset(seed=config.seed)[0] for env in envs]",
+                                "observations = [env.reset(seed=config.seed + side)[0] for side, env in enumerate(envs)]",
+                                "test_hopper_pipelines.py"),
     # The statistics of the figures and FIGURE1.md.
     "interval_normal_not_t": ("admissable_jax/results.py", "stats.t.ppf(0.5 + confidence / 2, n - 1)",
                               "stats.norm.ppf(0.5 + confidence / 2)", "test_plots.py"),

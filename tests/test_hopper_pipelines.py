@@ -240,6 +240,10 @@ def test_video_of_the_trained_hopper_beside_its_worst_set(jax_run, tmp_path, cap
     scene = frames[0, video.LABEL_HEIGHT:].astype(np.float32)
     assert np.abs(scene[:, :video.PANEL_WIDTH] - scene[:, video.PANEL_WIDTH:]).mean() < 5
     assert made.clean_return != made.hidden_return
+    # With nothing hidden on either side, the two sides run one episode: the same start state.
+    same = video.render_video(video.VideoConfig(run_dir=jax_run.run_dir, hidden="", frames=5,
+                                                out=str(tmp_path / "both-clean.mp4")))
+    assert same.hidden == () and (same.clean_return, same.clean_length) == (same.hidden_return, same.hidden_length)
 
     assert video.main([jax_run.run_dir, "hidden=elbow", f"out={tmp_path}/elbow.mp4"]) == 2
     assert "'elbow' is neither a feature index below 11 nor a feature name of hopper" in capsys.readouterr().err
