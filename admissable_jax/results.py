@@ -34,7 +34,7 @@ import numpy as np
 
 from admissable_jax.config import TrainConfig, number_text
 from admissable_jax.envs import observation_names
-from admissable_jax.method import candidate_sets, parse_set
+from admissable_jax.method import candidate_sets, hidden_row, parse_set
 from admissable_jax.provenance import INVOCATIONS
 from admissable_jax.run_directory import TornLine, load_config_yaml, read_jsonl, recorded_observation_names
 from admissable_jax.scoring.worst_set import samples_to_separate
@@ -92,8 +92,8 @@ def set_names(features: list[str], members: np.ndarray) -> list[str]:
 def per_feature_of_sets(values: np.ndarray, members: np.ndarray, attribute: str) -> np.ndarray:
     """(T, |U|) a_u (``attribute`` ``scores``) or p_miss (``p_miss``) of every candidate set
     as (T, d) per feature: the lowest a_u of the sets that hide it (NaN where none does), or
-    the p_miss mass on them. The view that a pooled run's rows give (:func:`per_feature`),
-    for a U too large to draw a row per set (Ant at k = 2: 5,460 sets)."""
+    the p_miss mass on them: for a U too large to draw a row per set (Ant at k = 2: 5,460
+    sets), and for a pooled run's rows (:func:`per_feature`)."""
     members = np.asarray(members, bool)
     if attribute == "p_miss":
         return values @ members
@@ -187,14 +187,13 @@ def numbers_in_order(text: str) -> list[tuple[int, float | str]]:
 
 def per_feature(rows: list[dict], num_features: int) -> tuple[np.ndarray, np.ndarray]:
     """(T, d) from the rows of a run with a pool: per feature, the lowest a_u of the
-    pool's sets that hide it (NaN where none does) and the p_miss mass on those sets."""
-    scores = np.full((len(rows), num_features), np.nan)
-    p_miss = np.zeros((len(rows), num_features))
-    for t, row in enumerate(rows):
-        for hidden, score, weight in zip(row["sets"], row["scores"], row["p_miss"]):
-            features = parse_set(hidden)
-            scores[t, features] = np.fmin(scores[t, features], score)
-            p_miss[t, features] += weight
+    pool's sets that hide it (NaN where none does) and the p_miss mass on those sets
+    (:func:`per_feature_of_sets` of each row's own sets)."""
+    def of_row(row: dict) -> list[np.ndarray]:
+        members = np.stack([hidden_row(parse_set(name), num_features) for name in row["sets"]])
+        return [per_feature_of_sets(np.asarray([row[key]], float), members, key)[0] for key in ("scores", "p_miss")]
+
+    scores, p_miss = (np.stack(column) for column in zip(*map(of_row, rows)))
     return scores, p_miss
 
 
