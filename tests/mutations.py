@@ -206,6 +206,9 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "video_sides_start_apart": ("admissable_jax/video.py", "observations = [env.reset(seed=config.seed)[0] for env in envs]",
                                 "observations = [env.reset(seed=config.seed + side)[0] for side, env in enumerate(envs)]",
                                 "test_hopper_pipelines.py"),
+    "rollout_never_resets": ("admissable_jax/rollout.py",
+                             "return (jax.vmap(reset_where_done, (None, 0, 0))(env, states, reset_keys), total_reward), None",
+                             "return (states, total_reward), None", "test_runs.py"),
     # The statistics of the figures and FIGURE1.md.
     "interval_normal_not_t": ("admissable_jax/results.py", "stats.t.ppf(0.5 + confidence / 2, n - 1)",
                               "stats.norm.ppf(0.5 + confidence / 2)", "test_plots.py"),
