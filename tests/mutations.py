@@ -209,6 +209,10 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "rollout_never_resets": ("admissable_jax/rollout.py",
                              "return (jax.vmap(reset_where_done, (None, 0, 0))(env, states, reset_keys), total_reward), None",
                              "return (states, total_reward), None", "test_runs.py"),
+    "pool_explore_unchecked": ("admissable_jax/config.py", "if not 0 <= config.pool_explore <= 1:", "if False:",
+                               "test_training.py"),
+    "audit_episodes_unchecked": ("admissable_jax/audit/command.py", "if config.episodes < 2:", "if False:",
+                                 "test_audit.py"),
     # The statistics of the figures and FIGURE1.md.
     "interval_normal_not_t": ("admissable_jax/results.py", "stats.t.ppf(0.5 + confidence / 2, n - 1)",
                               "stats.norm.ppf(0.5 + confidence / 2)", "test_plots.py"),

@@ -388,6 +388,12 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
         (["policy=test_wrappers", "gym=ConstantFeatures-v0"], "policy must be MODULE:NAME"),
         (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "shapley=3"],
          "shapley must be 0 (none), exact, or at least 4 feature orders, got '3'"),
+        (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "k=a"],
+         "k must be a comma list of set sizes, e.g. 1,2; got 'a'"),
+        (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "episodes=1"],
+         "episodes must be at least 2 for a confidence interval"),
+        (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "top=0"], "top must be at least 1, got 0"),
+        (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "slots=-1"], "slots must be >= 0, got -1"),
         # checked on the env itself before anything is written (HalfCheetah's settotalmass
         # deprecation, Gymnasium's file, kept out of the output and the working directory)
         (["policy=test_wrappers:sum_of_visible", "gym=HalfCheetah-v5", "k=17"], "ks must be set sizes 1 <= k < d = 17"),

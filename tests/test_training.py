@@ -31,7 +31,7 @@ from admissable_jax import TrainConfig, candidate_sets, make_env, mask_observati
 from admissable_jax.branching import while_any
 from admissable_jax.checkpointing import CheckpointError, Checkpoints, OtherStateLayout
 from admissable_jax.envs import observation_names
-from admissable_jax.host_loop import TrainingDiverged
+from admissable_jax.host_loop import TrainingDiverged, TrainingLoop
 from admissable_jax.method import inverse_score_p_miss
 from admissable_jax.policies import load_policy
 from admissable_jax.run_directory import metrics_row
@@ -576,12 +576,30 @@ def test_a_checkpoint_of_an_older_state_layout_is_named_and_its_networks_still_r
                              "and one (|U|, d) matrix holds: score a pool of the worst sets a search finds with pool_size=P"),
         (["env=ant", "k=9", "pool_size=16"], "C(105, 9) = 3,005,047,770,725 candidate sets exceed the 2,147,483,647"),
         (["pool_ranker=guess"], "pool_ranker must be one of rollout, critic, horizon"),
+        (["pool_size=-1"], "pool_size must be >= 0 (0 = score all sets), got -1"),
+        (["env=hopper", "k=2", "pool_size=4", "include_empty_set=true"],
+         "pool_size > 0 searches sets of features: it excludes include_empty_set=true"),
+        (["env=hopper", "k=2", "pool_size=12"], "pool_size must be <= d = 11 and k <= d/2"),
+        (["pool_explore=2"], "pool_explore must be in [0, 1], got 2.0"),
+        (["score_horizon=0"], "score_horizon must be >= 1, got 0"),
+        (["score_episodes=0"], "score_episodes must be >= 1, got 0"),
+        (["time_limit=-5"], "time_limit must be >= 0 (0 = no limit), got -5.0"),
+        (["utd=0"], "utd must be > 0, got 0.0"),
+        (["epsilon=0"], "epsilon must be > 0, got 0.0"),
+        (["gamma=1.5"], "gamma must be in [0, 1] and tau in (0, 1]"),
+        (["learning_starts=100"], "learning_starts (100) must be >= batch_size (256)"),
+        (["episode_length=1001"], "episode_length must be <= 1000 (the v5 limit)"),
+        (["fast_forward=true"], "fast_forward=true continues a run from its records: pass resume=true too"),
     ],
 )
-def test_cli_rejects_bad_input_with_one_line(args, message, tmp_path, capsys):
+def test_cli_rejects_bad_input_with_one_line(args, message, tmp_path, capsys, monkeypatch):
     """In-process (``main``); tests/test_runs.py runs the real command line for a bad input."""
     from admissable_jax.train import main
 
+    def reached_compile(loop):  # a setting let through fails here, at once, not after a million env steps
+        raise AssertionError(f"{args} reached the compile")
+
+    monkeypatch.setattr(TrainingLoop, "compile", reached_compile)
     try:
         status = main([*args, f"out={tmp_path}/x", "progress=false"])
     except SystemExit as exit_info:  # parse_args exits; settings train_fn refuses return 2
