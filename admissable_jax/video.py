@@ -18,9 +18,11 @@ import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")  # read by MuJoCo when it is first imported
 
+import contextlib  # noqa: E402
 import dataclasses  # noqa: E402
 import sys  # noqa: E402
 import warnings  # noqa: E402
+from typing import Iterator  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -105,6 +107,15 @@ def _labelled(frame: np.ndarray, text: str) -> np.ndarray:
     return np.asarray(image)
 
 
+@contextlib.contextmanager
+def ffmpeg_forks_quietly() -> Iterator[None]:
+    """JAX's warning of any ``os.fork()`` silenced, and no other: imageio-ffmpeg forks only to
+    exec ffmpeg (the writer's first frame; a reader, with ``os.setpgrp``), which runs no JAX thread."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", r"os\.fork\(\) was called", RuntimeWarning)
+        yield
+
+
 def render_video(config: VideoConfig) -> Video:
     """Render ``config``'s video; see the module docstring."""
     import gymnasium
@@ -138,9 +149,7 @@ def render_video(config: VideoConfig) -> Video:
         returns, lengths, running, held = [0.0, 0.0], [0, 0], [True, True], 0
         fps = envs[0].metadata.get("render_fps", 30)
         titles = ["nothing hidden", f"hidden {describe_set(np.array(hidden))}: {', '.join(names) or 'nothing'}"]
-        with warnings.catch_warnings(), imageio.get_writer(out, fps=fps, codec="libx264", macro_block_size=16) as writer:
-            # JAX warns of any fork; the writer's first frame forks only to exec ffmpeg, which runs no JAX thread
-            warnings.filterwarnings("ignore", r"os\.fork\(\) was called", RuntimeWarning)
+        with ffmpeg_forks_quietly(), imageio.get_writer(out, fps=fps, codec="libx264", macro_block_size=16) as writer:
             for frame in range(config.frames):
                 panels = []
                 for side, env in enumerate(envs):

@@ -232,8 +232,7 @@ def test_video_of_the_trained_hopper_beside_its_worst_set(jax_run, tmp_path, cap
     # 20 frames: the start, one per step until this barely trained Hopper falls (both sides
     # within 19 steps), then the end held (for up to a second).
     assert made.frames == 20 and 0 < made.hidden_length <= 19 and 0 < made.clean_length <= 19
-    with warnings.catch_warnings():  # reading it forks ffmpeg (with os.setpgrp), which only execs, as writing does
-        warnings.filterwarnings("ignore", r"os\.fork\(\) was called", RuntimeWarning)
+    with video.ffmpeg_forks_quietly():  # reading it back forks ffmpeg too
         frames = iio.imread(made.path)
     assert frames.shape == (made.frames, video.LABEL_HEIGHT + video.PANEL_HEIGHT, 2 * video.PANEL_WIDTH, 3)
     # The same start on both sides: the first frame's panels match, up to H.264's loss (the
