@@ -164,9 +164,15 @@ def env_steps_axis(ax, label: str = "env steps") -> None:
     ax.xaxis.set_major_formatter(FuncFormatter(steps_text))
 
 
+FEW_COLUMNS = 10  # scorings a heatmap's x axis can label one by one
+
+
 def _heatmap(ax, figure, steps: np.ndarray, values: np.ndarray, names: list[str], label: str) -> None:
-    """Sets (rows, named) × scoring steps (columns, centred on their steps)."""
+    """Sets (rows, named) × scoring steps (columns, centred on their steps). A run of few
+    scorings has a tick at each column (a round 2k ... 6k read as a run longer than its 5k)."""
     image = ax.pcolormesh(_cell_edges(steps), np.arange(len(names) + 1) - 0.5, values.T, cmap="viridis", shading="flat")
+    if len(steps) <= FEW_COLUMNS:
+        ax.set_xticks(steps)
     figure.colorbar(image, ax=ax, label=label)
     # Every row named: a row is 0.12 inch high (plot_runs), room for a 6-point label.
     ax.set_yticks(np.arange(len(names)), names, fontsize=8 if len(names) <= 40 else 6)
@@ -344,7 +350,8 @@ def _final_scores_figure(env: str, names: list[str], group: list[list[Run]]):
     """Bars per hidden set (x) and curve (side by side, the mode's colour): the last record's
     a_u; with a pool only the features some pooled set hides; of a U of more than
     ``MOST_ROWS`` sets the ``LOWEST_BARS`` whose lowest a_u over the curves is lowest, lowest
-    first."""
+    first. A dashed line per curve at its clean return of that record: what hiding each set
+    costs."""
     finals = [final_scores(curve_runs) for curve_runs in group]
     means = np.stack([mean for _, mean, _, _ in finals])
     shown = np.flatnonzero(np.isfinite(means).any(axis=0))
@@ -365,6 +372,10 @@ def _final_scores_figure(env: str, names: list[str], group: list[list[Run]]):
                capsize=1.5 if len(names) <= 40 else 0, color=colors[run.mode, run.variant], alpha=0.75,
                hatch=("", "//", "..", "xx")[variants.index(run.variant) % 4],
                label=f"{run.curve} ({_seeds(len(curve_runs))}, {steps_text(steps)} env steps)")
+        _, clean = aligned(curve_runs, "clean_score")  # (seeds, records)
+        if np.isfinite(clean[:, -1]).all():
+            ax.axhline(clean[:, -1].mean(), color=colors[run.mode, run.variant], linestyle="--", linewidth=1,
+                       label=f"{run.curve}: clean return {clean[:, -1].mean():.1f} (nothing hidden)")
     ax.set_xticks(x, names, rotation=60, ha="right", fontsize=7 if len(names) <= 40 else 5)
     ax.set_xlim(-0.6, len(names) - 0.4)
     ax.set_ylabel("lowest $a_u$ of the pool's sets hiding it" if group[0][0].pooled else "$a_u$")

@@ -15,7 +15,7 @@ from admissable_jax.config import TrainConfig
 from admissable_jax.envs import observation_names
 from admissable_jax.method import candidate_sets
 from admissable_jax.plot import LOWEST_BARS, _cell_edges, _final_scores_figure, _heatmap, _seeds, curve_colors, \
-    draw_curves, effective_window, main, plot_envs_side_by_side, plot_runs
+    draw_curves, effective_window, env_steps_axis, main, plot_envs_side_by_side, plot_runs
 from admissable_jax.results import (
     Difference, final_scores, find_runs, format_comparison, load_run, mean_and_interval, mode_differences,
     moving_average, per_feature_of_sets, set_names, steps_text, summary_table,
@@ -294,6 +294,9 @@ def test_plots_say_what_they_show(tmp_path, capsys, monkeypatch):
         _heatmap(ax, figure, np.array([5000.0, 10000.0, 15000.0]), values, names, "a_u")
         assert [label.get_text() for label in ax.get_yticklabels()] == names
         assert ax.get_ylim() == (104.5, -0.5)
+        env_steps_axis(ax)  # few scorings: a tick on each column, none past the last
+        figure.canvas.draw()
+        assert [label.get_text() for label in ax.get_xticklabels()] == ["5k", "10k", "15k"]
         plt.close(figure)
     # Rows carry Gymnasium's observation names; one seed is "1 seed".
     assert runs[0].set_names[:3] == ["torso z", "torso angle", "thigh joint angle"]
@@ -319,6 +322,11 @@ def test_plots_say_what_they_show(tmp_path, capsys, monkeypatch):
         assert any(type(container).__name__ == "ErrorbarContainer" for container in ax.containers) == interval
         assert ("bars: 95% t-interval" in ax.get_title()) == interval
         assert ("one seed per curve: no interval" in ax.get_title()) == (not interval)
+        # The curve's clean return at that record, dashed: what hiding each set costs.
+        (clean,) = [line for line in ax.get_lines() if line.get_linestyle() == "--"]
+        clean_mean = np.mean([run.clean_score[-1] for run in group[0]])
+        np.testing.assert_allclose(clean.get_ydata(), [clean_mean] * 2)
+        assert clean.get_label() == f"{runs[0].curve}: clean return {clean_mean:.1f} (nothing hidden)"
         plt.close(figure)
     # So does the envs-side-by-side caption: a band is promised only where one is drawn.
     captions = []
