@@ -1,6 +1,6 @@
 """Break the method on purpose, one place at a time, and check that a test fails.
 
-    python tests/mutations.py                  # every mutation below (about 25 minutes on 2 cores, warm caches)
+    python tests/mutations.py                  # every mutation below (about an hour on 2 cores, warm caches)
     python tests/mutations.py tau_doubled ...  # these only
 
 A test earns its place by failing when the behaviour it names is broken. Each mutation below
@@ -224,6 +224,64 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "moving_average_window_plus_one": ("admissable_jax/results.py",
                                        "np.minimum(np.arange(1, values.shape[-1] + 1), window)",
                                        "np.minimum(np.arange(1, values.shape[-1] + 1), window + 1)", "test_plots.py"),
+    # Modules no mutation had touched before: u's draws, the replay ring, fingerprints, the memory
+    # budget, the run lock, load_policy, the audit's statistics, placement, branching, loggers,
+    # the estimators' dispatch, more v5 env constants, exit statuses, an experiment's resume.
+    "distinct_sets_repeat": ("admissable_jax/missingness.py",
+                             "jnp.where(jnp.any(chosen == candidate), last, candidate)", "candidate", "test_missingness.py"),
+    "distinct_sets_never_draw_the_last": ("admissable_jax/missingness.py",
+                                          "jax.random.randint(keys[i], (), 0, last + 1, jnp.int32)",
+                                          "jax.random.randint(keys[i], (), 0, last, jnp.int32)", "test_missingness.py"),
+    "replay_never_wraps": ("admissable_jax/replay.py", "position=(buffer.position + n) % capacity,",
+                           "position=jnp.minimum(buffer.position + n, capacity - n),", "test_agent.py"),
+    "fingerprint_blind_to_order": ("admissable_jax/fingerprints.py",
+                                   "jnp.sum(words * (position * jnp.uint32(2) + jnp.uint32(1)) * jnp.uint32(_GOLDEN)",
+                                   "jnp.sum(words * jnp.uint32(_GOLDEN)", "test_training.py"),
+    "memory_budget_without_the_state": ("admissable_jax/memory.py",
+                                        "return self.devices_sharing * (self.state_bytes + max(",
+                                        "return self.devices_sharing * (0 + max(", "test_experiment.py"),
+    "memory_state_not_split_over_devices": ("admissable_jax/memory.py", "MemoryBudget(total_state_bytes // num_devices,",
+                                            "MemoryBudget(total_state_bytes,", "test_experiment.py"),
+    "lock_of_another_host_taken_over": ("admissable_jax/locks.py",
+                                        'if holder.get("host") != this_host:\n        return True',
+                                        'if holder.get("host") != this_host:\n        return False', "test_runs.py"),
+    "load_policy_takes_the_first_pair": ("admissable_jax/policies.py", "pick = lambda tree: take_pair(tree, index)",
+                                         "pick = lambda tree: take_pair(tree, 0)", "test_experiment.py"),
+    "gap_never_paired": ("admissable_jax/scoring/worst_set.py", "    if paired:\n        return gap, t_half_width(high - low)",
+                         "    if False:\n        return gap, t_half_width(high - low)", "test_audit.py"),
+    "episodes_to_separate_one_sided": ("admissable_jax/scoring/worst_set.py",
+                                       "return (stats.t.ppf(0.975, freedom) + stats.t.ppf(0.8, freedom)) ** 2 * ratio",
+                                       "return (stats.t.ppf(0.95, freedom) + stats.t.ppf(0.8, freedom)) ** 2 * ratio",
+                                       "test_audit.py"),
+    "audit_interval_normal_not_t": ("admissable_jax/scoring/worst_set.py",
+                                    "width = stats.t.ppf(0.975, n - 1) * samples.std(axis=axis, ddof=1)",
+                                    "width = 1.96 * samples.std(axis=axis, ddof=1)", "test_audit.py"),
+    "padding_copies_the_first_pair": ("admissable_jax/placement.py",
+                                      "np.repeat(values[-1:], self.padded_pairs - self.num_pairs, axis=0)",
+                                      "np.repeat(values[:1], self.padded_pairs - self.num_pairs, axis=0)",
+                                      "test_sharding.py"),
+    "lazy_cond_takes_the_branch_for_all": ("admissable_jax/branching.py",
+                                           "jnp.where(per_member(t), t, s), taken, skipped)",
+                                           "t, taken, skipped)", "test_training.py"),
+    "while_any_stops_with_the_first": ("admissable_jax/branching.py",
+                                       "lambda carry, *operands: jnp.any(cond_each(carry, *operands))",
+                                       "lambda carry, *operands: jnp.all(cond_each(carry, *operands))",
+                                       "test_training.py"),
+    "loggers_lose_the_env_step": ("admissable_jax/loggers.py", "return FlatRow(int(row[\"env_steps\"]), scalars, p_miss)",
+                                  "return FlatRow(0, scalars, p_miss)", "test_runs.py"),
+    "critic_estimate_rolls_out_h_steps": ("admissable_jax/scoring/estimators.py",
+                                          'horizon = score_horizon if score_estimator == "horizon" else 0',
+                                          "horizon = score_horizon", "test_audit.py"),
+    "walker_qvel_clip_wider": ("admissable_jax/envs/planar_walkers.py", "_QVEL_CLIP = 10.0", "_QVEL_CLIP = 20.0",
+                               "test_envs.py"),
+    "halfcheetah_ctrl_cost_halved": ("admissable_jax/envs/half_cheetah.py", "_CTRL_COST_WEIGHT = 0.1",
+                                     "_CTRL_COST_WEIGHT = 0.05", "test_envs.py"),
+    "ant_healthy_z_strict": ("admissable_jax/envs/ant.py", "(low <= qpos[2]) & (qpos[2] <= high)",
+                             "(low < qpos[2]) & (qpos[2] < high)", "test_envs.py"),
+    "bad_settings_exit_1": ("admissable_jax/cli.py", "            return None, USAGE_ERROR\n",
+                            "            return None, 1\n", "test_runs.py"),
+    "experiment_resumes_other_pairs": ("admissable_jax/experiment.py", "    if saved != names(pairs):\n",
+                                       "    if False:\n", "test_experiment.py"),
 }
 
 

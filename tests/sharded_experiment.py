@@ -70,6 +70,7 @@ def main(out: str) -> None:
         "shard_map_operand_sizes": [var.aval.size for var in [*shard_map.invars, *shard_map.outvars]],
         "spread_out": {name: [list(leaf.shape), np.asarray(leaf).ravel().tolist()] for name, leaf in spread_out.items()},
         "refilled": np.asarray(placement.refill_padding(restored_padding)).ravel().tolist(),
+        "placed": np.asarray(placement.place(np.array([5.0, 6.0, 7.0]))).tolist(),  # padded as a restore refills
         "restored_pairs": [f"{r.config.missingness}-s{r.config.seed}" for r in restored],
         # Each pair's final state as the experiment returns it: on its own device alone.
         "result_devices": [sorted({device.id for leaf in jax.tree.leaves(r.state) for device in leaf.devices()})

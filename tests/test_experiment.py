@@ -5,8 +5,10 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import types
 
 import jax
+import jax.numpy as jnp
 import nbformat
 import numpy as np
 import pytest
@@ -189,6 +191,21 @@ def test_experiment_refuses_what_does_not_fit_before_allocating(tmp_path, monkey
                                            budget_only=True)) == []
     assert sorted(os.listdir(tmp_path / "kept")) == ["adversarial-s0", "checkpoints", "experiment.yaml"]
     assert (tmp_path / "kept" / "adversarial-s0" / "notes.txt").read_text() == "mine"
+
+    # The count itself: the state (each of 2 devices holds half) stays live beside the larger
+    # of the two programs' temporaries, which run one after the other.
+    class Compiled:
+        def __init__(self, temp_bytes):
+            self.temp_bytes = temp_bytes
+
+        def memory_analysis(self):
+            return types.SimpleNamespace(temp_size_in_bytes=self.temp_bytes)
+
+    state = {"buffer": jax.ShapeDtypeStruct((1000,), jnp.float32), "steps": jax.ShapeDtypeStruct((4,), jnp.int32)}
+    budget = memory.memory_budget(state, Compiled(300), Compiled(500), num_devices=2)
+    assert (budget.state_bytes, budget.chunk_temp_bytes, budget.score_temp_bytes) == (2008, 300, 500)
+    assert budget.devices_sharing == min(2, jax.local_device_count())  # CPU devices share the host's memory
+    assert budget.needed_bytes == budget.devices_sharing * 2508
 
 
 @pytest.mark.parametrize(

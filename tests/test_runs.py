@@ -28,7 +28,7 @@ from admissable_jax.checkpointing import CheckpointError
 from admissable_jax.cli import run_from_cli, ticking
 from admissable_jax.errors import INTERRUPTED
 from admissable_jax.host_loop import TrainingLoop, interval_pieces
-from admissable_jax.locks import LOCK_NAME, RunDirectoryLocked
+from admissable_jax.locks import LOCK_NAME, RunDirectoryLocked, RunLock
 from admissable_jax.memory import MemoryBudgetExceeded
 
 RUN = TrainConfig(
@@ -69,6 +69,12 @@ def test_a_run_directory_has_one_owner_and_a_stale_lock_is_taken_over(tmp_path, 
     finally:
         owner.kill()
         owner.wait()
+    # A lock from another host is never taken over (its owner cannot be asked from here),
+    # though this host has no such process.
+    (out / LOCK_NAME).write_text(json.dumps({"pid": owner.pid, "host": "another-host"}))
+    with pytest.raises(RunDirectoryLocked, match=f"in use by process {owner.pid} on another-host"):
+        RunLock(str(out)).acquire()
+    (out / LOCK_NAME).write_text(json.dumps({"pid": owner.pid, "host": os.uname().nodename}))
     # The owner is gone: its lock is stale, and the next run takes it over and gives it back.
     # (On a disk with 1 kB free, where its checkpoints cannot fit: it says so, and still runs.)
     monkeypatch.setattr(shutil, "disk_usage", lambda path: collections.namedtuple("usage", "total used free")(2, 1, 1000))

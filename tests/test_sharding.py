@@ -99,6 +99,7 @@ def test_pairs_over_devices_and_processes(tmp_path):
     assert "2 copy(ies) of the last pair pad the batch" in report["stderr"]
     assert report["resumed_steps"] == [[1000, 2000, 3000]] * 4 and report["resumed_finite"]
     assert report["refilled"] == [0.0, 1.0, 2.0, 2.0]
+    assert report["placed"] == [5.0, 6.0, 7.0, 7.0]  # a fresh batch is padded with the last pair too
     # The empty leaf went around the shard_map (in and out), and came back in its place.
     assert report["shard_map_operand_sizes"] == [4, 4]
     assert report["spread_out"] == {"pool": [[4, 0], []], "doubled": [[4], [0.0, 2.0, 4.0, 6.0]]}
