@@ -124,6 +124,17 @@ def test_layers_start_as_pytorch_linear():
             np.testing.assert_allclose(np.std(array), bound / np.sqrt(3), rtol=0.15 if array.ndim == 1 else 0.02)
 
 
+def test_actor_log_std_is_clamped_as_sb3_clamps_it():
+    """log σ within [-20, 2] (SB3's LOG_STD_MIN, LOG_STD_MAX), however far the layer pushes it."""
+    agent = SAC(6, -jnp.ones(2), jnp.ones(2), SACHyperparams(hidden_sizes=(8, 8)))
+    params = agent.init(jax.random.key(0)).actor_params
+    for push, clamped in ((100.0, 2.0), (-100.0, -20.0)):
+        pushed = jax.tree.map(lambda x: x, params)
+        pushed["params"]["Dense_3"]["bias"] = jnp.full(2, push)  # the log-σ head, after the mean's
+        _, log_std = agent.actor.apply(pushed, jnp.ones((3, 6)))
+        np.testing.assert_array_equal(log_std, clamped)
+
+
 def test_replay_buffer_wraps_around_and_samples_only_filled_rows():
     assert replay.buffer_capacity(1001, 8) == 1000 and replay.buffer_capacity(5, 8) == 8
     buffer = replay.init_buffer(6, obs_size=1, action_size=1)

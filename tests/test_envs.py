@@ -12,6 +12,7 @@ import dataclasses
 import functools
 import math
 import os
+import types
 
 import gymnasium
 import jax
@@ -20,7 +21,7 @@ import numpy as np
 import pytest
 
 from admissable_jax import make_env
-from admissable_jax.envs import MAX_EPISODE_STEPS, EnvOptions, contact_frames, settotalmass_warning_dropped
+from admissable_jax.envs import MAX_EPISODE_STEPS, EnvOptions, EnvState, contact_frames, settotalmass_warning_dropped
 from admissable_jax.envs.parity import gymnasium_transitions, step_from_state
 from admissable_jax.envs.physics import in_one_flat_batch
 
@@ -209,6 +210,24 @@ def test_health_rules_match_gymnasium_at_their_boundaries(name):
     gym_env.close()
     assert ours == theirs
     assert any(ours) and not all(ours)
+
+
+def test_a_fallen_hopper_terminates_unless_told_not_to(monkeypatch):
+    """Gymnasium's ``terminate_when_unhealthy=False`` (the benchmarks' full-length rounds): a
+    fallen Hopper steps on, without the survive bonus; by default it terminates. The rule
+    alone, eagerly: the physics is held still (its parity is the tests' above)."""
+    fallen = np.array(make_env("hopper").init_qpos, np.float32)
+    fallen[1] = 0.5  # z below 0.7
+    for terminates in (True, False):
+        env = make_env("hopper", physics="jax", terminate_when_unhealthy=terminates)
+        monkeypatch.setattr(env.physics, "step", lambda data, action: data)
+        data = types.SimpleNamespace(qpos=jnp.asarray(fallen), qvel=jnp.zeros(env.mj_model.nv))
+        zero = jnp.zeros(())
+        state = EnvState(data=data, obs=env._observation(data), reward=zero, terminated=jnp.zeros((), bool),
+                         truncated=jnp.zeros((), bool), step_count=jnp.zeros((), jnp.int32),
+                         metrics={}, episode_metrics={key: zero for key in (*env.reward_terms, "return")})
+        stepped = env.step(state, jnp.zeros(env.action_size))
+        assert bool(stepped.terminated) == terminates and float(stepped.metrics["reward_survive"]) == 0.0
 
 
 def _assert_unbatched_step_matches_batched(env, gym, batched, step_counts):

@@ -64,6 +64,11 @@ def test_masked_observation_and_its_space():
     assert info["hidden"] == [1] and env.observation_space.shape == (6,)
     np.testing.assert_array_equal(env.observation_space.low, [-10, -10, -10, 0, 0, 0])
     check_env(env, skip_render_check=True)
+    # Features bounded away from 0 still read 0 when hidden: the space widens to hold it.
+    positive = type("PositiveFeatures", (ConstantFeatures,),
+                    {"observation_space": gymnasium.spaces.Box(0.5, 4.0, (3,), np.float32)})()
+    masked = MissingnessObservation(positive, hidden=[1])
+    assert masked.observation_space.contains(masked.reset(seed=0)[0])
     hopper = MissingnessObservation(gymnasium.make("Hopper-v5"), hidden=[0, 5])
     check_env(hopper, skip_render_check=True)
     assert hopper.observation_space.shape == (22,) and hopper.reset(seed=1)[0][[0, 5, 11, 16]].tolist() == [0, 0, 1, 1]
