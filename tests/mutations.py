@@ -313,6 +313,33 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "summary_worst_u_is_the_best": ("admissable_jax/results.py",
                                     "worst_sets = [names[i] for i in np.argmin(scores, axis=1)]",
                                     "worst_sets = [names[i] for i in np.argmax(scores, axis=1)]", "test_plots.py"),
+    # The audit's Shapley values, the figures' adversarial − uniform, a sweep's pairs, the run's
+    # summary and provenance, the spec's episode length and batch size.
+    "shapley_orders_not_antithetic": ("admissable_jax/scoring/attribution.py",
+                                      "order_table = np.stack([first, first[:, ::-1]], axis=1)",
+                                      "order_table = np.stack([first, first], axis=1)", "test_audit.py"),
+    "shapley_gains_by_position": ("admissable_jax/scoring/attribution.py",
+                                  "contributions[np.arange(len(plan.orders))[:, None], plan.orders] = gains",
+                                  "contributions[:] = gains", "test_audit.py"),
+    "leave_one_out_reversed": ("admissable_jax/scoring/attribution.py",
+                               "leave_one_out=(full.mean() - alone.mean(axis=1)).tolist()",
+                               "leave_one_out=(alone.mean(axis=1) - full.mean()).tolist()", "test_audit.py"),
+    "mode_differences_reversed": ("admissable_jax/results.py", "Difference(name, values[:n], values[n:])",
+                                  "Difference(name, values[n:], values[:n])", "test_plots.py"),
+    "sweep_trains_uniform_per_l": ("admissable_jax/config.py",
+                                   'for bound in (swept if swept and mode == "adversarial" else [shared["lower_bound"]])]',
+                                   'for bound in (swept if swept else [shared["lower_bound"]])]', "test_experiment.py"),
+    "summary_clean_is_min_score": ("admissable_jax/train.py", "clean {last['clean_score']:.1f}; run in",
+                                   "clean {last['min_score']:.1f}; run in", "test_experiment.py"),
+    "provenance_never_marks_changes": ("admissable_jax/provenance.py",
+                                       'return commit + ("+changes" if changed else "")', "return commit",
+                                       "test_runs.py"),
+    "run_spec_full_length_episodes": ("admissable_jax/run_spec.py", "episode_length=config.episode_length,",
+                                      "episode_length=1000,", "test_training.py"),
+    "max_batch_without_the_scoring_envs": ("admissable_jax/run_spec.py",
+                                           "max(config.num_envs, config.score_envs, horizon_ranker_batch(config))",
+                                           "max(config.num_envs, horizon_ranker_batch(config))",
+                                           "test_hopper_pipelines.py"),
 }
 
 

@@ -264,6 +264,11 @@ def test_one_program_sweeps_the_lower_bound_and_each_value_meets_the_one_uniform
     assert results[0].metrics[-1]["runs_in_program"] == 3
     assert [result.summary().split(" seed ")[0] for result in results] == [
         "done: point_mass adversarial", "done: point_mass adversarial (l = 15)", "done: point_mass uniform"]
+    last = results[2].scores[-1]  # the whole line, as a run ends with it
+    assert f"{last['clean_score']:.1f}" != f"{last['min_score']:.1f}"  # the line tells them apart
+    assert results[2].summary() == (
+        f"done: point_mass uniform seed 0, 2000 env steps, min_u a_u {last['min_score']:.1f} (u = {last['argmin_set']}), "
+        f"clean {last['clean_score']:.1f}; run in {results[2].run_dir}")
     for result in results[:2]:
         for row in result.scores:
             np.testing.assert_allclose(row["p_miss"], inverse_score_p_miss(

@@ -90,6 +90,30 @@ def test_a_run_directory_has_one_owner_and_a_stale_lock_is_taken_over(tmp_path, 
                      r"done in \d+\.\d s", said)
 
 
+def test_a_runs_commit_is_marked_where_its_source_differs(tmp_path):
+    """invocations.jsonl's ``commit``: the checkout's, ``+changes`` where a tracked file
+    differs from it (not an excluded path, as the benchmarks exclude their own results)."""
+    import importlib.util
+
+    package = tmp_path / "checkout" / "package"
+    package.mkdir(parents=True)
+    shutil.copy(os.path.join(os.path.dirname(host_loop.__file__), "provenance.py"), package / "provenance.py")
+    (tmp_path / "checkout" / "results.txt").write_text("1")
+    git = lambda *args: subprocess.run(["git", "-c", "user.name=t", "-c", "user.email=t@t", *args], check=True,
+                                       cwd=tmp_path / "checkout", capture_output=True, text=True).stdout.strip()
+    git("init", "-q")
+    git("add", "-A")
+    git("commit", "-qm", "start")
+    spec = importlib.util.spec_from_file_location("provenance_copy", package / "provenance.py")
+    provenance = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(provenance)
+    commit = git("rev-parse", "--short", "HEAD")
+    assert provenance.source_commit() == commit
+    (tmp_path / "checkout" / "results.txt").write_text("2")
+    assert provenance.source_commit() == f"{commit}+changes"
+    assert provenance.source_commit(exclude=("results.txt",)) == commit
+
+
 @pytest.mark.parametrize("out, message, subprocess_run", [("/proc/x", "cannot create the run directory /proc/x", True),
                                                           ("/dev/null/x", "cannot create the run directory /dev/null/x", False)])
 def test_unwritable_out_is_one_line(out, message, subprocess_run):
