@@ -372,10 +372,10 @@ def _final_scores_figure(env: str, names: list[str], group: list[list[Run]]):
                capsize=1.5 if len(names) <= 40 else 0, color=colors[run.mode, run.variant], alpha=0.75,
                hatch=("", "//", "..", "xx")[variants.index(run.variant) % 4],
                label=f"{run.curve} ({_seeds(len(curve_runs))}, {steps_text(steps)} env steps)")
-        _, clean = aligned(curve_runs, "clean_score")  # (seeds, records)
-        if np.isfinite(clean[:, -1]).all():
-            ax.axhline(clean[:, -1].mean(), color=colors[run.mode, run.variant], linestyle="--", linewidth=1,
-                       label=f"{run.curve}: clean return {clean[:, -1].mean():.1f} (nothing hidden)")
+        clean = aligned(curve_runs, "clean_score")[1][:, -1]  # each seed's, at the bars' record
+        if np.isfinite(clean).all():
+            ax.axhline(clean.mean(), color=colors[run.mode, run.variant], linestyle="--", linewidth=1,
+                       label=f"{run.curve}: clean return {clean.mean():.1f} (nothing hidden)")
     ax.set_xticks(x, names, rotation=60, ha="right", fontsize=7 if len(names) <= 40 else 5)
     ax.set_xlim(-0.6, len(names) - 0.4)
     ax.set_ylabel("lowest $a_u$ of the pool's sets hiding it" if group[0][0].pooled else "$a_u$")

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from admissable_jax import make_env
-from admissable_jax.envs import MAX_EPISODE_STEPS, EnvOptions, EnvState, contact_frames, settotalmass_warning_dropped
+from admissable_jax.envs import MAX_EPISODE_STEPS, EnvOptions, contact_frames, settotalmass_warning_dropped
 from admissable_jax.envs.parity import gymnasium_transitions, step_from_state
 from admissable_jax.envs.physics import in_one_flat_batch
 
@@ -220,12 +220,9 @@ def test_a_fallen_hopper_terminates_unless_told_not_to(monkeypatch):
     fallen[1] = 0.5  # z below 0.7
     for terminates in (True, False):
         env = make_env("hopper", physics="jax", terminate_when_unhealthy=terminates)
+        monkeypatch.setattr(env.physics, "data", lambda qpos, qvel: types.SimpleNamespace(qpos=qpos, qvel=qvel))
         monkeypatch.setattr(env.physics, "step", lambda data, action: data)
-        data = types.SimpleNamespace(qpos=jnp.asarray(fallen), qvel=jnp.zeros(env.mj_model.nv))
-        zero = jnp.zeros(())
-        state = EnvState(data=data, obs=env._observation(data), reward=zero, terminated=jnp.zeros((), bool),
-                         truncated=jnp.zeros((), bool), step_count=jnp.zeros((), jnp.int32),
-                         metrics={}, episode_metrics={key: zero for key in (*env.reward_terms, "return")})
+        state = env.state_from_qpos_qvel(fallen, np.zeros(env.mj_model.nv, np.float32))
         stepped = env.step(state, jnp.zeros(env.action_size))
         assert bool(stepped.terminated) == terminates and float(stepped.metrics["reward_survive"]) == 0.0
 

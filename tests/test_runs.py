@@ -95,9 +95,11 @@ def test_a_runs_commit_is_marked_where_its_source_differs(tmp_path):
     differs from it (not an excluded path, as the benchmarks exclude their own results)."""
     import importlib.util
 
+    from admissable_jax import provenance as installed
+
     package = tmp_path / "checkout" / "package"
     package.mkdir(parents=True)
-    shutil.copy(os.path.join(os.path.dirname(host_loop.__file__), "provenance.py"), package / "provenance.py")
+    shutil.copy(installed.__file__, package / "provenance.py")
     (tmp_path / "checkout" / "results.txt").write_text("1")
     git = lambda *args: subprocess.run(["git", "-c", "user.name=t", "-c", "user.email=t@t", *args], check=True,
                                        cwd=tmp_path / "checkout", capture_output=True, text=True).stdout.strip()
