@@ -11,9 +11,12 @@ not pass 64 MiB (67.1 MB). With the 5.0 MB tree of 2026-12-03 the second call wo
 So this runs ``pack.sh`` (keeping ``.dev/kernels``, which ``pack.sh`` deletes with the rest
 of ``.dev``), repacks warp-lang without its test suite (never imported at run time) at
 ``xz -9e`` (79.4 MB instead of 84.2), and splits it anew: warp-lang's first part fills the
-first call (``.dev/a`` with ``.dev/kernels``, as ``gpu_campaign.sh`` carries them) up to the
-limit less the tree and ``margin_mb`` (every size as a tar archive of the files would take
-it: :func:`archived_bytes`), and the rest goes in ``.dev/b``. ``pack.sh``'s own
+first call (``.dev/a``) up to the limit less the tree and ``margin_mb`` (every size as a tar
+archive of the files would take it: :func:`archived_bytes`), and the rest goes in ``.dev/b``,
+which the second call carries with ``.dev/kernels``. The kernels go second because the second
+call starts the campaign's worker, which unpacks them: a device call's carried folders do not
+stay for the next call (the H200 lease of 2026-12-04 carried them first, and its worker found
+none). ``pack.sh``'s own
 ``stage.sh`` and ``finish.sh`` join the two parts as before. When the two calls cannot hold
 it all, it says by how much in one line and exits 2, before any device time is spent.
 
@@ -37,7 +40,7 @@ import tempfile
 
 TRANSFER_LIMIT = 64 * 2**20  # bytes one device call may carry: the working tree and its carried folders
 FIRST_PART, REST = "a/warp.part0", "b/warp.part1"  # pack.sh's names, which its stage.sh and finish.sh join
-KERNELS = "kernels"  # benchmarks/warp_kernels.py's archive, carried with .dev/a
+KERNELS = "kernels"  # benchmarks/warp_kernels.py's archive, carried with .dev/b by the call that starts the worker
 UNUSED_AT_RUN_TIME = ("warp/tests",)
 BLOCK, ARCHIVE_END = 512, 10240  # tar's block, and the most its end takes
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -95,8 +98,8 @@ def tree_bytes(repo: str = REPO) -> int:
 class Payload:
     """What the first two device calls carry besides the tree, as archived bytes."""
 
-    first_call_fixed: int  # .dev/a without warp-lang's first part, and .dev/kernels
-    second_call_fixed: int  # .dev/b without warp-lang's rest
+    first_call_fixed: int  # .dev/a without warp-lang's first part
+    second_call_fixed: int  # .dev/b without warp-lang's rest, and .dev/kernels
     warp: int  # warp-lang's archive, both parts (plain bytes)
 
 
@@ -165,9 +168,9 @@ def repack(dev: str, tree: int, margin: int) -> dict:
         part_entry = lambda part, size: entry_bytes(os.path.relpath(os.path.join(dev, part), root), size)
         packed_entry = lambda part: part_entry(part, os.path.getsize(os.path.join(dev, part)))
         payload = Payload(
-            first_call_fixed=folder_bytes(os.path.join(dev, "a"), root) - packed_entry(FIRST_PART)
+            first_call_fixed=folder_bytes(os.path.join(dev, "a"), root) - packed_entry(FIRST_PART),
+            second_call_fixed=folder_bytes(os.path.join(dev, "b"), root) - packed_entry(REST)
             + folder_bytes(os.path.join(dev, KERNELS), root),
-            second_call_fixed=folder_bytes(os.path.join(dev, "b"), root) - packed_entry(REST),
             warp=os.path.getsize(archive),
         )
         first = split_point(payload, tree, margin)
@@ -216,8 +219,8 @@ def main(argv: list[str]) -> None:
         json.dump(record, file, indent=1)
         file.write("\n")
     kernels = "" if os.path.isdir(os.path.join(dev, KERNELS)) else " (no .dev/kernels: run benchmarks/warp_kernels.py, then this with pack=false)"
-    print(f"first call (.dev/a, .dev/kernels and the tree) {record['first_call'] / 1e6:.2f} MB{kernels}, second "
-          f"(.dev/b and the tree) {record['second_call'] / 1e6:.2f} MB, of {TRANSFER_LIMIT / 1e6:.2f} MB each; "
+    print(f"first call (.dev/a and the tree) {record['first_call'] / 1e6:.2f} MB, second "
+          f"(.dev/b, .dev/kernels and the tree) {record['second_call'] / 1e6:.2f} MB{kernels}, of {TRANSFER_LIMIT / 1e6:.2f} MB each; "
           f"the tree is {record['tree'] / 1e6:.2f} MB and may grow to {record['room_for_tree'] / 1e6:.2f} MB; "
           f"record {os.path.relpath(RECORD, REPO)}")
 

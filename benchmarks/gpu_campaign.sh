@@ -36,8 +36,8 @@
 # run's first chunk; the packs report how many) and `python benchmarks/device_pack.py` (runs
 # ../shared/device/pack.sh, then splits its packages so that each call below fits one transfer
 # with the working tree; it refuses, before any device time is spent, where they cannot):
-#   run(command="bash .dev/a/stage.sh", carry=[".dev/a", ".dev/kernels"])
-#   run(command="bash .dev/b/finish.sh && CAMPAIGN_DEADLINE=<device s left> bash benchmarks/gpu_campaign.sh speed", carry=[".dev/b"])
+#   run(command="bash .dev/a/stage.sh", carry=[".dev/a"])
+#   run(command="bash .dev/b/finish.sh && CAMPAIGN_DEADLINE=<device s left> bash benchmarks/gpu_campaign.sh speed", carry=[".dev/b", ".dev/kernels"])
 #   run(command="bash benchmarks/gpu_campaign.sh speed")  # while it exits 75
 # Run directories live in runs/campaign/ (ignored; kept while the machine stays warm).
 # Step 5 runs here, on the CPU, from the tarballs that came back: unpack each into
@@ -91,8 +91,9 @@ kernels=$dir/warp_cache  # a Warp kernel cache: MuJoCo Warp's CUDA modules, preb
 
 install() {  # the packages ../shared/device/pack.sh packs, into /tmp/site (device machines only)
   export PYTHONPATH=/tmp/site:$PYTHONPATH
-  # The CUDA modules benchmarks/warp_kernels.py built on the CPU, if the first call carried
-  # them: Warp loads them instead of compiling them in the run's first chunk.
+  # The CUDA modules benchmarks/warp_kernels.py built on the CPU, if this call carried them
+  # (a call's carried folders do not stay for the next: the call that starts the worker
+  # carries them): Warp loads them instead of compiling them in the run's first chunk.
   local archive=.dev/kernels/warp-kernels.tar.xz
   if [ ! -e "$kernels/.unpacked" ] && [ -f "$archive" ]; then
     tar -xmJf "$archive" -C "$dir" && touch "$kernels/.unpacked"  # -m: their times, this clock's
@@ -104,7 +105,7 @@ install() {  # the packages ../shared/device/pack.sh packs, into /tmp/site (devi
   [ -f .dev/b/finish.sh ] && bash .dev/b/finish.sh
   $py -c "$check" 2>/dev/null && return 0
   echo "packages missing: run 'python benchmarks/device_pack.py' here, then the two calls this script's header names" \
-       "(.dev/a/stage.sh carrying .dev/a, then .dev/b/finish.sh && this script, carrying .dev/b)" >&2
+       "(.dev/a/stage.sh carrying .dev/a, then .dev/b/finish.sh && this script, carrying .dev/b and .dev/kernels)" >&2
   exit 4
 }
 
@@ -249,7 +250,7 @@ pack() {  # what exists so far, for the trip back: jsonl, yaml, the runs' featur
 }
 
 kernel_report() {  # how many Warp modules came prebuilt and how many this machine compiled
-  [ -e "$kernels/.unpacked" ] || { echo "Warp kernel cache: none prebuilt (no .dev/kernels carried)"; return 0; }
+  [ -e "$kernels/.unpacked" ] || { echo "Warp kernel cache: none prebuilt (no .dev/kernels carried by the call that started the worker)"; return 0; }
   echo "Warp kernel cache: $(find "$kernels" -name '*.cubin' ! -newer "$kernels/.unpacked" | wc -l) modules prebuilt," \
        "$(find "$kernels" \( -name '*.cubin' -o -name '*.ptx' \) -newer "$kernels/.unpacked" | wc -l) compiled on this machine"
 }

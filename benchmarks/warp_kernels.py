@@ -17,7 +17,9 @@ device's driver, CUDA 13.0, is older than Warp's NVRTC, so Warp loads CUBIN ther
 the binaries and their metadata as ``warp_cache/<warp version>/...``, a Warp kernel cache,
 into ``out``. H100 and H200 are both sm_90.
 
-The first device call carries it (``carry=[".dev/a", ".dev/kernels"]``); ``gpu_campaign.sh``
+The second device call, which starts the campaign's worker, carries it (``carry=[".dev/b",
+".dev/kernels"]``: a call's carried folders do not stay for the next call, so on the H200
+lease of 2026-12-04, when the first call carried it, the worker found none); ``gpu_campaign.sh``
 unpacks it into ``runs/campaign/warp_cache`` and points Warp there (``WARP_CACHE_PATH``). A
 module missing from it is compiled on the device as before, and each call's pack says how
 many modules came prebuilt and how many were compiled on the machine.

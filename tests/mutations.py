@@ -340,6 +340,18 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                            "max(config.num_envs, config.score_envs, horizon_ranker_batch(config))",
                                            "max(config.num_envs, horizon_ranker_batch(config))",
                                            "test_hopper_pipelines.py"),
+    "kernels_counted_in_the_first_call": ("benchmarks/device_pack.py",
+                                          'packed_entry(FIRST_PART),\n'
+                                          '            second_call_fixed=folder_bytes(os.path.join(dev, "b"), root) - packed_entry(REST)\n'
+                                          '            + folder_bytes(os.path.join(dev, KERNELS), root),',
+                                          'packed_entry(FIRST_PART)\n'
+                                          '            + folder_bytes(os.path.join(dev, KERNELS), root),\n'
+                                          '            second_call_fixed=folder_bytes(os.path.join(dev, "b"), root) - packed_entry(REST),',
+                                          "test_device_pack.py"),
+    "compacted_palette_of_16_colours": ("benchmarks/compact_pngs.py", "PALETTE_COLOURS = 256", "PALETTE_COLOURS = 16",
+                                        "test_device_pack.py"),
+    "compacting_rewrites_palette_pngs": ("benchmarks/compact_pngs.py", 'if image.mode == "P":', "if False:",
+                                         "test_device_pack.py"),
 }
 
 

@@ -51,19 +51,22 @@ def test_packs_are_slimmed_and_split_so_that_each_call_fits_with_the_tree(tmp_pa
     os.makedirs(dev / "kernels")
     (dev / "kernels" / "warp-kernels.tar.xz").write_bytes(os.urandom(100_000))
     margin, tree = 10_000, 300_000
-    second_call = lambda: tree + device_pack.folder_bytes(dev / "b", tmp_path) + device_pack.ARCHIVE_END
+    second_call = lambda: (tree + device_pack.folder_bytes(dev / "b", tmp_path)
+                           + device_pack.folder_bytes(dev / "kernels", tmp_path) + device_pack.ARCHIVE_END)
     assert second_call() > 1 * MB  # as pack.sh split it, the second call would be over
 
     record = device_pack.repack(str(dev), tree, margin)
     # warp-lang as finish.sh unpacks it: all of it but the test suite, never imported at run time.
     assert _joined(dev) == {"./warp/bin/warp.so": warp_so, "./warp/__init__.py": b""}
-    # The first call (.dev/a and .dev/kernels) is filled to within a block of the limit less the
-    # margin; the rest goes second. Each counts as a tar archive of its files would take.
+    # The first call (.dev/a) is filled to within a block of the limit less the margin; the rest
+    # goes second, with the kernels: the call that starts the worker carries them, since a
+    # call's carried folders do not stay for the next. Each counts as a tar archive would take.
     assert 1 * MB - margin - 512 < record["first_call"] <= 1 * MB - margin
     assert record["second_call"] == second_call() <= 1 * MB - margin
-    archived = subprocess.run(f"tar -C {tmp_path} -cf - .dev/a .dev/kernels | wc -c", shell=True, capture_output=True,
-                              check=True).stdout
-    assert record["first_call"] - device_pack.ARCHIVE_END < tree + int(archived) <= record["first_call"]
+    for call, carried in (("first_call", ".dev/a"), ("second_call", ".dev/b .dev/kernels")):
+        archived = subprocess.run(f"tar -C {tmp_path} -cf - {carried} | wc -c", shell=True, capture_output=True,
+                                  check=True).stdout
+        assert record[call] - device_pack.ARCHIVE_END < tree + int(archived) <= record[call]
     # A second run over what the first wrote changes nothing but the record's date.
     again = device_pack.repack(str(dev), tree, margin)
     assert {**again, "date": None} == {**record, "date": None}
@@ -87,3 +90,42 @@ def test_the_committed_tree_leaves_room_for_the_recorded_packs():
     tree = device_pack.tree_bytes()
     assert tree <= room, (f"the tree ({tree / MB:.2f} MB) is over the {room / MB:.2f} MB the device packs leave "
                           "(benchmarks/results/device_pack.json): commit results smaller")
+
+
+def test_compacted_figures_look_the_same_at_a_fraction_of_the_bytes(tmp_path):
+    """compact_pngs.py: a matplotlib figure (lines over shaded bands beside a viridis heatmap, as
+    ours are) rewritten as a palette PNG, its pixels as they were to the eye; one already
+    compacted is left as it is; a path that is neither a PNG nor a folder is refused."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    from PIL import Image
+
+    import compact_pngs
+
+    figure, (lines, heatmap) = plt.subplots(1, 2, figsize=(8, 3))
+    steps = np.linspace(0, 1, 200)
+    for phase, colour in ((0.0, "tab:blue"), (1.0, "tab:red")):
+        lines.plot(steps, np.sin(6 * steps + phase), color=colour)
+        lines.fill_between(steps, np.sin(6 * steps + phase) - 0.3, np.sin(6 * steps + phase) + 0.3, color=colour, alpha=0.2)
+    figure.colorbar(heatmap.imshow(np.random.default_rng(0).random((11, 40)), aspect="auto"), ax=heatmap)
+    path = tmp_path / "figures" / "curves.png"
+    path.parent.mkdir()
+    figure.savefig(path, dpi=150)
+    plt.close(figure)
+    with Image.open(path) as image:
+        original = np.asarray(image.convert("RGB"), dtype=np.int16)
+
+    before, after = compact_pngs.compact(str(path))
+    assert after == os.path.getsize(path) < 0.6 * before
+    with Image.open(path) as image:
+        assert image.mode == "P"
+        compacted = np.asarray(image.convert("RGB"), dtype=np.int16)
+    difference = np.abs(compacted - original)
+    assert difference.mean() < 0.5 and np.percentile(difference, 99) <= 8, (difference.mean(), np.percentile(difference, 99))
+    assert compact_pngs.compact(str(path)) == (after, after)
+    assert compact_pngs.png_files([str(tmp_path)]) == [str(path)]
+    with pytest.raises(ValueError, match=r"^.*notes\.txt: not a PNG file nor a folder$"):
+        compact_pngs.png_files([str(tmp_path / "notes.txt")])

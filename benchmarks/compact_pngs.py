@@ -1,0 +1,85 @@
+"""Committed figures at about a third of their bytes: PNGs rewritten as 256-colour palette PNGs.
+
+    python benchmarks/compact_pngs.py PATH [PATH ...]
+
+Every device call of the GPU campaign carries the working tree, and what the tree weighs is
+taken from the room the device packs leave (``benchmarks/device_pack.py``: 6.38 MB on
+2026-12-04), so the results we commit must stay small. Our figures are line plots and
+heatmaps in a few dozen colours with antialiased edges: a palette of 256 colours, chosen per
+image (median cut), holds them with no difference one sees, at 30-40% of matplotlib's RGBA
+bytes (``min_score.png`` of the 340k-step Hopper run: 229 kB, 86 kB as a palette PNG). Each
+PATH is a PNG or a folder searched for them; a file is rewritten only where that makes it
+smaller, and one already in palette mode is left as it is. The plots themselves still write
+full-colour PNGs (and PDFs), for anyone who reads colours as numbers.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import sys
+
+from PIL import Image
+
+PALETTE_COLOURS = 256
+
+
+def palette_png(path: str) -> bytes:
+    """The PNG at ``path`` as a palette PNG of at most 256 colours (median cut), optimised."""
+    with Image.open(path) as image:
+        palette = image.convert("RGB").quantize(PALETTE_COLOURS, method=Image.Quantize.MEDIANCUT)
+    out = io.BytesIO()
+    palette.save(out, format="PNG", optimize=True)
+    return out.getvalue()
+
+
+def compact(path: str) -> tuple[int, int]:
+    """Rewrite one PNG as :func:`palette_png` where that is smaller; (bytes before, after)."""
+    before = os.path.getsize(path)
+    with Image.open(path) as image:
+        if image.mode == "P":
+            return before, before
+    smaller = palette_png(path)
+    if len(smaller) >= before:
+        return before, before
+    with open(path, "wb") as file:
+        file.write(smaller)
+    return before, len(smaller)
+
+
+def png_files(paths: list[str]) -> list[str]:
+    """The PNGs these paths name, folders searched; ValueError for a path that is neither."""
+    found = []
+    for path in paths:
+        if os.path.isdir(path):
+            found += sorted(os.path.join(folder, name) for folder, _, names in os.walk(path)
+                            for name in names if name.lower().endswith(".png"))
+        elif os.path.isfile(path) and path.lower().endswith(".png"):
+            found.append(path)
+        else:
+            raise ValueError(f"{path}: not a PNG file nor a folder")
+    return found
+
+
+def main(argv: list[str]) -> None:
+    from admissable_jax.cli import fail
+
+    if any(arg in ("-h", "--help") for arg in argv):
+        print(__doc__.strip())
+        return
+    try:
+        if not argv:
+            raise ValueError("give the PNG files or folders to compact: python benchmarks/compact_pngs.py PATH [PATH ...]")
+        files = png_files(argv)
+    except ValueError as error:
+        fail(str(error))
+    total_before = total_after = 0
+    for path in files:
+        before, after = compact(path)
+        total_before, total_after = total_before + before, total_after + after
+        print(f"{path}: {before:,} -> {after:,} bytes")
+    print(f"{len(files)} PNG(s): {total_before:,} -> {total_after:,} bytes")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
