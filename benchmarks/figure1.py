@@ -18,7 +18,9 @@ RL-Zoo SAC at 1M env steps; what the runs cost, from their ``metrics.jsonl`` (se
 training chunk and per scoring round), with a 1M-step run projected from it where they
 stopped short; and where they were trained (device, physics, versions, commit: their
 ``invocations.jsonl``). Everything in the file is computed from the runs; what you suspect
-or noticed goes under it by hand.
+or noticed goes under it by hand, in a section headed ``## Noted by hand``, which a later run
+keeps at the end of the file it rewrites (as each env's runs come back, the file is written
+again with every env so far, and the notes stay).
 """
 
 from __future__ import annotations
@@ -46,6 +48,7 @@ from admissable_jax.run_directory import load_config_yaml
 # reference the campaign issue names for our clean SAC (mode ``none``).
 SB3_ZOO_SAC = {"hopper": (2326.0, 1130.0), "walker2d": (3863.0, 254.0), "ant": (4616.0, 1354.0)}
 PAPER_STEPS = 1_000_000
+HAND_NOTES = "## Noted by hand"  # the heading of what a person wrote under the computed part, kept on a rewrite
 SETTINGS = ("physics", "num_envs", "score_every", "score_episodes", "k", "lower_bound", "epsilon", "learning_starts",
             "batch_size", "buffer_size")
 
@@ -186,6 +189,16 @@ def env_section(env: str, folder: str, window: int, out_file: str, formats: tupl
     return "\n".join(lines), rows
 
 
+def notes_by_hand(path: str) -> str:
+    """The section headed :data:`HAND_NOTES` to the end of the file at ``path`` ('' without one)."""
+    if not os.path.isfile(path):
+        return ""
+    with open(path) as file:
+        text = file.read()
+    start = text.find(f"\n{HAND_NOTES}")
+    return text[start + 1:] if start >= 0 else ""
+
+
 def main(argv: list[str]) -> int:
     config = parse_args(Figure1Config, argv, "benchmarks/figure1.py ENV=DIR ...", __doc__.splitlines()[0])
     folders = {env: getattr(config, env) for env in SB3_ZOO_SAC if getattr(config, env)}
@@ -221,10 +234,11 @@ def main(argv: list[str]) -> int:
         "![every env's min_u a_u, as the paper's Figure 1 lays it out](figure1.png)", "",
         *sections,
     ])
+    notes = notes_by_hand(config.out)
     with open(config.out, "w") as file:
-        file.write(text)
+        file.write(text.rstrip("\n") + f"\n\n{notes}" if notes else text)
     print(text)
-    print(f"written: {config.out}")
+    print(f"written: {config.out}" + (f" (its section '{HAND_NOTES}' kept at the end)" if notes else ""))
     return 0
 
 

@@ -81,8 +81,13 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys, 
     assert "Trained on: not recorded (runs written before `invocations.jsonl`)." in out.read_text()
     assert ("final clean return 1050.0 [414.7, 1685.3] against the SB3 RL-Zoo SAC at 1M, 2,326 ± 1,130 (v3 envs): "
             "within SB3's spread (our 95% interval reaches its mean ± 1 sd).") in out.read_text()
+    # What a person noted under the computed part stays at the end when the file is written again.
+    notes = "## Noted by hand\n\n- the runs are in runs.tar.xz\n"
+    out.write_text(out.read_text() + "\n" + notes)
     assert _figure1(f"hopper={young}", f"out={out}", "formats=png") == 0
     assert "(v3 envs): not comparable yet (at 20,000 env steps, not the reference's 1M)." in out.read_text()
+    assert out.read_text().endswith("/scores.csv` (a row per run, scoring and hidden set).\n\n" + notes)
+    assert capsys.readouterr().out.endswith(f"written: {out} (its section '## Noted by hand' kept at the end)\n")
 
     # A folder given for the wrong env (the command itself, as a user runs it), or none at
     # all: one line, exit 2, nothing written.
