@@ -44,8 +44,8 @@
 # benchmarks/results/ and run `python benchmarks/figure1.py hopper=DIR walker2d=DIR ant=DIR`.
 #
 # Settings (environment):
-#   CAMPAIGN_DEADLINE       device seconds this step may use (needed to start a run): status's
-#                           budget_left_s less about 60 s for the last call's pack and return;
+#   CAMPAIGN_DEADLINE       device seconds this step may use (needed to start a run): the
+#                           budget_left_s the first call reports less about 75 s (the second call's transfer, the last pack and return);
 #                           read when the worker starts
 #   CAMPAIGN_CALL_SECONDS   seconds one call follows the worker (default 540: 9 minutes)
 #   CAMPAIGN_PACK_SECONDS   a following call also packs every this many seconds (default 60), so
