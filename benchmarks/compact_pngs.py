@@ -24,12 +24,10 @@ from PIL import Image
 PALETTE_COLOURS = 256
 
 
-def palette_png(path: str) -> bytes:
-    """The PNG at ``path`` as a palette PNG of at most 256 colours (median cut), optimised."""
-    with Image.open(path) as image:
-        palette = image.convert("RGB").quantize(PALETTE_COLOURS, method=Image.Quantize.MEDIANCUT)
+def palette_png(image: Image.Image) -> bytes:
+    """``image`` as a palette PNG of at most 256 colours (median cut), optimised."""
     out = io.BytesIO()
-    palette.save(out, format="PNG", optimize=True)
+    image.convert("RGB").quantize(PALETTE_COLOURS, method=Image.Quantize.MEDIANCUT).save(out, format="PNG", optimize=True)
     return out.getvalue()
 
 
@@ -39,7 +37,7 @@ def compact(path: str) -> tuple[int, int]:
     with Image.open(path) as image:
         if image.mode == "P":
             return before, before
-    smaller = palette_png(path)
+        smaller = palette_png(image)
     if len(smaller) >= before:
         return before, before
     with open(path, "wb") as file:
