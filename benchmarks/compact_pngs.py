@@ -3,7 +3,7 @@
     python benchmarks/compact_pngs.py PATH [PATH ...]
 
 Every device call of the GPU campaign carries the working tree, and what the tree weighs is
-taken from the room the device packs leave (``benchmarks/device_pack.py``: 6.38 MB on
+taken from the room the device packs leave (``benchmarks/device_pack.py``: 8.27 MB on
 2026-12-04), so the results we commit must stay small. Our figures are line plots and
 heatmaps in a few dozen colours with antialiased edges: a palette of 256 colours, chosen per
 image (median cut), holds them with no difference one sees, at 30-40% of matplotlib's RGBA

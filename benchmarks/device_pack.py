@@ -17,7 +17,11 @@ which the second call carries with ``.dev/kernels``. The kernels go second becau
 call starts the campaign's worker, which unpacks them: a device call's carried folders do not
 stay for the next call (the H200 lease of 2026-12-04 carried them first, and its worker found
 none). ``pack.sh``'s own
-``stage.sh`` and ``finish.sh`` join the two parts as before. When the two calls cannot hold
+``stage.sh`` and ``finish.sh`` join the two parts as before. Of ``pack.sh``'s wheels it leaves out
+those that only MuJoCo's viewer and renderer and Brax's web viewer import
+(:data:`LEFT_OUT_WHEELS`: 3.8 MB, pyopengl's 3.2 MB the most): MuJoCo imports its renderer
+in a ``try``, and no campaign step renders. ``tests/test_hopper_pipelines.py`` runs the
+campaign's smoke chain with their modules unimportable. When the two calls cannot hold
 it all, it says by how much in one line and exits 2, before any device time is spent.
 
 It writes what it packed to ``benchmarks/results/device_pack.json``; ``tests/test_device_pack.py``
@@ -42,6 +46,10 @@ TRANSFER_LIMIT = 64 * 2**20  # bytes one device call may carry: the working tree
 FIRST_PART, REST = "a/warp.part0", "b/warp.part1"  # pack.sh's names, which its stage.sh and finish.sh join
 KERNELS = "kernels"  # benchmarks/warp_kernels.py's archive, carried with .dev/b by the call that starts the worker
 UNUSED_AT_RUN_TIME = ("warp/tests",)
+# pack.sh's wheels no campaign step imports, by distribution name (as in a wheel's file name,
+# lower case) and the top-level module each installs.
+LEFT_OUT_WHEELS = {"pyopengl": "OpenGL", "glfw": "glfw", "flask": "flask", "flask_cors": "flask_cors",
+                   "websockets": "websockets"}
 BLOCK, ARCHIVE_END = 512, 10240  # tar's block, and the most its end takes
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RECORD = os.path.join(REPO, "benchmarks", "results", "device_pack.json")
@@ -156,13 +164,22 @@ def slim_warp(dev: str, scratch: str) -> str:
     return archive
 
 
+def leave_out_wheels(wheels: str) -> None:
+    """Delete the :data:`LEFT_OUT_WHEELS` from the folder ``wheels``."""
+    for name in os.listdir(wheels):
+        if name.endswith(".whl") and name.split("-")[0].lower() in LEFT_OUT_WHEELS:
+            os.remove(os.path.join(wheels, name))
+
+
 def repack(dev: str, tree: int, margin: int) -> dict:
-    """Rewrite ``dev``'s two warp-lang parts (slimmed, split at :func:`split_point`); returns the
-    record. Sizes count as archived (:func:`archived_bytes`), names relative to ``dev``'s parent."""
+    """Rewrite ``dev``'s two warp-lang parts (slimmed, split at :func:`split_point`) after leaving
+    out the wheels no step imports; returns the record. Sizes count as archived
+    (:func:`archived_bytes`), names relative to ``dev``'s parent."""
     root = os.path.dirname(os.path.abspath(dev))
     for part in (FIRST_PART, REST):
         if not os.path.isfile(os.path.join(dev, part)):
             raise ValueError(f"{os.path.join(dev, part)} is missing: run this with pack=true (it runs ../shared/device/pack.sh first)")
+    leave_out_wheels(os.path.join(dev, "a", "whl"))
     with tempfile.TemporaryDirectory() as scratch:
         archive = slim_warp(dev, scratch)
         part_entry = lambda part, size: entry_bytes(os.path.relpath(os.path.join(dev, part), root), size)

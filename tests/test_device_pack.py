@@ -20,7 +20,8 @@ def _fake_pack_sh(dev, warp_so: bytes, tests: bytes, wheels: int, first_part: in
     """A .dev as ../shared/device/pack.sh leaves it: wheels and warp-lang's first part in a/, the rest in b/."""
     os.makedirs(dev / "a" / "whl")
     os.makedirs(dev / "b")
-    (dev / "a" / "whl" / "mujoco.whl").write_bytes(os.urandom(wheels))
+    (dev / "a" / "whl" / "mujoco-3.17.0-cp312-cp312-manylinux_2_28_x86_64.whl").write_bytes(os.urandom(wheels))
+    (dev / "a" / "whl" / "PyOpenGL-3.1.10-py3-none-any.whl").write_bytes(os.urandom(wheels // 3))  # only MuJoCo's renderer imports it
     (dev / "a" / "stage.sh").write_text("staged\n")
     (dev / "b" / "finish.sh").write_text("finished\n")
     buffer = io.BytesIO()
@@ -57,6 +58,8 @@ def test_packs_are_slimmed_and_split_so_that_each_call_fits_with_the_tree(tmp_pa
     assert second_call() > 1 * MB  # as pack.sh split it, the second call would be over
 
     record = device_pack.repack(str(dev), tree, margin)
+    # The wheels stage.sh installs: all but those no campaign step imports.
+    assert os.listdir(dev / "a" / "whl") == ["mujoco-3.17.0-cp312-cp312-manylinux_2_28_x86_64.whl"]
     # warp-lang as finish.sh unpacks it: all of it but the test suite, never imported at run time.
     assert _joined(dev) == {"./warp/bin/warp.so": warp_so, "./warp/__init__.py": b""}
     # The first call (.dev/a) is filled to within a block of the limit less the margin; the rest

@@ -29,6 +29,7 @@ from admissable_jax import TrainConfig, make_env
 from admissable_jax.experiment import ExperimentConfig, run_experiment
 from admissable_jax.host_loop import PhysicsCapacityExceeded
 from admissable_jax.train import train_fn
+import device_pack
 from test_figure1 import _figure1
 
 # 80 env steps in 2 scorings of 40 (10 iterations of 4 envs each); learning from step 48.
@@ -94,9 +95,15 @@ def test_warp_experiment_matches_jax_train_fn(jax_run, warp_experiment):
 CALL_AGAIN, REFUSED = 75, 3
 
 
+WITHOUT_MODULES = os.path.join(os.path.dirname(__file__), "data", "without_modules")
+
+
 def _campaign(step: str, directory: str, **settings: str) -> subprocess.CompletedProcess:
+    """A device call of ``gpu_campaign.sh STEP``, without the modules of the wheels the device packs leave out."""
     env = {**os.environ, "JAX_PLATFORMS": "cpu", "CAMPAIGN_SMOKE": "1", "CAMPAIGN_DIR": directory,
-           "PYTHON": sys.executable, **settings}
+           "PYTHON": sys.executable, "PYTHONPATH": os.pathsep.join(filter(None, (WITHOUT_MODULES, os.environ.get("PYTHONPATH")))),
+           "WITHOUT_MODULES": ",".join(device_pack.LEFT_OUT_WHEELS.values()),
+           "WITHOUT_MODULES_LOG": directory + "-without-modules.log", **settings}
     env.pop("OUT", None)
     call = subprocess.Popen(["bash", os.path.join(os.path.dirname(__file__), "..", "benchmarks", "gpu_campaign.sh"), step],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, start_new_session=True)
@@ -118,7 +125,8 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     plans read; a run refused for lack of time (nothing started); a run admitted, whose
     worker outlives the call that starts it and is followed to its end by the next call; a
     run paused and resumed by the next worker from the checkpoint holding Warp data,
-    repeating the uninterrupted experiment exactly; what each call packs for the trip back."""
+    repeating the uninterrupted experiment exactly; what each call packs for the trip back.
+    All of it without the modules of the wheels the device packs leave out."""
     directory = str(tmp_path / "campaign")
     speed = _campaign("speed", directory, CAMPAIGN_ONLY="^(measure-hopper|projections)$")
     assert speed.returncode == 0, speed.stdout + speed.stderr
@@ -181,6 +189,9 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     assert f"Clean SAC (mode `none`, 1 seed): final clean return {clean:.1f} against" in text
     assert "not comparable yet" in text
     assert (tmp_path / "back" / "hopper" / "figures" / "min_score.png").exists()
+    # Every Python process of the chain ran without those modules.
+    with open(directory + "-without-modules.log") as file:
+        assert sum(line.endswith(" loaded\n") for line in file) >= 5
 
 
 def test_capacity_overflow_is_detected_and_stops_the_run_in_one_line(tmp_path, monkeypatch):
