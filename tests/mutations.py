@@ -11,7 +11,9 @@ script copies the working tree (tracked and untracked files, as git lists them) 
 temporary folder, writes the bug there (the working tree is never touched), and runs the
 tests: first the file named beside the mutation, where it was caught before, then, if that
 file passes, the whole suite. It prints one JSON line per mutation and exits 1 if any
-survives, naming it. Record of the last pass: ``tests/data/mutations.jsonl``.
+survives, naming it. Only a failed test is a catch: pytest stopping without one (a
+collection error, a crash: a broken mutation or environment) counts as a survivor, with
+pytest's reason. Record of the last pass: ``tests/data/mutations.jsonl``.
 
 Not part of the test command (pytest collects ``test_*.py`` only): each mutation recompiles
 what it touches, minutes where the suite takes seconds per file.
@@ -376,16 +378,18 @@ def copy_tree(destination: str) -> None:
         subprocess.run(command, cwd=destination, check=True, capture_output=True)
 
 
-def run_tests(tree: str, paths: list[str]) -> tuple[bool, list[str]]:
-    """(whether they all passed, the failed tests' ids) for pytest on ``paths`` of ``tree``,
-    stopping at the first failure."""
+def run_tests(tree: str, paths: list[str]) -> tuple[bool, list[str], str]:
+    """(whether they all passed, the failed tests' ids, pytest's first ERROR line or else its
+    last line) for pytest on ``paths`` of ``tree``, stopping at the first failure."""
     env = dict(os.environ, PYTHONPATH=tree, JAX_PLATFORMS="cpu")
     result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider", "--rootdir", tree,
                              "-c", os.path.join(tree, "pyproject.toml"), *paths],
                             cwd=tree, env=env, capture_output=True, text=True)
     failed = [line.split()[1] for line in result.stdout.splitlines()  # the summary's lines, not logged ERRORs
               if line.startswith(("FAILED ", "ERROR ")) and "::" in line.split()[1]]
-    return result.returncode == 0, failed
+    lines = [line.strip() for line in (result.stdout + result.stderr).splitlines() if line.strip()]
+    summary = next((line for line in lines if line.startswith("ERROR ")), lines[-1] if lines else "")
+    return result.returncode == 0, failed, summary
 
 
 def check(name: str) -> dict:
@@ -403,10 +407,13 @@ def check(name: str) -> dict:
                                   cwd=tree, env=dict(os.environ, PYTHONPATH=tree), capture_output=True, text=True).stdout
         if not os.path.realpath(imported.strip()).startswith(os.path.realpath(tree)):
             raise SystemExit(f"the tests would import admissable_jax from {imported.strip()}, not the mutated copy")
-        passed, failed = run_tests(tree, [os.path.join(tree, "tests", first_file)])
+        passed, failed, summary = run_tests(tree, [os.path.join(tree, "tests", first_file)])
         if passed:
-            passed, failed = run_tests(tree, [os.path.join(tree, "tests")])
-    return {"mutation": name, "file": path, "caught": not passed, "by": failed[:3], "seconds": round(time.time() - start)}
+            passed, failed, summary = run_tests(tree, [os.path.join(tree, "tests")])
+    row = {"mutation": name, "file": path, "caught": bool(failed), "by": failed[:3], "seconds": round(time.time() - start)}
+    if not passed and not failed:  # pytest stopped without failing a test (a collection error, a crash): no catch
+        row["pytest"] = summary
+    return row
 
 
 def main(names: list[str]) -> int:
