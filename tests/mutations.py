@@ -385,8 +385,10 @@ def run_tests(tree: str, paths: list[str]) -> tuple[bool, list[str], str]:
     result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider", "--rootdir", tree,
                              "-c", os.path.join(tree, "pyproject.toml"), *paths],
                             cwd=tree, env=env, capture_output=True, text=True)
-    failed = [line.split()[1] for line in result.stdout.splitlines()  # the summary's lines, not logged ERRORs
-              if line.startswith(("FAILED ", "ERROR ")) and "::" in line.split()[1]]
+    # The short summary's lines, "FAILED <id> - <reason>" (an id may hold spaces), not logged ERRORs.
+    summary_ids = [rest.split(" - ", 1)[0] for kind, _, rest in (line.partition(" ") for line in result.stdout.splitlines())
+                   if kind in ("FAILED", "ERROR")]
+    failed = [test_id for test_id in summary_ids if "::" in test_id]
     lines = [line.strip() for line in (result.stdout + result.stderr).splitlines() if line.strip()]
     summary = next((line for line in lines if line.startswith("ERROR ")), lines[-1] if lines else "")
     return result.returncode == 0, failed, summary
