@@ -204,6 +204,7 @@ def main(argv: list[str]) -> int:
     folders = {env: getattr(config, env) for env in SB3_ZOO_SAC if getattr(config, env)}
     if not folders:
         fail("give at least one of hopper=DIR, walker2d=DIR, ant=DIR")
+    commit = source_commit() or "unknown"  # before anything is written: the code that computed this file
     sections, rows, made = [], [], []
     out_folder = os.path.dirname(os.path.abspath(config.out))
     try:
@@ -227,7 +228,7 @@ def main(argv: list[str]) -> int:
     command = " ".join(["python", "benchmarks/figure1.py", *argv])
     text = "\n".join([
         "# Figure 1: adversarial against uniform missingness (min_u a_u)", "",
-        f"Written by `{command}` on {datetime.date.today()} at commit {source_commit() or 'unknown'}, from the runs' `scores.jsonl` "
+        f"Written by `{command}` on {datetime.date.today()} at commit {commit}, from the runs' `scores.jsonl` "
         "and `config.yaml`. Final: the last scoring; AUC: the mean of min_u a_u over all scorings; ± and [ ]: 95% "
         "t-intervals over seeds; adversarial − uniform by Welch's t (seeds independent across modes).", "",
         "| env | env steps | metric | adversarial − uniform | reading |", "|---|---|---|---|---|", *rows, "",

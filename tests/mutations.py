@@ -356,6 +356,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                          "test_device_pack.py"),
     "figure1_drops_the_notes_by_hand": ("benchmarks/figure1.py", 'return text[start + 1:] if start >= 0 else ""',
                                         'return ""', "test_figure1.py"),
+    "figure1_names_the_commit_after_drawing": ("benchmarks/figure1.py", 'at commit {commit}, from',
+                                               "at commit {source_commit() or 'unknown'}, from", "test_figure1.py"),
     "left_out_wheels_packed": ("benchmarks/device_pack.py", '    leave_out_wheels(os.path.join(dev, "a", "whl"))\n', "",
                                "test_device_pack.py"),
     "campaign_imports_a_left_out_module": ("admissable_jax/experiment.py", "from __future__ import annotations\n",

@@ -46,8 +46,13 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys, 
     for name in ("adversarial-s0", "uniform-s0"):
         (root / name / "invocations.jsonl").write_text(json.dumps(record) + "\n")
     out = tmp_path / "FIGURE1.md"
+    # The commit FIGURE1.md names is the code's, taken before its own outputs are written: git
+    # marks a checkout +changes once figure1.png, tracked in benchmarks/results, is redrawn.
+    monkeypatch.setattr(figure1, "source_commit",
+                        lambda: "feed123" + ("+changes" if (tmp_path / "figure1.png").exists() else ""))
     assert _figure1(f"hopper={root}", "window=2", f"out={out}", "formats=svg") == 0
     text = out.read_text()
+    assert " at commit feed123, from the runs'" in text
     assert ("Trained on (the runs' `invocations.jsonl`): gpu:NVIDIA H200 × 1, warp physics, jax 0.10.2, mujoco 3.5.0, "
             "warp-lang 1.19.0, commit abc1234 (2 of 2 records).") in text
     assert ("Cost (measured, the program of 6 runs, compiling not counted): 4 scorings in 18 s; a training chunk of "
