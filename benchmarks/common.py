@@ -22,6 +22,13 @@ COMMITTED_RESULTS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)),
 RESULTS_DIR = os.environ.get("BENCHMARK_RESULTS_DIR") or COMMITTED_RESULTS_DIR
 
 
+def benchmark_commit() -> str:
+    """The commit of the code that writes a benchmark record, ``+changes`` where it differs:
+    the records and runs under benchmarks/results do not count (appending one, or redrawing a
+    tracked figure, must not mark the next)."""
+    return source_commit(exclude=("benchmarks/results",)) or "unknown"
+
+
 def environment_record() -> dict:
     """Machine, device and library versions, for every result record."""
     device = jax.devices()[0]
@@ -36,8 +43,7 @@ def environment_record() -> dict:
         "mujoco": mujoco.__version__,
         "warp": package_versions().get("warp-lang"),
         "command": " ".join([os.path.basename(sys.executable), *sys.argv]),
-        # The records under benchmarks/results do not count: appending one must not mark the next.
-        "commit": source_commit(exclude=("benchmarks/results",)) or "unknown",
+        "commit": benchmark_commit(),
     }
 
 

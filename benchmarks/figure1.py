@@ -41,8 +41,8 @@ from admissable_jax.results import (
     Difference, Run, differing_settings, find_runs, format_comparison, load_run, mean_and_interval, mode_differences,
     summary_table, trained_on, write_tables,
 )
-from admissable_jax.provenance import source_commit
 from admissable_jax.run_directory import load_config_yaml
+from common import benchmark_commit
 
 # The SB3 RL-Zoo's SAC at 1M env steps (mean ± std over its evaluations; v3 envs): the
 # reference the campaign issue names for our clean SAC (mode ``none``).
@@ -204,9 +204,7 @@ def main(argv: list[str]) -> int:
     folders = {env: getattr(config, env) for env in SB3_ZOO_SAC if getattr(config, env)}
     if not folders:
         fail("give at least one of hopper=DIR, walker2d=DIR, ant=DIR")
-    # The code that computes this file, as the other benchmark records name it: results under
-    # benchmarks/results (the runs, their figures) do not count, and nothing is drawn yet.
-    commit = source_commit(exclude=("benchmarks/results",)) or "unknown"
+    commit = benchmark_commit()  # before anything is drawn: the code that computes this file
     sections, rows, made = [], [], []
     out_folder = os.path.dirname(os.path.abspath(config.out))
     try:

@@ -7,7 +7,8 @@ import shutil
 import subprocess
 import sys
 
-import figure1  # benchmarks/ is on the tests' path (conftest.py)
+import common  # benchmarks/ is on the tests' path (conftest.py)
+import figure1
 from test_plots import _run_with_minimums
 
 FIGURE1 = figure1.__file__
@@ -49,7 +50,7 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys, 
     # The commit FIGURE1.md names is the code's: taken before its own outputs are written, and
     # blind to benchmarks/results (where the runs and figures live, tracked), as git would mark
     # the checkout +changes once figure1.png is redrawn or a run's figures moved.
-    monkeypatch.setattr(figure1, "source_commit", lambda exclude=(): "feed123" + (
+    monkeypatch.setattr(common, "source_commit", lambda exclude=(): "feed123" + (
         "+changes" if (tmp_path / "figure1.png").exists() or "benchmarks/results" not in exclude else ""))
     assert _figure1(f"hopper={root}", "window=2", f"out={out}", "formats=svg") == 0
     text = out.read_text()
