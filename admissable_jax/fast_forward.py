@@ -21,13 +21,14 @@ command in one line, the records untouched.
 from __future__ import annotations
 
 import dataclasses
+import os
 
 import numpy as np
 
 from admissable_jax.errors import RunFailed
 from admissable_jax.loggers import FINGERPRINT
 from admissable_jax.method import SetNumbering, hidden_row, parse_set
-from admissable_jax.run_directory import RunDirectory
+from admissable_jax.run_directory import RunDirectory, read_jsonl
 
 
 class FastForwardDiverged(RunFailed):
@@ -46,11 +47,16 @@ class RecordedScoring:
     fingerprint: int
 
 
-def recorded_rows(run: RunDirectory, after: int, score_every: int) -> list[tuple[dict, int]]:
-    """(``scores.jsonl`` row, recorded state fingerprint) of each round the run recorded after
-    env step ``after``, ζ apart from it, as far as both of its files hold them with a fingerprint."""
-    scores = {row["env_steps"]: row for row in run.read("scores.jsonl")}
-    metrics = {row["env_steps"]: row for row in run.read("metrics.jsonl")}
+def recorded_rows(run_path: str, after: int, score_every: int) -> list[tuple[dict, int]]:
+    """(``scores.jsonl`` row, recorded state fingerprint) of each round the run in ``run_path``
+    recorded after env step ``after``, ζ apart from it, as far as both of its files hold them
+    with a fingerprint. Reads only: a plan may ask before any run directory is opened."""
+    def read(name: str) -> list[dict]:
+        path = os.path.join(run_path, name)
+        return read_jsonl(path) if os.path.exists(path) else []
+
+    scores = {row["env_steps"]: row for row in read("scores.jsonl")}
+    metrics = {row["env_steps"]: row for row in read("metrics.jsonl")}
     found = []
     step = after + score_every
     while step in scores and FINGERPRINT in metrics.get(step, {}):
@@ -70,7 +76,7 @@ def recorded_scorings(run: RunDirectory, after: int, score_every: int, pooled_se
         return pooled_sets.indices(np.stack([hidden_row(parse_set(name), d) for name in row["sets"]]))
 
     return [RecordedScoring(row["env_steps"], np.asarray(row["p_miss"], np.float32), pool(row), fingerprint)
-            for row, fingerprint in recorded_rows(run, after, score_every)]
+            for row, fingerprint in recorded_rows(run.path, after, score_every)]
 
 
 def check_fingerprint(run: RunDirectory, recorded: RecordedScoring, rebuilt: int) -> None:

@@ -392,7 +392,7 @@ class TrainingLoop:
             if config.fast_forward and config.resume_step < 0:
                 return None  # fast-forwarded from the start
             reached = 0 if config.fast_forward else \
-                min(len(recorded_rows(run, 0, config.score_every)) for run in self.runs) * config.score_every
+                min(len(recorded_rows(run.path, 0, config.score_every)) for run in self.runs) * config.score_every
             if reached:
                 raise CheckpointError(
                     f"no checkpoint to resume from in {self.checkpoints.directory}; the records reach env step "

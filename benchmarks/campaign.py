@@ -6,6 +6,8 @@
     python benchmarks/campaign.py plan env=hopper modes=adversarial,uniform,none seeds=5 \\
         total_steps=1000000 fallback_modes=adversarial,uniform or_longest=true deadline=1650
     python benchmarks/campaign.py plan env=ant seeds=5 total_steps=0 min_steps=200000 deadline=690
+    python benchmarks/campaign.py plan env=hopper modes=adversarial,uniform,none seeds=5 \\
+        total_steps=1000000 or_longest=true records=runs/campaign/hopper deadline=790
     python benchmarks/campaign.py projections seeds=5 deadline=690   # all of the above
     python benchmarks/campaign.py profile env=hopper modes=adversarial,uniform,none seeds=5
 
@@ -35,7 +37,10 @@ seconds, 3 if not. With ``total_steps=0`` it finds the longest run that fits (at
 ``min_steps``, at most ``max_steps``). ``fallback_modes`` and ``or_longest`` say what to
 try when the run does not fit, all in one process (the hopper step: the 15 pairs at 1M,
 else the 10, else the longest run of the 15). The last line, ``modes=M total_steps=N``,
-names the run chosen.
+names the run chosen. With ``records=DIR`` the run continues the experiment in DIR, whose
+runs' records came from another machine (``resume=true fast_forward=true``: the README's
+*Fast-forward*): the intervals they recorded are re-trained first, each a chunk without its
+scoring round, and only a run longer than the records is planned.
 """
 
 from __future__ import annotations
@@ -55,6 +60,8 @@ from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.cli import enable_compilation_cache, parse_args, report
 from admissable_jax.envs import env_spec, make_env, resolve_physics
 from admissable_jax.config import ExperimentConfig, pair_configs
+from admissable_jax.experiment import check_same_pairs
+from admissable_jax.fast_forward import recorded_rows
 from admissable_jax.host_loop import TrainingLoop, make_trainer, pairs_init, queue_pieces
 from admissable_jax.placement import PairPlacement
 from admissable_jax.training import Trainer
@@ -78,6 +85,7 @@ class PlanConfig(ExperimentConfig):
     fallback_modes: str = dataclasses.field(default="", metadata={"help": "modes to run instead if modes do not fit at total_steps ('' = none)"})
     or_longest: bool = dataclasses.field(default=False, metadata={"help": "if nothing fits at total_steps, the longest run of modes (>= min_steps)"})
     speed_device: str = dataclasses.field(default="", metadata={"help": "plan from this device's speed records ('' = this device's), e.g. an H100's on an H200 that has none"})
+    records: str = dataclasses.field(default="", metadata={"help": "an experiment directory the run continues from its records (fast_forward=true): its recorded intervals re-trained first, a chunk each ('' = a fresh run)"})
 
 
 @dataclasses.dataclass
@@ -242,13 +250,16 @@ def speed_record(config: ExperimentConfig) -> tuple[dict, int]:
 
 @dataclasses.dataclass(frozen=True)
 class Projection:
-    scorings: int
+    scorings: int  # the run's scoring intervals, those re-trained from records included
+    retrained: int  # of them, the intervals re-trained from records (a chunk each, no scoring round)
     saves: int
     total_s: float
 
     def describe(self, record: dict) -> str:
-        return (f"compile {record['compile_s']:.0f} s + first run {first_run_s(record):.0f} s + {self.scorings} "
-                f"scorings x (chunk {record['chunk_s']:.1f} s + "
+        retrained = (f"{self.retrained} recorded intervals re-trained x chunk {record['chunk_s']:.1f} s + "
+                     if self.retrained else "")
+        return (f"compile {record['compile_s']:.0f} s + first run {first_run_s(record):.0f} s + {retrained}"
+                f"{self.scorings - self.retrained} scorings x (chunk {record['chunk_s']:.1f} s + "
                 f"full-length scoring {record['score_full_s']:.1f} s) + {self.saves} checkpoint save(s) x "
                 f"{record['checkpoint_save_s']:.1f} s = {self.total_s:,.0f} s ({self.total_s / 60:.1f} min)")
 
@@ -259,12 +270,29 @@ def first_run_s(record: dict) -> float:
     return max(0.0, record["first_chunk_s"] - record["chunk_s"])
 
 
-def project(record: dict, scorings: int, checkpoint_every: int) -> Projection:
-    """Conservative wall time of a run of ``scorings`` scoring intervals in one process."""
+def project(record: dict, scorings: int, checkpoint_every: int, retrained: int = 0) -> Projection:
+    """Conservative wall time of a run of ``scorings`` scoring intervals in one process, the
+    first ``retrained`` of them re-trained from records (fast-forward: no scoring round)."""
     saves = math.ceil(scorings / checkpoint_every)  # every checkpoint_every scorings, and at the end
-    interval = record["chunk_s"] + record["score_full_s"]
     once = record["compile_s"] + first_run_s(record)
-    return Projection(scorings, saves, once + scorings * interval + saves * record["checkpoint_save_s"])
+    total = (once + scorings * record["chunk_s"] + (scorings - retrained) * record["score_full_s"]
+             + saves * record["checkpoint_save_s"])
+    return Projection(scorings, retrained, saves, total)
+
+
+def recorded_scorings(config: PlanConfig) -> int:
+    """The scoring intervals a run continuing ``config.records`` re-trains: as far as every
+    one of its pairs recorded them with a state fingerprint (0 for a fresh run). ValueError
+    in one line where the records hold other pairs, or nothing to continue."""
+    if not config.records:
+        return 0
+    pairs = pair_configs(dataclasses.replace(config, out=config.records, total_steps=max(1, config.total_steps)))
+    check_same_pairs(config, pairs, os.path.join(config.records, "experiment.yaml"))
+    scorings = min(len(recorded_rows(pair.out, 0, config.score_every)) for pair in pairs)
+    if not scorings:
+        raise ValueError(f"nothing to continue in {config.records}: a run there records no scoring with a state "
+                         f"fingerprint")
+    return scorings
 
 
 def _shape(config: ExperimentConfig) -> tuple[str, dict]:
@@ -276,10 +304,14 @@ def _shape(config: ExperimentConfig) -> tuple[str, dict]:
 
 
 def _fits(config: PlanConfig) -> bool:
-    """Whether a run of ``total_steps`` fits in ``deadline``; its projection printed."""
+    """Whether a run of ``total_steps`` fits in ``deadline`` (and, continuing records, goes
+    past them); its projection printed."""
     shape, record = _shape(config)
-    scorings = math.ceil(config.total_steps / config.score_every)
-    projection = project(record, scorings, config.checkpoint_every)
+    scorings, retrained = math.ceil(config.total_steps / config.score_every), recorded_scorings(config)
+    if scorings <= retrained:
+        print(_nothing_to_add(config, retrained, f"total_steps={config.total_steps:,}"))
+        return False
+    projection = project(record, scorings, config.checkpoint_every, retrained)
     fits = projection.total_s <= config.deadline
     print(f"projected wall time for {shape}, {scorings * config.score_every:,} env steps: "
           f"{projection.describe(record)}; device time left {config.deadline:,.0f} s: "
@@ -288,12 +320,18 @@ def _fits(config: PlanConfig) -> bool:
 
 
 def _longest(config: PlanConfig) -> int | None:
-    """The most env steps (min_steps to max_steps) a run fits in ``deadline``, or None."""
+    """The most env steps (min_steps to max_steps; continuing records, past them) a run fits
+    in ``deadline``, or None."""
     shape, record = _shape(config)
-    scorings, most = 1, max(1, config.max_steps // config.score_every)
-    while scorings < most and project(record, scorings + 1, config.checkpoint_every).total_s <= config.deadline:
+    retrained = recorded_scorings(config)
+    scorings, most = retrained + 1, max(1, config.max_steps // config.score_every)
+    if scorings > most:
+        print(_nothing_to_add(config, retrained, f"max_steps={config.max_steps:,}"))
+        return None
+    fits = lambda scorings: project(record, scorings, config.checkpoint_every, retrained).total_s <= config.deadline
+    while scorings < most and fits(scorings + 1):
         scorings += 1
-    projection = project(record, scorings, config.checkpoint_every)
+    projection = project(record, scorings, config.checkpoint_every, retrained)
     steps = scorings * config.score_every
     if steps < config.min_steps or projection.total_s > config.deadline:
         print(f"the longest run of {shape} that fits in {config.deadline:,.0f} s is {steps:,} env steps "
@@ -303,11 +341,18 @@ def _longest(config: PlanConfig) -> int | None:
     return steps
 
 
+def _nothing_to_add(config: PlanConfig, retrained: int, limit: str) -> str:
+    return (f"the records in {config.records} already reach {retrained * config.score_every:,} env steps: "
+            f"nothing to add at {limit}, refused")
+
+
 def plan(config: PlanConfig) -> int:
     """The run to start: ``modes`` at ``total_steps`` if it fits, else ``fallback_modes`` at
     ``total_steps``, else (``or_longest``) the longest run of ``modes``; with
     ``total_steps=0``, the longest run. Its last line ``modes=M total_steps=N`` names the run
     (exit 0); exit 3 if none fits."""
+    if config.records and config.fallback_modes:
+        raise ValueError("records= continues the pairs its runs hold: fallback_modes cannot change them")
     if config.total_steps > 0:
         for modes in filter(None, dict.fromkeys([config.modes, config.fallback_modes])):
             if _fits(dataclasses.replace(config, modes=modes)):

@@ -17,6 +17,14 @@
 #   walker2d  the same on Walker2d
 #   ant       the paper's protocol on Ant for as many env steps as the time left allows (>= 200k)
 #
+# With CAMPAIGN_RECORDS=ARCHIVE the hopper, walker2d or ant step continues the runs an earlier
+# lease brought back (a tar, e.g. benchmarks/results/fig1-hopper-340k-h200/runs.tar.xz, holding
+# the step's env folder) instead of starting afresh: it unpacks them, plans the longest
+# continuation that fits (their recorded intervals re-trained first, a chunk each, no scoring
+# round) and runs `experiment ... resume=true fast_forward=true`, which checks every rebuilt
+# state against the records bit for bit and stops at the first that differs: exit 1 and the
+# line "fast-forward diverged", within a minute, where this machine cannot continue them.
+#
 # A step runs as one worker process in a process session of its own, which the device machine
 # keeps running between calls while it stays warm: the GPU works on while no call is in flight,
 # and a run is compiled once and never checkpointed for the next call. A call starts the
@@ -66,6 +74,8 @@
 #   CAMPAIGN_RUN_SECONDS    the worker's run pauses (checkpoints and stops, as experiment's time_limit)
 #                           after this many seconds and the call says to call again; the next
 #                           worker resumes it (tests use it; 0 or unset: no limit)
+#   CAMPAIGN_RECORDS        an archive of the step's runs to continue (above; relative to the
+#                           repository root); read when the worker starts
 #   PYTHON                  the interpreter (default python3)
 set -uo pipefail
 step=${1:-}
@@ -85,6 +95,12 @@ mkdir -p "$dir/state" "$dir/results"
 dir=$(cd "$dir" && pwd)
 state=$dir/state
 log=$dir/$step.log
+records=${CAMPAIGN_RECORDS:-}
+if [ -n "$records" ]; then
+  [ "$step" != speed ] || { echo "CAMPAIGN_RECORDS continues a run: it goes with hopper, walker2d or ant, not speed" >&2; exit 2; }
+  [ -f "$records" ] || { echo "CAMPAIGN_RECORDS=$records: no such file (an archive of $step runs, e.g. benchmarks/results/fig1-$step-*/runs.tar.xz)" >&2; exit 2; }
+  records=$(cd "$(dirname "$records")" && pwd)/$(basename "$records")
+fi
 export BENCHMARK_RESULTS_DIR=$dir/results PYTHONUNBUFFERED=1 PYTHONPATH=$repo:$repo/benchmarks${PYTHONPATH:+:$PYTHONPATH}
 
 kernels=$dir/warp_cache  # a Warp kernel cache: MuJoCo Warp's CUDA modules, prebuilt on the CPU
@@ -146,20 +162,36 @@ stage() {  # stage NAME LIMIT COMMAND...: run once per campaign, for at most LIM
   fi
 }
 
-train() {  # train ENV modes=M total_steps=N: one experiment to its end (resumed if a worker left checkpoints)
+train() {  # train ENV modes=M total_steps=N: one experiment to its end (resumed if a worker left
+            # checkpoints; else, continuing records, rebuilt from them)
   local env=$1; shift
-  local rundir=$dir/$env resume=false limit=${CAMPAIGN_RUN_SECONDS:-0}
-  [ -n "$(ls -A "$rundir/checkpoints" 2>/dev/null)" ] && resume=true
-  echo "+ experiment env=$env $* ${sizes[*]} resume=$resume time_limit=$limit"
-  $py -m admissable_jax.experiment env="$env" "$@" "${sizes[@]}" out="$rundir" resume=$resume \
+  local rundir=$dir/$env resume=false forward=false limit=${CAMPAIGN_RUN_SECONDS:-0}
+  if [ -n "$(ls -A "$rundir/checkpoints" 2>/dev/null)" ]; then resume=true
+  elif [ -n "$records" ]; then resume=true; forward=true; fi
+  echo "+ experiment env=$env $* ${sizes[*]} resume=$resume fast_forward=$forward time_limit=$limit"
+  $py -m admissable_jax.experiment env="$env" "$@" "${sizes[@]}" out="$rundir" resume=$resume fast_forward=$forward \
       time_limit="$limit" progress=false 2>&1 | tee "$dir/last-run.log"
   local status=${PIPESTATUS[0]}
+  if grep -q 'fast-forward diverged' "$dir/last-run.log"; then
+    echo "the records cannot be continued on this machine: it does not compute their runs bit for bit (above)"
+  fi
   [ "$status" -eq 0 ] || { echo "experiment exited $status"; exit "$status"; }
   if grep -q '^paused' "$dir/last-run.log"; then echo "$env is not finished: the next worker resumes it"; exit 75; fi
   echo "$env finished"
 }
 
 refused() { echo "refused: $1"; exit 3; }
+
+unpack_records() {  # unpack_records ENV: the ENV/ folder of $records as $dir/ENV, once
+  local env=$1 scratch=$dir/records.unpacking
+  [ -d "$dir/$env" ] && return 0
+  rm -rf "$scratch" && mkdir -p "$scratch"
+  $py -c 'import sys, tarfile; tarfile.open(sys.argv[1]).extractall(sys.argv[2], filter="data")' "$records" "$scratch" \
+    || { echo "cannot unpack $records"; exit 2; }  # Python's tarfile: gzip and xz whatever the machine has
+  [ -d "$scratch/$env" ] || { echo "$records holds no $env/ folder"; exit 2; }
+  mv "$scratch/$env" "$dir/$env" && rm -rf "$scratch"
+  echo "continuing the $env runs of $records"
+}
 
 choose() {  # choose ENV MODES [plan keys]: campaign.py plan picks the run (its last line, kept in $chosen), or refuse
   local env=$1 modes=$2 status; shift 2
@@ -216,12 +248,22 @@ worker() {
       # if neither fits (a Hopper run needs more than one lease on an H100: speed step), the 15
       # pairs for the longest run the time allows, as the ant step does. One plan decides.
       chosen=$state/$step.run
-      [ -e "$chosen" ] || choose "$step" $ALL total_steps=$full_steps fallback_modes=$PAIRED or_longest=true
+      if [ -n "$records" ]; then  # the records' pairs, past them as far as the time allows
+        unpack_records "$step"
+        [ -e "$chosen" ] || choose "$step" $ALL total_steps=$full_steps or_longest=true records="$dir/$step"
+      else
+        [ -e "$chosen" ] || choose "$step" $ALL total_steps=$full_steps fallback_modes=$PAIRED or_longest=true
+      fi
       train "$step" $(cat "$chosen")
       ;;
     ant)
       chosen=$state/ant.run
-      [ -e "$chosen" ] || choose ant $PAIRED total_steps=0
+      if [ -n "$records" ]; then
+        unpack_records ant
+        [ -e "$chosen" ] || choose ant $PAIRED total_steps=0 records="$dir/ant"
+      else
+        [ -e "$chosen" ] || choose ant $PAIRED total_steps=0
+      fi
       train ant $(cat "$chosen")
       ;;
   esac

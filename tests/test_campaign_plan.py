@@ -1,7 +1,9 @@
 """benchmarks/campaign.py's plans from the speed records on main (no training, no GPU), and
 bad input to the benchmarks' command lines."""
 
+import os
 import sys
+import tarfile
 
 import pytest
 
@@ -46,6 +48,33 @@ def test_the_next_lease_is_planned_from_the_committed_h100_record(capsys, monkey
     # An hour holds more than max_steps: the longest run stops there.
     status = campaign.main(["plan", *HOPPER_ON_THE_GPU, "total_steps=0", "max_steps=200000", "deadline=3600", H100])
     assert status == 0 and capsys.readouterr().out.strip().splitlines()[-1] == "modes=adversarial,uniform,none total_steps=200000"
+
+
+def test_a_continuation_is_planned_past_the_records_it_rebuilds(tmp_path, capsys):
+    """The next lease continuing the committed 340k Hopper runs (CAMPAIGN_RECORDS): their 68
+    recorded intervals re-trained first, a chunk each without a scoring round, then the
+    longest run past them that fits; records of other pairs, or already at max_steps, refused."""
+    with tarfile.open(os.path.join(common.COMMITTED_RESULTS_DIR, "fig1-hopper-340k-h200", "runs.tar.xz")) as tar:
+        tar.extractall(tmp_path, filter="data")
+    records = f"records={tmp_path / 'hopper'}"
+    status = campaign.main(["plan", *HOPPER_ON_THE_GPU, "total_steps=1000000", "or_longest=true", "deadline=790",
+                            records, H100])
+    shown = capsys.readouterr().out
+    assert status == 0, shown
+    # 50 + 58 + 68 x 2.235 + 52 x (2.235 + 7.529) + 6 x 2.33 = 781 s of 790.
+    assert ("compile 50 s + first run 58 s + 68 recorded intervals re-trained x chunk 2.2 s + 52 scorings x "
+            "(chunk 2.2 s + full-length scoring 7.5 s) + 6 checkpoint save(s) x 2.3 s = 781 s") in shown
+    assert shown.strip().splitlines()[-1] == "modes=adversarial,uniform,none total_steps=600000"
+
+    status = campaign.main(["plan", *HOPPER_ON_THE_GPU, "total_steps=0", "max_steps=340000", "deadline=790",
+                            records, H100])
+    assert status == campaign.REFUSED
+    assert f"the records in {tmp_path / 'hopper'} already reach 340,000 env steps: nothing to add at " \
+           "max_steps=340,000, refused" in capsys.readouterr().out
+    with pytest.raises(ValueError, match="cannot resume with other pairs: .* has adversarial-s0, .*, none-s4, this one "
+                                         "adversarial-s0, .*, uniform-s4 "):
+        campaign.main(["plan", *HOPPER_ON_THE_GPU, "modes=adversarial,uniform", "total_steps=0", "deadline=790",
+                       records, H100])
 
 
 def test_a_benchmark_refuses_bad_input_in_one_line(monkeypatch, capsys):

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -125,7 +126,9 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     plans read; a run refused for lack of time (nothing started); a run admitted, whose
     worker outlives the call that starts it and is followed to its end by the next call; a
     run paused and resumed by the next worker from the checkpoint holding Warp data,
-    repeating the uninterrupted experiment exactly; what each call packs for the trip back.
+    repeating the uninterrupted experiment exactly; what each call packs for the trip back;
+    runs continued on another machine from the records a call brought back (CAMPAIGN_RECORDS:
+    fast-forwarded, then trained on), again exactly the uninterrupted experiment.
     All of it without the modules of the wheels the device packs leave out."""
     directory = str(tmp_path / "campaign")
     speed = _campaign("speed", directory, CAMPAIGN_ONLY="^(measure-hopper|projections)$")
@@ -162,6 +165,8 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     assert first.returncode == CALL_AGAIN, first.stdout + first.stderr
     assert "projected wall time for Hopper-v5, 3 pairs x 4 envs (warp" in first.stdout and "fits" in first.stdout
     assert "hopper is not finished: the next worker resumes it" in first.stdout
+    halfway = str(tmp_path / "halfway.tar.gz")  # what that call brought back: the runs' records to env step 40
+    shutil.copy(os.path.join(directory, "out", "campaign-hopper.tar.gz"), halfway)
     started = _campaign("hopper", directory, CAMPAIGN_CALL_SECONDS="0")
     assert started.returncode == CALL_AGAIN, started.stdout + started.stderr
     pid = started.stdout.split("started the hopper worker (pid ")[1].split(")")[0]
@@ -177,6 +182,22 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
         rows = [json.loads(line) for line in packed[f"./hopper/{straight.config.missingness}-s0/scores.jsonl"].splitlines()]
         assert [row["scores"] for row in rows] == [row["scores"] for row in straight.scores]
         assert [row["p_miss"] for row in rows] == [row["p_miss"] for row in straight.scores]
+
+    # The next lease continues the runs from the records the paused call brought back: a
+    # fresh machine (folder) with only the speed record, the runs rebuilt bit for bit to env
+    # step 40 without scoring, then trained and scored on, as the straight experiment.
+    elsewhere = str(tmp_path / "next-lease")
+    os.makedirs(os.path.join(elsewhere, "results"))
+    shutil.copy(records_path, os.path.join(elsewhere, "results"))
+    continued = _campaign("hopper", elsewhere, CAMPAIGN_RECORDS=halfway)
+    assert continued.returncode == 0, continued.stdout + continued.stderr
+    assert f"continuing the hopper runs of {halfway}" in continued.stdout
+    assert "+ 1 recorded intervals re-trained x chunk" in continued.stdout
+    assert "fast-forward: re-training env steps 0 to 40 from the start" in continued.stdout
+    for straight in warp_experiment:
+        rows = [json.loads(line) for line in
+                _packed(elsewhere, "hopper")[f"./hopper/{straight.config.missingness}-s0/scores.jsonl"].splitlines()]
+        assert [row["scores"] for row in rows] == [row["scores"] for row in straight.scores]
 
     # Step 5 on what came back: FIGURE1.md from the unpacked runs, computed, never typed in.
     with tarfile.open(os.path.join(directory, "out", "campaign-hopper.tar.gz")) as tar:
