@@ -280,7 +280,7 @@ def project(record: dict, scorings: int, checkpoint_every: int, retrained: int =
     return Projection(scorings, retrained, saves, total)
 
 
-def recorded_scorings(config: PlanConfig) -> int:
+def recorded_intervals(config: PlanConfig) -> int:
     """The scoring intervals a run continuing ``config.records`` re-trains: as far as every
     one of its pairs recorded them with a state fingerprint (0 for a fresh run). ValueError
     in one line where the records hold other pairs, or nothing to continue."""
@@ -307,7 +307,7 @@ def _fits(config: PlanConfig) -> bool:
     """Whether a run of ``total_steps`` fits in ``deadline`` (and, continuing records, goes
     past them); its projection printed."""
     shape, record = _shape(config)
-    scorings, retrained = math.ceil(config.total_steps / config.score_every), recorded_scorings(config)
+    scorings, retrained = math.ceil(config.total_steps / config.score_every), recorded_intervals(config)
     if scorings <= retrained:
         print(_nothing_to_add(config, retrained, f"total_steps={config.total_steps:,}"))
         return False
@@ -323,7 +323,7 @@ def _longest(config: PlanConfig) -> int | None:
     """The most env steps (min_steps to max_steps; continuing records, past them) a run fits
     in ``deadline``, or None."""
     shape, record = _shape(config)
-    retrained = recorded_scorings(config)
+    retrained = recorded_intervals(config)
     scorings, most = retrained + 1, max(1, config.max_steps // config.score_every)
     if scorings > most:
         print(_nothing_to_add(config, retrained, f"max_steps={config.max_steps:,}"))
