@@ -76,6 +76,8 @@
 #                           worker resumes it (tests use it; 0 or unset: no limit)
 #   CAMPAIGN_RECORDS        an archive of the step's runs to continue (above; relative to the
 #                           repository root); read when the worker starts
+#   CAMPAIGN_FIRST_SEED     the runs' first seed (default 0): CAMPAIGN_FIRST_SEED=5 trains seeds
+#                           5-9, new seeds for a result that seeds 0-4 gave
 #   PYTHON                  the interpreter (default python3)
 set -uo pipefail
 step=${1:-}
@@ -143,6 +145,7 @@ else
   scoring=(n_episodes=10); train_bench=(num_envs=125 iterations=40); brax=(num_envs=125 steps_per_epoch=40)
   deadline=${CAMPAIGN_DEADLINE:-}; lease=690
 fi
+sizes+=(first_seed=${CAMPAIGN_FIRST_SEED:-0})  # seeds first_seed, first_seed + 1, ...
 ALL=adversarial,uniform,none
 PAIRED=adversarial,uniform
 
