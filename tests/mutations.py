@@ -366,6 +366,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "campaign_continues_records_without_fast_forward": ("benchmarks/gpu_campaign.sh",
                                                         "then resume=true; forward=true; fi", "then resume=true; fi",
                                                         "test_hopper_pipelines.py"),
+    "campaign_ignores_first_seed": ("benchmarks/gpu_campaign.sh", "sizes+=(first_seed=${CAMPAIGN_FIRST_SEED:-0})",
+                                    "sizes+=()", "test_hopper_pipelines.py"),
     "left_out_wheels_packed": ("benchmarks/device_pack.py", '    leave_out_wheels(os.path.join(dev, "a", "whl"))\n', "",
                                "test_device_pack.py"),
     "campaign_imports_a_left_out_module": ("admissable_jax/experiment.py", "from __future__ import annotations\n",

@@ -189,9 +189,15 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     elsewhere = str(tmp_path / "next-lease")
     os.makedirs(os.path.join(elsewhere, "results"))
     shutil.copy(records_path, os.path.join(elsewhere, "results"))
+    # Other seeds than the records hold (CAMPAIGN_FIRST_SEED) are refused by the plan in one
+    # line, before anything trains.
+    other_seeds = _campaign("hopper", elsewhere, CAMPAIGN_RECORDS=halfway, CAMPAIGN_FIRST_SEED="5")
+    assert other_seeds.returncode == 2, other_seeds.stdout + other_seeds.stderr  # bad input
+    assert f"continuing the hopper runs of {halfway}" in other_seeds.stdout  # unpacked once, for the next call too
+    assert ("has adversarial-s0, uniform-s0, none-s0, this one adversarial-s5, uniform-s5, none-s5 (keep seeds"
+            in other_seeds.stdout)
     continued = _campaign("hopper", elsewhere, CAMPAIGN_RECORDS=halfway)
     assert continued.returncode == 0, continued.stdout + continued.stderr
-    assert f"continuing the hopper runs of {halfway}" in continued.stdout
     assert "+ 1 recorded intervals re-trained x chunk" in continued.stdout
     assert "fast-forward: re-training env steps 0 to 40 from the start" in continued.stdout
     for straight in warp_experiment:
