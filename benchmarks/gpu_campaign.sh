@@ -22,8 +22,9 @@
 # the step's env folder) instead of starting afresh: it unpacks them, plans the longest
 # continuation that fits (their recorded intervals re-trained first, a chunk each, no scoring
 # round) and runs `experiment ... resume=true fast_forward=true`, which checks every rebuilt
-# state against the records bit for bit and stops at the first that differs: exit 1 and the
-# line "fast-forward diverged", within a minute, where this machine cannot continue them.
+# state against the records bit for bit and stops at the first that differs (exit 1, "fast-forward
+# diverged at env step N"), where this machine cannot continue them: about a minute in if it
+# differs from the first interval on, a chunk (seconds) later for each interval it agrees.
 #
 # A step runs as one worker process in a process session of its own, which the device machine
 # keeps running between calls while it stays warm: the GPU works on while no call is in flight,
