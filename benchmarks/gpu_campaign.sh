@@ -200,9 +200,10 @@ unpack_records() {  # unpack_records ENV: the ENV/ folder of $records as $dir/EN
 choose() {  # choose ENV MODES [plan keys]: campaign.py plan picks the run (its last line, kept in $chosen), or refuse
   local env=$1 modes=$2 status; shift 2
   [ -n "$deadline" ] || { echo "set CAMPAIGN_DEADLINE to the device seconds left (the device tool's status)"; exit 2; }
-  $py benchmarks/campaign.py plan env="$env" modes="$modes" "${sizes[@]}" deadline="$deadline" \
-      min_steps=$min_steps max_steps=$full_steps ${CAMPAIGN_SPEED_DEVICE:+"speed_device=$CAMPAIGN_SPEED_DEVICE"} \
-      "$@" 2>&1 | grep -v '^Warp' | tee "$dir/plan.out"
+  local keys=(env="$env" modes="$modes" "${sizes[@]}" deadline="$deadline" min_steps=$min_steps max_steps=$full_steps
+              ${CAMPAIGN_SPEED_DEVICE:+"speed_device=$CAMPAIGN_SPEED_DEVICE"} "$@")
+  echo "+ campaign.py plan ${keys[*]}"
+  $py benchmarks/campaign.py plan "${keys[@]}" 2>&1 | grep -v '^Warp' | tee "$dir/plan.out"
   status=${PIPESTATUS[0]}
   [ $status -eq 3 ] && refused "$env: fewer than $min_steps env steps fit in $deadline s"
   [ $status -eq 0 ] || exit $status
