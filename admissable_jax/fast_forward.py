@@ -21,14 +21,13 @@ command in one line, the records untouched.
 from __future__ import annotations
 
 import dataclasses
-import os
 
 import numpy as np
 
 from admissable_jax.errors import RunFailed
 from admissable_jax.loggers import FINGERPRINT
 from admissable_jax.method import SetNumbering, hidden_row, parse_set
-from admissable_jax.run_directory import RunDirectory, read_jsonl
+from admissable_jax.run_directory import RunDirectory, read_run_file
 
 
 class FastForwardDiverged(RunFailed):
@@ -51,12 +50,8 @@ def recorded_rows(run_path: str, after: int, score_every: int) -> list[tuple[dic
     """(``scores.jsonl`` row, recorded state fingerprint) of each round the run in ``run_path``
     recorded after env step ``after``, ζ apart from it, as far as both of its files hold them
     with a fingerprint. Reads only: a plan may ask before any run directory is opened."""
-    def read(name: str) -> list[dict]:
-        path = os.path.join(run_path, name)
-        return read_jsonl(path) if os.path.exists(path) else []
-
-    scores = {row["env_steps"]: row for row in read("scores.jsonl")}
-    metrics = {row["env_steps"]: row for row in read("metrics.jsonl")}
+    scores = {row["env_steps"]: row for row in read_run_file(run_path, "scores.jsonl")}
+    metrics = {row["env_steps"]: row for row in read_run_file(run_path, "metrics.jsonl")}
     found = []
     step = after + score_every
     while step in scores and FINGERPRINT in metrics.get(step, {}):

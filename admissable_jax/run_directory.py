@@ -82,6 +82,12 @@ def read_jsonl(path: str, torn: str = "raise") -> list[dict[str, Any]]:
     return rows
 
 
+def read_run_file(run_path: str, name: str) -> list[dict[str, Any]]:
+    """The rows of the run's JSONL file ``name`` (none where it has no such file yet)."""
+    path = os.path.join(run_path, name)
+    return read_jsonl(path) if os.path.exists(path) else []
+
+
 def load_config_yaml(path: str):
     """A run's ``config.yaml`` as an OmegaConf node; one-line ValueError if it is not valid YAML."""
     try:
@@ -228,8 +234,7 @@ class RunDirectory:
         self.loggers.log(name, row)
 
     def read(self, name: str) -> list[dict[str, Any]]:
-        path = os.path.join(self.path, name)
-        return read_jsonl(path) if os.path.exists(path) else []
+        return read_run_file(self.path, name)
 
     def set_aside_rows_after(self, step: int) -> list[str]:
         """Move the rows written after env step ``step``, where this run starts (0, when the

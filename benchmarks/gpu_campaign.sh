@@ -215,6 +215,13 @@ worker() {
     $py -c "import jax, mujoco, os, warp; print('campaign step $step: jax', jax.__version__, jax.devices(), 'mujoco', mujoco.__version__, 'warp', warp.__version__, 'WARP_CACHE_PATH', os.environ.get('WARP_CACHE_PATH'))" \
       2>&1 | grep -v '^Warp'
   fi
+  # Continuing records (CAMPAIGN_RECORDS; never with speed): the records' pairs, past them as
+  # far as the time allows, planned from their folder; a fresh run may fall back to fewer pairs.
+  local continuing=() fallback=(fallback_modes=$PAIRED)
+  if [ -n "$records" ]; then
+    unpack_records "$step"
+    continuing=(records="$dir/$step") fallback=()
+  fi
   case "$step" in
     speed)
       stage measure-hopper 300 $py benchmarks/campaign.py measure env=hopper modes=$ALL "${sizes[@]}"
@@ -253,22 +260,12 @@ worker() {
       # if neither fits (a Hopper run needs more than one lease on an H100: speed step), the 15
       # pairs for the longest run the time allows, as the ant step does. One plan decides.
       chosen=$state/$step.run
-      if [ -n "$records" ]; then  # the records' pairs, past them as far as the time allows
-        unpack_records "$step"
-        [ -e "$chosen" ] || choose "$step" $ALL total_steps=$full_steps or_longest=true records="$dir/$step"
-      else
-        [ -e "$chosen" ] || choose "$step" $ALL total_steps=$full_steps fallback_modes=$PAIRED or_longest=true
-      fi
+      [ -e "$chosen" ] || choose "$step" $ALL total_steps=$full_steps "${fallback[@]}" or_longest=true "${continuing[@]}"
       train "$step" $(cat "$chosen")
       ;;
     ant)
       chosen=$state/ant.run
-      if [ -n "$records" ]; then
-        unpack_records ant
-        [ -e "$chosen" ] || choose ant $PAIRED total_steps=0 records="$dir/ant"
-      else
-        [ -e "$chosen" ] || choose ant $PAIRED total_steps=0
-      fi
+      [ -e "$chosen" ] || choose ant $PAIRED total_steps=0 "${continuing[@]}"
       train ant $(cat "$chosen")
       ;;
   esac

@@ -121,6 +121,15 @@ def _packed(directory: str, step: str) -> dict[str, bytes]:
         return {member.name: tar.extractfile(member).read() for member in tar.getmembers() if member.isfile()}
 
 
+def _repeats_the_straight_run(packed: dict[str, bytes], warp_experiment) -> None:
+    """Each pair's packed ``scores.jsonl`` holds the uninterrupted experiment's rounds: its
+    scores and p_miss, bit for bit."""
+    for straight in warp_experiment:
+        rows = [json.loads(line) for line in packed[f"./hopper/{straight.config.missingness}-s0/scores.jsonl"].splitlines()]
+        assert [row["scores"] for row in rows] == [row["scores"] for row in straight.scores]
+        assert [row["p_miss"] for row in rows] == [row["p_miss"] for row in straight.scores]
+
+
 def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     """The campaign as a lent GPU runs it, on the CPU: the speed step's measurement that
     plans read; a run refused for lack of time (nothing started); a run admitted, whose
@@ -179,10 +188,7 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     assert "resume=true" in followed.stdout + started.stdout and "step hopper complete" in followed.stdout
     packed = _packed(directory, "hopper")
     assert b"paused at 40 of 80 env steps" in packed["./hopper.log"]
-    for straight in warp_experiment:
-        rows = [json.loads(line) for line in packed[f"./hopper/{straight.config.missingness}-s0/scores.jsonl"].splitlines()]
-        assert [row["scores"] for row in rows] == [row["scores"] for row in straight.scores]
-        assert [row["p_miss"] for row in rows] == [row["p_miss"] for row in straight.scores]
+    _repeats_the_straight_run(packed, warp_experiment)
 
     # The next lease continues the runs from the records the paused call brought back: a
     # fresh machine (folder) with only the speed record, the runs rebuilt bit for bit to env
@@ -195,10 +201,7 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     assert f"continuing the hopper runs of {halfway}" in continued.stdout
     assert "+ 1 recorded intervals re-trained x chunk" in continued.stdout
     assert "fast-forward: re-training env steps 0 to 40 from the start" in continued.stdout
-    for straight in warp_experiment:
-        rows = [json.loads(line) for line in
-                _packed(elsewhere, "hopper")[f"./hopper/{straight.config.missingness}-s0/scores.jsonl"].splitlines()]
-        assert [row["scores"] for row in rows] == [row["scores"] for row in straight.scores]
+    _repeats_the_straight_run(_packed(elsewhere, "hopper"), warp_experiment)
 
     # Step 5 on what came back: FIGURE1.md from the unpacked runs, computed, never typed in.
     with tarfile.open(os.path.join(directory, "out", "campaign-hopper.tar.gz")) as tar:
