@@ -30,6 +30,7 @@ from admissable_jax import TrainConfig, make_env
 from admissable_jax.experiment import ExperimentConfig, run_experiment
 from admissable_jax.host_loop import PhysicsCapacityExceeded
 from admissable_jax.train import train_fn
+import campaign  # benchmarks/ is on the tests' path (conftest.py)
 import device_pack
 from test_figure1 import _figure1
 
@@ -121,13 +122,13 @@ def _packed(directory: str, step: str) -> dict[str, bytes]:
         return {member.name: tar.extractfile(member).read() for member in tar.getmembers() if member.isfile()}
 
 
-def _repeats_the_straight_run(packed: dict[str, bytes], warp_experiment) -> None:
-    """Each pair's packed ``scores.jsonl`` holds the uninterrupted experiment's rounds: its
-    scores and p_miss, bit for bit."""
+def _repeats_the_straight_run(packed: dict[str, bytes], warp_experiment, rounds: int = 2) -> None:
+    """Each pair's packed ``scores.jsonl`` holds the uninterrupted experiment's first
+    ``rounds`` rounds: its scores and p_miss, bit for bit."""
     for straight in warp_experiment:
         rows = [json.loads(line) for line in packed[f"./hopper/{straight.config.missingness}-s0/scores.jsonl"].splitlines()]
-        assert [row["scores"] for row in rows] == [row["scores"] for row in straight.scores]
-        assert [row["p_miss"] for row in rows] == [row["p_miss"] for row in straight.scores]
+        assert [row["scores"] for row in rows] == [row["scores"] for row in straight.scores[:rounds]]
+        assert [row["p_miss"] for row in rows] == [row["p_miss"] for row in straight.scores[:rounds]]
 
 
 def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
@@ -137,8 +138,9 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     run paused and resumed by the next worker from the checkpoint holding Warp data,
     repeating the uninterrupted experiment exactly; what each call packs for the trip back;
     runs continued on another machine from the records a call brought back (CAMPAIGN_RECORDS:
-    fast-forwarded, then trained on), again exactly the uninterrupted experiment.
-    All of it without the modules of the wheels the device packs leave out."""
+    fast-forwarded, then trained on), again exactly the uninterrupted experiment; a run
+    bounded by the deadline rather than by its plan, stopped where the deadline leaves no
+    room for another interval. All of it without the modules of the wheels the device packs leave out."""
     directory = str(tmp_path / "campaign")
     speed = _campaign("speed", directory, CAMPAIGN_ONLY="^(measure-hopper|projections)$")
     assert speed.returncode == 0, speed.stdout + speed.stderr
@@ -202,6 +204,22 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     assert "+ 1 recorded intervals re-trained x chunk" in continued.stdout
     assert "fast-forward: re-training env steps 0 to 40 from the start" in continued.stdout
     _repeats_the_straight_run(_packed(elsewhere, "hopper"), warp_experiment)
+
+    # A run goes on past its planned length while the deadline allows, and stops where it
+    # does not. The deadline here plans 40 env steps (one scoring fits, two do not); the run is
+    # given max_steps (80) and time_limit from the deadline, which CAMPAIGN_RESERVE uses up,
+    # so it stops after its first interval: the step complete, its records whole.
+    bounded = str(tmp_path / "deadline")
+    os.makedirs(os.path.join(bounded, "results"))
+    shutil.copy(records_path, os.path.join(bounded, "results"))
+    one, two = (campaign.project(record, scorings, checkpoint_every=1).total_s for scorings in (1, 2))
+    stopped = _campaign("hopper", bounded, CAMPAIGN_DEADLINE=f"{(one + two) / 2:.3f}", CAMPAIGN_RESERVE="100000")
+    assert stopped.returncode == 0, stopped.stdout + stopped.stderr
+    assert "modes=adversarial,uniform,none total_steps=40" in stopped.stdout  # the plan's 40
+    assert "total_steps=80 " in stopped.stdout and " time_limit=1 (40 env steps planned" in stopped.stdout
+    assert "hopper stopped at the deadline: 40 env steps (40 planned)" in stopped.stdout
+    assert "step hopper complete" in stopped.stdout
+    _repeats_the_straight_run(_packed(bounded, "hopper"), warp_experiment, rounds=1)
 
     # Step 5 on what came back: FIGURE1.md from the unpacked runs, computed, never typed in.
     with tarfile.open(os.path.join(directory, "out", "campaign-hopper.tar.gz")) as tar:
