@@ -131,6 +131,13 @@ def _repeats_the_straight_run(packed: dict[str, bytes], warp_experiment, rounds:
         assert [row["p_miss"] for row in rows] == [row["p_miss"] for row in straight.scores[:rounds]]
 
 
+def _fresh_machine(directory: str, speed_records: str) -> str:
+    """A campaign folder as a new lease starts it: nothing but the speed step's records."""
+    os.makedirs(os.path.join(directory, "results"))
+    shutil.copy(speed_records, os.path.join(directory, "results"))
+    return directory
+
+
 def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     """The campaign as a lent GPU runs it, on the CPU: the speed step's measurement that
     plans read; a run refused for lack of time (nothing started); a run admitted, whose
@@ -140,7 +147,8 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     runs continued on another machine from the records a call brought back (CAMPAIGN_RECORDS:
     fast-forwarded, then trained on), again exactly the uninterrupted experiment; a run
     bounded by the deadline rather than by its plan, stopped where the deadline leaves no
-    room for another interval. All of it without the modules of the wheels the device packs leave out."""
+    room for another interval. All of it without the modules of the wheels the device packs
+    leave out."""
     directory = str(tmp_path / "campaign")
     speed = _campaign("speed", directory, CAMPAIGN_ONLY="^(measure-hopper|projections)$")
     assert speed.returncode == 0, speed.stdout + speed.stderr
@@ -195,9 +203,7 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     # The next lease continues the runs from the records the paused call brought back: a
     # fresh machine (folder) with only the speed record, the runs rebuilt bit for bit to env
     # step 40 without scoring, then trained and scored on, as the straight experiment.
-    elsewhere = str(tmp_path / "next-lease")
-    os.makedirs(os.path.join(elsewhere, "results"))
-    shutil.copy(records_path, os.path.join(elsewhere, "results"))
+    elsewhere = _fresh_machine(str(tmp_path / "next-lease"), records_path)
     continued = _campaign("hopper", elsewhere, CAMPAIGN_RECORDS=halfway)
     assert continued.returncode == 0, continued.stdout + continued.stderr
     assert f"continuing the hopper runs of {halfway}" in continued.stdout
@@ -209,9 +215,7 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     # does not. The deadline here plans 40 env steps (one scoring fits, two do not); the run is
     # given max_steps (80) and time_limit from the deadline, which CAMPAIGN_RESERVE uses up,
     # so it stops after its first interval: the step complete, its records whole.
-    bounded = str(tmp_path / "deadline")
-    os.makedirs(os.path.join(bounded, "results"))
-    shutil.copy(records_path, os.path.join(bounded, "results"))
+    bounded = _fresh_machine(str(tmp_path / "deadline"), records_path)
     one, two = (campaign.project(record, scorings, checkpoint_every=1).total_s for scorings in (1, 2))
     stopped = _campaign("hopper", bounded, CAMPAIGN_DEADLINE=f"{(one + two) / 2:.3f}", CAMPAIGN_RESERVE="100000")
     assert stopped.returncode == 0, stopped.stdout + stopped.stderr
