@@ -303,11 +303,11 @@ def _shape(config: ExperimentConfig) -> tuple[str, dict]:
             f"({record['physics']} on {record['device']})"), record
 
 
-def _fits(config: PlanConfig) -> bool:
-    """Whether a run of ``total_steps`` fits in ``deadline`` (and, continuing records, goes
-    past them); its projection printed."""
+def _fits(config: PlanConfig, retrained: int) -> bool:
+    """Whether a run of ``total_steps`` fits in ``deadline`` (and, continuing records whose
+    first ``retrained`` intervals it re-trains, goes past them); its projection printed."""
     shape, record = _shape(config)
-    scorings, retrained = math.ceil(config.total_steps / config.score_every), recorded_intervals(config)
+    scorings = math.ceil(config.total_steps / config.score_every)
     if scorings <= retrained:
         print(_nothing_to_add(config, retrained, f"total_steps={config.total_steps:,}"))
         return False
@@ -319,11 +319,10 @@ def _fits(config: PlanConfig) -> bool:
     return fits
 
 
-def _longest(config: PlanConfig) -> int | None:
-    """The most env steps (min_steps to max_steps; continuing records, past them) a run fits
-    in ``deadline``, or None."""
+def _longest(config: PlanConfig, retrained: int) -> int | None:
+    """The most env steps (min_steps to max_steps; continuing records whose first
+    ``retrained`` intervals it re-trains, past them) a run fits in ``deadline``, or None."""
     shape, record = _shape(config)
-    retrained = recorded_intervals(config)
     scorings, most = retrained + 1, max(1, config.max_steps // config.score_every)
     if scorings > most:
         print(_nothing_to_add(config, retrained, f"max_steps={config.max_steps:,}"))
@@ -353,9 +352,10 @@ def plan(config: PlanConfig) -> int:
     (exit 0); exit 3 if none fits."""
     if config.records and config.fallback_modes:
         raise ValueError("records= continues the pairs its runs hold: fallback_modes cannot change them")
+    retrained = recorded_intervals(config)  # the records read once (0 for a fresh run)
     if config.total_steps > 0:
         for modes in filter(None, dict.fromkeys([config.modes, config.fallback_modes])):
-            if _fits(dataclasses.replace(config, modes=modes)):
+            if _fits(dataclasses.replace(config, modes=modes), retrained):
                 if modes != config.modes:
                     print(f"the {config.modes} pairs cannot finish in the time left; running the {modes} pairs")
                 print(f"modes={modes} total_steps={config.total_steps}")
@@ -364,7 +364,7 @@ def plan(config: PlanConfig) -> int:
             return REFUSED
         print(f"{config.env} cannot reach {config.total_steps} env steps in {config.deadline:g} s: "
               f"the longest run that fits instead")
-    steps = _longest(config)
+    steps = _longest(config, retrained)
     if steps is None:
         return REFUSED
     print(f"modes={config.modes} total_steps={steps}")
