@@ -51,6 +51,7 @@ class RunSpec:
             env_options=EnvOptions(
                 episode_length=config.episode_length,
                 physics=config.physics,
+                deterministic=config.deterministic_physics,
                 max_batch=num_runs * max(config.num_envs, config.score_envs, horizon_ranker_batch(config)),
             ),
             k=config.k,

@@ -26,8 +26,12 @@ import hashlib
 import inspect
 
 import jax.numpy as jnp
-from mujoco.mjx._src import collision_driver, collision_primitive
-from mujoco.mjx._src.types import GeomType
+
+from admissable_jax.envs import warp_package
+
+warp_package.use_package()  # before MJX is imported: MJX's Warp bridge then runs the mujoco-warp package
+from mujoco.mjx._src import collision_driver, collision_primitive  # noqa: E402
+from mujoco.mjx._src.types import GeomType  # noqa: E402
 
 # mju_normalize3 treats shorter vectors as zero (mjMINVAL).
 _MIN_NORM = 1e-15

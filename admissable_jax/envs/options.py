@@ -43,6 +43,11 @@ class EnvOptions:
         graph_mode: Warp only: how MuJoCo Warp's kernels run under JAX
             (``mjx.put_model(..., graph_mode=...)``): ``"WARP"`` or ``"WARP_STAGED"``
             (CUDA-graph capture modes), ``None`` for MJX's default.
+        deterministic: Warp only: MuJoCo Warp's deterministic mode (the ``mujoco-warp``
+            package, :mod:`.warp_package`): contacts sorted, constraint rows in a canonical
+            order, atomic sums run-to-run invariant, so that a GPU repeats a run bit for bit
+            (which continuing a run on another machine needs, :mod:`admissable_jax.fast_forward`).
+            ``False``: the GPU's own order, which may be faster. One setting per process.
     """
 
     episode_length: int = MAX_EPISODE_STEPS
@@ -52,6 +57,7 @@ class EnvOptions:
     max_batch: int = DEFAULT_MAX_BATCH
     terminate_when_unhealthy: bool = True
     graph_mode: str | None = None
+    deterministic: bool = True
 
     def __post_init__(self) -> None:
         for name in ("episode_length", "max_batch"):
@@ -65,8 +71,9 @@ class EnvOptions:
             value = getattr(self, name)
             if value is not None and (not isinstance(value, int) or isinstance(value, bool) or value < 1):
                 raise ValueError(f"{name} must be None or an int >= 1, got {value!r}")
-        if not isinstance(self.terminate_when_unhealthy, bool):
-            raise ValueError(f"terminate_when_unhealthy must be a bool, got {self.terminate_when_unhealthy!r}")
+        for name in ("terminate_when_unhealthy", "deterministic"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be a bool, got {getattr(self, name)!r}")
         if self.graph_mode is not None and self.graph_mode not in WARP_GRAPH_MODES:
             raise ValueError(f"graph_mode must be None or one of {', '.join(WARP_GRAPH_MODES)}, got {self.graph_mode!r}")
 

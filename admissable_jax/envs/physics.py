@@ -13,6 +13,8 @@ lives here:
   overflow flags say so and :meth:`Physics.capacity_exceeded` reports it.
 - C MuJoCo's plane–capsule contact frames are installed on both backends when this module
   is imported (:mod:`.contact_frames`), before any env is built, so before any step.
+- Warp is the ``mujoco-warp`` package, in its deterministic mode unless the env's options
+  say otherwise (:mod:`.warp_package`): so a GPU can repeat a run bit for bit.
 - Warp computes ``cfrc_ext`` inside its step when the model asks for it
   (``run_rne_postconstraint``); the JAX implementation calls ``mjx.rne_postconstraint``.
 - Warp data has scratch fields shared by every world of a batch (the contact buffer and
@@ -39,10 +41,13 @@ import jax.numpy as jnp
 import mujoco
 from jax.custom_batching import custom_vmap
 
+from admissable_jax.envs import warp_package
+
+warp_package.use_package()  # before MJX is imported: MJX's Warp bridge then runs the mujoco-warp package
 # MJX prints an import failure when warp-lang is absent; physics=jax needs no Warp (and
 # physics=warp says clearly when it is missing), so keep that line out of users' output.
 with contextlib.redirect_stdout(io.StringIO()):
-    from mujoco import mjx
+    from mujoco import mjx  # noqa: E402
 from mujoco.mjx._src import collision_driver, constraint  # noqa: E402
 from mujoco.mjx._src import forward as mjx_forward  # noqa: E402
 from mujoco.mjx._src import scan as mjx_scan  # noqa: E402
@@ -86,7 +91,7 @@ class Physics:
     """A MuJoCo model on one backend (``impl``: ``"jax"`` or ``"warp"``)."""
 
     def __init__(self, mj_model: mujoco.MjModel, impl: str, frame_skip: int, max_batch: int,
-                 contact_forces: bool, graph_mode: str | None = None):
+                 contact_forces: bool, graph_mode: str | None = None, deterministic: bool = False):
         self.impl, self.frame_skip, self.max_batch = impl, frame_skip, max_batch
         self.contact_forces = contact_forces
         condim = collision_driver.make_condim(mj_model)
@@ -97,6 +102,7 @@ class Physics:
             self.data_template = mjx.make_data(self.model, impl="jax")
             self._shared = {}  # JAX data has no fields shared across a batch
         elif impl == "warp":
+            warp_package.set_deterministic(deterministic)
             model = mjx.put_model(mj_model, impl="warp", graph_mode=_warp_graph_mode(graph_mode))
             if contact_forces:
                 warp_options = model.opt._impl.replace(run_rne_postconstraint=True)

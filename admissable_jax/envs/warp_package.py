@@ -1,0 +1,80 @@
+"""Which MuJoCo Warp MJX runs, and its deterministic mode.
+
+Why: a GPU run of MuJoCo Warp is not repeatable as MJX 3.17.0 ships it. Its vendored copy
+(``mujoco.mjx.third_party.mujoco_warp``) gives each contact a slot and each constraint its
+rows from atomic counters, and sums floats with atomics, in whatever order the GPU's threads
+arrive; so two runs of one program differ in float rounding, and a run's records cannot be
+re-trained bit for bit on the next machine (:mod:`admissable_jax.fast_forward`). The
+``mujoco-warp`` package of the same version (3.17.0, pinned with warp-lang) has an opt-in
+deterministic mode (``Option.deterministic``, a ``DeterminismType`` bitmask): contacts sorted
+by a stable key, constraint rows in a canonical order, atomic sums run-to-run invariant.
+
+MJX's Warp bridge imports MuJoCo Warp by its vendored module names when ``mujoco.mjx`` is
+first imported. So :func:`use_package`, called by :mod:`.physics` and :mod:`.contact_frames`
+before they import MJX, puts the package's modules under those names; MJX then runs the
+package. The bridge builds every call's ``Option`` on one shared object per bridge module
+(``_o``) and never sets ``deterministic``, so :func:`set_deterministic` sets it there: one
+setting per process, which :func:`set_deterministic` enforces.
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+import sys
+
+VENDORED = "mujoco.mjx.third_party.mujoco_warp"
+PACKAGE = "mujoco_warp"
+# MJX's bridge modules that each hold a shared Option (``_o``) for their calls.
+_BRIDGE_MODULES = ("forward", "smooth", "collision_driver", "bvh", "render")
+INSTALL_HINT = "pip install mujoco-warp==3.17.0, or the 'cuda' extra"
+
+_process_setting: bool | None = None  # the deterministic setting this process's Warp envs run with
+
+
+def use_package() -> bool:
+    """Put the ``mujoco_warp`` package under MJX's vendored MuJoCo Warp module names, unless MJX
+    has imported its own copy already. True when MJX runs (or will run) the package."""
+    if VENDORED in sys.modules:
+        return runs_package()
+    try:
+        package = importlib.import_module(PACKAGE)
+        source = importlib.import_module(f"{PACKAGE}._src")
+    except (ImportError, RuntimeError):  # not installed, or warp-lang missing
+        return False
+    for module in pkgutil.iter_modules(source.__path__):
+        if not module.name.endswith("_test"):
+            importlib.import_module(f"{PACKAGE}._src.{module.name}")
+    sys.modules[VENDORED] = package
+    for name, module in list(sys.modules.items()):
+        if name.startswith(f"{PACKAGE}._src"):
+            sys.modules[VENDORED + name[len(PACKAGE):]] = module
+    return True
+
+
+def runs_package() -> bool:
+    """Whether MJX's MuJoCo Warp is the ``mujoco_warp`` package (not MJX's vendored copy)."""
+    return getattr(sys.modules.get(VENDORED), "__name__", None) == PACKAGE
+
+
+def set_deterministic(deterministic: bool) -> None:
+    """Run every MuJoCo Warp call of this process in deterministic mode (all of
+    ``DeterminismType``) or not. Raises ``ValueError`` (one line) when the package does not
+    run, or when this process's Warp envs were already built the other way."""
+    global _process_setting
+    if _process_setting is not None and _process_setting != deterministic:
+        raise ValueError(f"this process already steps MuJoCo Warp with deterministic_physics={_process_setting} "
+                         f"(one setting per process: MJX's Warp bridge shares one Option); "
+                         f"build envs with deterministic_physics={deterministic} in a process of their own")
+    if deterministic and not runs_package():
+        raise ValueError("deterministic_physics=true needs the mujoco-warp package imported before MJX "
+                         f"({INSTALL_HINT}; and import admissable_jax before mujoco.mjx or brax), "
+                         "or deterministic_physics=false")
+    if runs_package():
+        from mujoco_warp._src.types import DeterminismType
+
+        mode = DeterminismType.ALL if deterministic else DeterminismType.NONE
+        for name in _BRIDGE_MODULES:
+            importlib.import_module(f"mujoco.mjx.warp.{name}")._o.deterministic = mode
+    _process_setting = deterministic
+
