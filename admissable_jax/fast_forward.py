@@ -11,8 +11,8 @@ the cost of the chunks alone: the scoring rounds, much of a run's time once its 
 run long, are skipped, and a run whose checkpoints are lost, or stayed on a machine its
 replay buffer could not leave, goes on from its records. A device gives the same state only
 where it computes as the recording one did (the same program on the same kind of device,
-deterministic kernels: the CPU does; MuJoCo Warp on a GPU, which adds floats with atomics
-in no fixed order, is not expected to), so every rebuilt state's fingerprint
+deterministic kernels: the CPU does; on a GPU, MuJoCo Warp only in its deterministic mode,
+``deterministic_physics``, and XLA with deterministic ops), so every rebuilt state's fingerprint
 (:meth:`Trainer.fingerprint <admissable_jax.training.Trainer.fingerprint>`) is checked
 against the one its ``metrics.jsonl`` row recorded, and the first that differs stops the
 command in one line, the records untouched.

@@ -15,7 +15,7 @@ import sys
 from typing import Any
 
 INVOCATIONS = "invocations.jsonl"
-PACKAGES = ("admissable_jax", "jax", "jaxlib", "mujoco", "mujoco-mjx", "warp-lang", "flax", "optax", "orbax-checkpoint",
+PACKAGES = ("admissable_jax", "jax", "jaxlib", "mujoco", "mujoco-mjx", "mujoco-warp", "warp-lang", "flax", "optax", "orbax-checkpoint",
             "brax", "numpy", "gymnasium")
 
 

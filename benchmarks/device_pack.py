@@ -17,7 +17,9 @@ which the second call carries with ``.dev/kernels``. The kernels go second becau
 call starts the campaign's worker, which unpacks them: a device call's carried folders do not
 stay for the next call (the H200 lease of 2026-12-04 carried them first, and its worker found
 none). ``pack.sh``'s own
-``stage.sh`` and ``finish.sh`` join the two parts as before. Of ``pack.sh``'s wheels it leaves out
+``stage.sh`` and ``finish.sh`` join the two parts as before. It adds the wheels ``pack.sh``'s
+list lacks (:data:`EXTRA_WHEELS`: mujoco-warp, 2.3 MB), which ``stage.sh`` installs with the
+rest. Of ``pack.sh``'s wheels it leaves out
 those that only MuJoCo's viewer and renderer and Brax's web viewer import
 (:data:`LEFT_OUT_WHEELS`: 3.8 MB, pyopengl's 3.2 MB the most): MuJoCo imports its renderer
 in a ``try``, and no campaign step renders. ``tests/test_hopper_pipelines.py`` runs the
@@ -48,6 +50,8 @@ KERNELS = "kernels"  # benchmarks/warp_kernels.py's archive, carried with .dev/b
 UNUSED_AT_RUN_TIME = ("warp/tests",)
 # pack.sh's wheels no campaign step imports, by distribution name (as in a wheel's file name,
 # lower case) and the top-level module each installs.
+# Wheels the campaign needs that pack.sh's default list lacks, added to its .dev/a/whl.
+EXTRA_WHEELS = ("mujoco-warp==3.17.0",)  # MuJoCo Warp's own package, for its deterministic mode (envs/warp_package.py)
 LEFT_OUT_WHEELS = {"pyopengl": "OpenGL", "glfw": "glfw", "flask": "flask", "flask_cors": "flask_cors",
                    "websockets": "websockets"}
 BLOCK, ARCHIVE_END = 512, 10240  # tar's block, and the most its end takes
@@ -164,6 +168,15 @@ def slim_warp(dev: str, scratch: str) -> str:
     return archive
 
 
+def add_extra_wheels(wheels: str) -> None:
+    """Download the :data:`EXTRA_WHEELS` (pure Python, so any platform's) into the folder ``wheels``
+    unless there already."""
+    present = {name.split("-")[0].lower() for name in os.listdir(wheels) if name.endswith(".whl")}
+    for requirement in EXTRA_WHEELS:
+        if requirement.split("==")[0].replace("-", "_").lower() not in present:
+            subprocess.run([sys.executable, "-m", "pip", "download", "-q", "--no-deps", "-d", wheels, requirement], check=True)
+
+
 def leave_out_wheels(wheels: str) -> None:
     """Delete the :data:`LEFT_OUT_WHEELS` from the folder ``wheels``."""
     for name in os.listdir(wheels):
@@ -179,6 +192,7 @@ def repack(dev: str, tree: int, margin: int) -> dict:
     for part in (FIRST_PART, REST):
         if not os.path.isfile(os.path.join(dev, part)):
             raise ValueError(f"{os.path.join(dev, part)} is missing: run this with pack=true (it runs ../shared/device/pack.sh first)")
+    add_extra_wheels(os.path.join(dev, "a", "whl"))
     leave_out_wheels(os.path.join(dev, "a", "whl"))
     with tempfile.TemporaryDirectory() as scratch:
         archive = slim_warp(dev, scratch)

@@ -114,6 +114,11 @@ if [ -n "$records" ]; then
   records=$(cd "$(dirname "$records")" && pwd)/$(basename "$records")
 fi
 export BENCHMARK_RESULTS_DIR=$dir/results PYTHONUNBUFFERED=1 PYTHONPATH=$repo:$repo/benchmarks${PYTHONPATH:+:$PYTHONPATH}
+# Runs that a GPU repeats bit for bit, so that a later lease can continue them (fast_forward):
+# MuJoCo Warp in its deterministic mode (experiment's deterministic_physics, on by default),
+# and XLA's deterministic GPU ops without timing-based kernel choices (autotuning), which
+# may differ from machine to machine.
+export XLA_FLAGS="--xla_gpu_deterministic_ops=true --xla_gpu_autotune_level=0${XLA_FLAGS:+ $XLA_FLAGS}"
 
 kernels=$dir/warp_cache  # a Warp kernel cache: MuJoCo Warp's CUDA modules, prebuilt on the CPU
 
@@ -127,7 +132,7 @@ install() {  # the packages ../shared/device/pack.sh packs, into /tmp/site (devi
     tar -xmJf "$archive" -C "$dir" && touch "$kernels/.unpacked"  # -m: their times, this clock's
   fi
   [ -e "$kernels/.unpacked" ] && export WARP_CACHE_PATH=$kernels
-  local check="import mujoco, warp, brax, omegaconf, gymnasium"
+  local check="import mujoco, warp, mujoco_warp, brax, omegaconf, gymnasium"
   $py -c "$check" 2>/dev/null && return 0
   [ -f .dev/a/stage.sh ] && bash .dev/a/stage.sh
   [ -f .dev/b/finish.sh ] && bash .dev/b/finish.sh

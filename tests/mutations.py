@@ -380,6 +380,14 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "campaign_imports_a_left_out_module": ("admissable_jax/experiment.py", "from __future__ import annotations\n",
                                            "from __future__ import annotations\nimport glfw  # a viewer's, on the campaign's path\n",
                                            "test_hopper_pipelines.py"),
+    # MuJoCo Warp's deterministic mode (envs/warp_package.py) and the check that a machine repeats a run.
+    "warp_physics_not_deterministic": ("admissable_jax/envs/options.py", "    deterministic: bool = True\n",
+                                       "    deterministic: bool = False\n", "test_envs.py"),
+    "warp_mode_set_on_no_bridge": ("admissable_jax/envs/warp_package.py",
+                                   'importlib.import_module(f"mujoco.mjx.warp.{name}")._o.deterministic = mode',
+                                   "mode", "test_envs.py"),
+    "repeatability_copies_checkpoints": ("benchmarks/repeatability.py", 'ignore=shutil.ignore_patterns("checkpoints*")',
+                                         'ignore=shutil.ignore_patterns("nothing")', "test_repeatability.py"),
 }
 
 

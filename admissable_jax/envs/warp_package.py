@@ -27,6 +27,7 @@ VENDORED = "mujoco.mjx.third_party.mujoco_warp"
 PACKAGE = "mujoco_warp"
 # MJX's bridge modules that each hold a shared Option (``_o``) for their calls.
 _BRIDGE_MODULES = ("forward", "smooth", "collision_driver", "bvh", "render")
+_NOT_FOR_MJX = ("cli",)  # the package's command line (absl flags), which MJX never imports
 INSTALL_HINT = "pip install mujoco-warp==3.17.0, or the 'cuda' extra"
 
 _process_setting: bool | None = None  # the deterministic setting this process's Warp envs run with
@@ -43,7 +44,7 @@ def use_package() -> bool:
     except (ImportError, RuntimeError):  # not installed, or warp-lang missing
         return False
     for module in pkgutil.iter_modules(source.__path__):
-        if not module.name.endswith("_test"):
+        if not module.name.endswith("_test") and module.name not in _NOT_FOR_MJX:
             importlib.import_module(f"{PACKAGE}._src.{module.name}")
     sys.modules[VENDORED] = package
     for name, module in list(sys.modules.items()):
