@@ -192,7 +192,6 @@ def repack(dev: str, tree: int, margin: int) -> dict:
     for part in (FIRST_PART, REST):
         if not os.path.isfile(os.path.join(dev, part)):
             raise ValueError(f"{os.path.join(dev, part)} is missing: run this with pack=true (it runs ../shared/device/pack.sh first)")
-    add_extra_wheels(os.path.join(dev, "a", "whl"))
     leave_out_wheels(os.path.join(dev, "a", "whl"))
     with tempfile.TemporaryDirectory() as scratch:
         archive = slim_warp(dev, scratch)
@@ -241,6 +240,7 @@ def main(argv: list[str]) -> None:
     try:
         if config.pack:
             _run_pack_sh(dev)
+        add_extra_wheels(os.path.join(dev, "a", "whl"))
         record = repack(dev, tree_bytes(), int(config.margin_mb * 1e6))
     except subprocess.CalledProcessError as error:
         fail(f"{' '.join(map(str, error.cmd)) if isinstance(error.cmd, list) else error.cmd} exited with status {error.returncode}")

@@ -42,6 +42,17 @@ def _joined(dev) -> dict[str, bytes]:
         return {member.name: tar.extractfile(member).read() for member in tar.getmembers() if member.isfile()}
 
 
+def test_the_wheels_pack_sh_lacks_are_added_once(tmp_path, monkeypatch):
+    """mujoco-warp (MJX runs it for its deterministic mode) is downloaded into .dev/a/whl unless there."""
+    downloads = []
+    monkeypatch.setattr(device_pack.subprocess, "run", lambda command, check: downloads.append(command[-1]))
+    device_pack.add_extra_wheels(str(tmp_path))
+    assert downloads == ["mujoco-warp==3.17.0"]
+    (tmp_path / "mujoco_warp-3.17.0-py3-none-any.whl").write_bytes(b"")
+    device_pack.add_extra_wheels(str(tmp_path))
+    assert downloads == ["mujoco-warp==3.17.0"]
+
+
 def test_packs_are_slimmed_and_split_so_that_each_call_fits_with_the_tree(tmp_path, monkeypatch):
     """Small sizes for 64 MiB: a 1 MB limit, a 0.3 MB tree, 0.3 MB of wheels, 0.1 MB of kernels,
     warp-lang 0.8 MB (incompressible) and its test suite 0.3 MB, whose first part pack.sh left
