@@ -10,7 +10,9 @@
 #             training (1 and 15 runs), Brax SAC (and its update alone against
 #             ours: CAMPAIGN_ONLY=brax-update runs just that); the Hopper and Ant runs' device
 #             time op by op (campaign.py profile; CAMPAIGN_ONLY=^profile- runs just these);
-#             last, steps 2-4 projected for a whole lease (campaign.py projections)
+#             last, steps 2-4 projected for a whole lease (campaign.py projections); first,
+#             whether this machine repeats a run bit for bit (repeatability.py:
+#             CAMPAIGN_ONLY='^repeatability-hopper$' runs just that, about two minutes)
 #   hopper    experiment env=hopper seeds=5 modes=adversarial,uniform,none total_steps=1000000
 #             (the 10 adversarial/uniform pairs if the 15 cannot finish in the time left; if
 #             neither can, the 15 pairs for the longest run that fits, at least 200k env steps)
@@ -87,6 +89,12 @@
 #                           repository root); read when the worker starts
 #   CAMPAIGN_FIRST_SEED     the runs' first seed (default 0): CAMPAIGN_FIRST_SEED=5 trains seeds
 #                           5-9, new seeds for a result that seeds 0-4 gave
+#   CAMPAIGN_DETERMINISTIC  1 (default): runs on the mujoco-warp package in its deterministic mode,
+#                           which a later lease needs to continue them; 0: on MJX's own copy of
+#                           MuJoCo Warp in the GPU's own order (ADMISSABLE_MJX_OWN_WARP=1,
+#                           deterministic_physics=false), as every run before 2026-12-04: the
+#                           fallback should the package fail on a GPU (the hopper, walker2d and ant
+#                           steps; the speed step's benchmarks build their envs deterministic)
 #   PYTHON                  the interpreter (default python3)
 set -uo pipefail
 step=${1:-}
@@ -149,6 +157,8 @@ if [ "$smoke" = 1 ]; then
          buffer_size=1000 score_episodes=2 score_envs=24 episode_length=10 checkpoint_every=1)
   min_steps=${CAMPAIGN_MIN_STEPS:-40}; worlds=4,8; graph_modes=default; physics_steps=5; scoring=(n_episodes=1 max_steps=10)
   train_bench=(num_envs=4 iterations=4 batch_size=32 buffer_size=1000); brax=(num_envs=4 steps_per_epoch=4 batch_size=32 num_eval_envs=2 episode_length=10)
+  repeat=(total_steps=80 learning_starts=48)
+  repeat_keys="physics=warp score_every=40 num_envs=4 batch_size=32 hidden_size=32 buffer_size=1000 score_episodes=2 score_envs=24 episode_length=10"
   deadline=${CAMPAIGN_DEADLINE:-3600}; lease=3600
 else
   export JAX_COMPILATION_CACHE_DIR=$repo/runs/jax_cache JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS=1
@@ -158,9 +168,15 @@ else
   sizes=(physics=warp seeds=5 score_every=5000 checkpoint_every=20)
   min_steps=${CAMPAIGN_MIN_STEPS:-200000}; worlds=125,1250,10000; graph_modes=default,WARP,WARP_STAGED; physics_steps=100
   scoring=(n_episodes=10); train_bench=(num_envs=125 iterations=40); brax=(num_envs=125 steps_per_epoch=40)
+  repeat=(total_steps=20000 learning_starts=10000); repeat_keys="physics=warp score_every=5000"
   deadline=${CAMPAIGN_DEADLINE:-}; lease=690
 fi
 sizes+=(first_seed=${CAMPAIGN_FIRST_SEED:-0})  # seeds first_seed, first_seed + 1, ...
+if [ "${CAMPAIGN_DETERMINISTIC:-1}" = 0 ]; then  # MJX's own MuJoCo Warp, the GPU's own order (header)
+  export ADMISSABLE_MJX_OWN_WARP=1
+  sizes+=(deterministic_physics=false)
+  repeat_keys+=" deterministic_physics=false"
+fi
 ALL=adversarial,uniform,none
 PAIRED=adversarial,uniform
 
@@ -243,6 +259,8 @@ worker() {
   if [ "$smoke" != 1 ]; then  # the versions and the device, for the log that comes back
     $py -c "import jax, mujoco, os, warp; print('campaign step $step: jax', jax.__version__, jax.devices(), 'mujoco', mujoco.__version__, 'warp', warp.__version__, 'WARP_CACHE_PATH', os.environ.get('WARP_CACHE_PATH'))" \
       2>&1 | grep -v '^Warp'
+    $py -c "from admissable_jax.envs import physics, warp_package; import os; print('MuJoCo Warp:', 'the mujoco-warp package' if warp_package.runs_package() else 'MJX\'s own copy', '| XLA_FLAGS:', os.environ.get('XLA_FLAGS'))" \
+      2>&1 | grep -v '^Warp'
   fi
   # Continuing records (CAMPAIGN_RECORDS; never with speed): the records' pairs, past them as
   # far as the time allows, planned from their folder; a fresh run may fall back to fewer pairs.
@@ -253,6 +271,10 @@ worker() {
   fi
   case "$step" in
     speed)
+      # Whether this machine repeats a run bit for bit (a short experiment, then its records alone
+      # fast-forwarded in a fresh process): what continuing a run on the next lease needs.
+      stage repeatability-hopper 600 $py benchmarks/repeatability.py env=hopper "${repeat[@]}" "extra=$repeat_keys" \
+          out="$dir/repeatability"
       stage measure-hopper 300 $py benchmarks/campaign.py measure env=hopper modes=$ALL "${sizes[@]}"
       stage measure-walker2d 300 $py benchmarks/campaign.py measure env=walker2d modes=$ALL "${sizes[@]}"
       stage measure-ant 300 $py benchmarks/campaign.py measure env=ant modes=$PAIRED "${sizes[@]}"

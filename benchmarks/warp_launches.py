@@ -8,7 +8,9 @@ MuJoCo Warp runs the same Python launch sequence a CUDA graph captures (``wp.lau
 ``wp.launch_tiled`` wrapped), for each ``solver_iterations`` setting (0 = the XML's, 100):
 whether a lower iteration cap would cut launches, i.e. whether the Newton loop launches
 every iteration or stops when all worlds converge (MuJoCo Warp's ``capture_while`` when
-``opt.graph_conditional``). It also steps a random-action rollout and histograms
+``opt.graph_conditional``). ``deterministic`` (default true) is MuJoCo Warp's deterministic mode, whose sorts add
+launches; ``ADMISSABLE_MJX_OWN_WARP=1`` with ``deterministic=false`` counts MJX's own copy of
+MuJoCo Warp, as every GPU record before 2026-12-04 ran. It also steps a random-action rollout and histograms
 ``solver_niter``, the iterations the last forward of each step used. Appends a record per
 setting to benchmarks/results/warp_launches.jsonl.
 """
@@ -23,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from admissable_jax.cli import parse_args
-from admissable_jax.envs import canonical_env_name, make_env, reset_where_done
+from admissable_jax.envs import canonical_env_name, make_env, reset_where_done, warp_package
 from common import append_record, run_benchmark
 
 
@@ -33,6 +35,7 @@ class LaunchConfig:
     solver_iterations: str = dataclasses.field(default="0,10,4", metadata={"help": "comma list; 0 = the XML's (100)"})
     num_envs: int = dataclasses.field(default=8, metadata={"help": "worlds stepped at once"})
     steps: int = dataclasses.field(default=200, metadata={"help": "steps of the random rollout for solver_niter"})
+    deterministic: bool = dataclasses.field(default=True, metadata={"help": "MuJoCo Warp's deterministic mode (deterministic_physics)"})
 
 
 def solver_caps(config: LaunchConfig) -> list[int]:
@@ -95,7 +98,8 @@ def main(argv: list[str]) -> None:
 
     bench = parse_args(LaunchConfig, argv, "benchmarks/warp_launches.py", __doc__.splitlines()[0], solver_caps)
     for cap in solver_caps(bench):
-        env = make_env(bench.env, physics="warp", solver_iterations=cap or None, max_batch=bench.num_envs)
+        env = make_env(bench.env, physics="warp", solver_iterations=cap or None, max_batch=bench.num_envs,
+                       deterministic=bench.deterministic)
         states = jax.vmap(env.reset)(jax.random.split(jax.random.key(0), bench.num_envs))
         step = jax.jit(jax.vmap(env.step))
         actions = jnp.zeros((bench.num_envs, env.action_size))
@@ -104,12 +108,15 @@ def main(argv: list[str]) -> None:
         record = {
             "env": env.gymnasium_id, "solver_iterations": int(env.mj_model.opt.iterations),
             "graph_conditional": bool(env.physics.model.opt._impl.graph_conditional),  # pylint: disable=protected-access
-            "num_envs": bench.num_envs, "launches_per_env_step": sum(counts.values()),
+            "num_envs": bench.num_envs, "deterministic": bench.deterministic,
+            "mujoco_warp": "mujoco-warp package" if warp_package.runs_package() else "MJX's own copy",
+            "launches_per_env_step": sum(counts.values()),
             "most_launched": dict(counts.most_common(8)),
             "solver_niter_histogram": solver_niter_histogram(env, bench.num_envs, bench.steps),
         }
         append_record("warp_launches", record)
-        print(f"{env.gymnasium_id} solver_iterations={record['solver_iterations']}: {record['launches_per_env_step']} "
+        print(f"{env.gymnasium_id} ({record['mujoco_warp']}, deterministic={bench.deterministic}) "
+              f"solver_iterations={record['solver_iterations']}: {record['launches_per_env_step']} "
               f"launches per env step; solver iterations used (last forward of each step): "
               f"{record['solver_niter_histogram']}", flush=True)
 

@@ -12,6 +12,8 @@ import dataclasses
 import functools
 import math
 import os
+import subprocess
+import sys
 import types
 
 import gymnasium
@@ -142,6 +144,27 @@ def test_warp_steps_the_mujoco_warp_package_deterministically(monkeypatch):
     assert set(sorts) == {"_sort_contacts", "_sort_constraints"}, sorts
     with pytest.raises(ValueError, match="one setting per process"):
         make_env("hopper", physics="warp", deterministic=False)
+
+
+def test_mjx_keeps_its_own_warp_when_asked():
+    """ADMISSABLE_MJX_OWN_WARP=1 (the GPU campaign's fallback): MJX runs its own MuJoCo Warp, a
+    deterministic env is refused in one line, a non-deterministic one builds."""
+    script = (
+        "from admissable_jax import make_env\n"
+        "from admissable_jax.envs import warp_package\n"
+        "try:\n"
+        "    make_env('hopper', physics='warp')\n"
+        "except ValueError as error:\n"
+        "    print('refused:', error)\n"
+        "make_env('hopper', physics='warp', deterministic=False)\n"
+        "import mujoco.mjx.third_party.mujoco_warp as warp_in_mjx\n"
+        "print('package:', warp_package.runs_package(), warp_in_mjx.__name__)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          env={**os.environ, "ADMISSABLE_MJX_OWN_WARP": "1"})
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "refused: deterministic_physics=true needs the mujoco-warp package" in done.stdout
+    assert "package: False mujoco.mjx.third_party.mujoco_warp" in done.stdout
 
 
 def test_reset_distribution_and_observation(env_case):

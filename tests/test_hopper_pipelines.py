@@ -147,11 +147,17 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     runs continued on another machine from the records a call brought back (CAMPAIGN_RECORDS:
     fast-forwarded, then trained on), again exactly the uninterrupted experiment; a run
     bounded by the deadline rather than by its plan, stopped where the deadline leaves no
-    room for another interval. All of it without the modules of the wheels the device packs
-    leave out."""
+    room for another interval; first of all, whether the machine repeats a run from its records.
+    All of it without the modules of the wheels the device packs leave out."""
     directory = str(tmp_path / "campaign")
-    speed = _campaign("speed", directory, CAMPAIGN_ONLY="^(measure-hopper|projections)$")
+    speed = _campaign("speed", directory, CAMPAIGN_ONLY="^(repeatability-hopper|measure-hopper|projections)$")
     assert speed.returncode == 0, speed.stdout + speed.stderr
+    # First, whether the machine repeats a run from its records alone (the CPU does), in the
+    # deterministic mode, with XLA's deterministic flags (which the CPU's XLA accepts).
+    assert "hopper, 80 env steps: repeated bit for bit" in speed.stdout
+    (repeat,) = [json.loads(line) for line in open(os.path.join(directory, "results", "repeatability.jsonl"))]
+    assert repeat["repeated"] and "--xla_gpu_deterministic_ops=true" in repeat["xla_flags"]
+    assert "deterministic_physics=false" not in repeat["extra"]
     # The speed step ends with steps 2-4 projected from what it measured (here Hopper only).
     assert "projected wall time for Hopper-v5, 3 pairs x 4 envs (warp" in speed.stdout
     assert "projected wall time for Hopper-v5, 2 pairs x 4 envs, timed with 3 (an upper bound)" in speed.stdout
@@ -165,7 +171,7 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     # Full length: each pair's (11 + 1) × 2 episodes at once (24 slots: fewer loop steps, where
     # the Warp step on a CPU costs its kernel launches), 10 steps each.
     assert record["score_full_loop_steps"] == 10
-    assert "./state/measure-hopper.done" in _packed(directory, "speed")
+    assert {"./state/measure-hopper.done", "./results/repeatability.jsonl"} <= set(_packed(directory, "speed"))
 
     # Too little device time: the 3 pairs are refused, then the 2 (planned from the 3 pairs'
     # record, an upper bound), then the longest run that fits is below min_steps; nothing starts.

@@ -20,6 +20,7 @@ setting per process, which :func:`set_deterministic` enforces.
 from __future__ import annotations
 
 import importlib
+import os
 import pkgutil
 import sys
 
@@ -29,15 +30,22 @@ PACKAGE = "mujoco_warp"
 _BRIDGE_MODULES = ("forward", "smooth", "collision_driver", "bvh", "render")
 _NOT_FOR_MJX = ("cli",)  # the package's command line (absl flags), which MJX never imports
 INSTALL_HINT = "pip install mujoco-warp==3.17.0, or the 'cuda' extra"
+# Set to 1 to keep MJX on its own copy (then deterministic_physics=false): MuJoCo Warp as MJX
+# ships it, as every GPU record before the package was measured with; a fallback should the
+# package fail where the CPU cannot show it (a GPU-only code path).
+OWN_COPY_VARIABLE = "ADMISSABLE_MJX_OWN_WARP"
 
 _process_setting: bool | None = None  # the deterministic setting this process's Warp envs run with
 
 
 def use_package() -> bool:
     """Put the ``mujoco_warp`` package under MJX's vendored MuJoCo Warp module names, unless MJX
-    has imported its own copy already. True when MJX runs (or will run) the package."""
+    has imported its own copy already or ``ADMISSABLE_MJX_OWN_WARP=1`` keeps it. True when MJX
+    runs (or will run) the package."""
     if VENDORED in sys.modules:
         return runs_package()
+    if os.environ.get(OWN_COPY_VARIABLE) == "1":
+        return False
     try:
         package = importlib.import_module(PACKAGE)
         source = importlib.import_module(f"{PACKAGE}._src")
@@ -69,8 +77,8 @@ def set_deterministic(deterministic: bool) -> None:
                          f"build envs with deterministic_physics={deterministic} in a process of their own")
     if deterministic and not runs_package():
         raise ValueError("deterministic_physics=true needs the mujoco-warp package imported before MJX "
-                         f"({INSTALL_HINT}; and import admissable_jax before mujoco.mjx or brax), "
-                         "or deterministic_physics=false")
+                         f"({INSTALL_HINT}; import admissable_jax before mujoco.mjx or brax; "
+                         f"{OWN_COPY_VARIABLE} unset), or deterministic_physics=false")
     if runs_package():
         from mujoco_warp._src.types import DeterminismType
 
