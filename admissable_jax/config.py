@@ -50,9 +50,10 @@ class RunSettings:
                                        "set of all U instead of one drawn from the pool by p_miss")
     physics: str = setting("auto", "physics backend: auto (warp on an NVIDIA GPU with warp-lang, else jax) | jax | warp; "
                                    "envs without a MuJoCo model step in JAX")
-    deterministic_physics: bool = setting(True, "warp only: MuJoCo Warp's deterministic mode (mujoco-warp package): a GPU "
-                                                "repeats a run bit for bit, so a run can continue on another machine "
-                                                "(fast_forward); false: the GPU's own order, maybe faster")
+    deterministic_physics: bool = setting(True, "warp only: MuJoCo Warp's deterministic mode (mujoco-warp package: atomic "
+                                                "sums and slots in a fixed order), towards a GPU repeating a run bit for "
+                                                "bit, so that a run can continue on another machine (fast_forward); "
+                                                "false: the GPU's own order, maybe faster")
     lower_bound: float = setting(0.0, "l: return lower bound; scores below are clipped to it")
     epsilon: float = setting(1e-8, "eps in p_miss = 1/(a_u - l + eps), normalised")
     # run

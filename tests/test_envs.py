@@ -8,6 +8,7 @@ Every parity test runs on MJX's JAX implementation and on MuJoCo Warp (on the CP
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import functools
 import math
@@ -128,20 +129,22 @@ def test_contact_frame_patches_are_installed_and_current():
 
 def test_warp_steps_the_mujoco_warp_package_deterministically(monkeypatch):
     """MJX's Warp bridge runs the mujoco-warp package in its deterministic mode: an Ant step
-    sorts its contacts and its constraint rows. A second setting in one process is refused."""
-    from mujoco_warp._src import collision_driver, constraint
+    launches kernels built in Warp's RUN_TO_RUN mode (atomic sums and atomic slot counters
+    made run-to-run invariant). A second setting in one process is refused."""
+    import warp
 
     from admissable_jax.envs import warp_package
 
     env = make_env("ant", physics="warp", max_batch=N_RESETS)  # the parity test's kernels
     assert warp_package.runs_package()
-    sorts = []
-    for module, name in ((collision_driver, "_sort_contacts"), (constraint, "_sort_constraints")):
-        original = getattr(module, name)
-        monkeypatch.setattr(module, name, lambda m, d, _original=original, _name=name: (sorts.append(_name), _original(m, d))[1])
+    modes = []
+    for name in ("launch", "launch_tiled"):
+        original = getattr(warp, name)
+        monkeypatch.setattr(warp, name, lambda kernel, *args, _original=original, **kwargs: (
+            modes.append(kernel.module.options.get("deterministic")), _original(kernel, *args, **kwargs))[1])
     state = jax.jit(env.step)(env.reset(jax.random.key(1)), jnp.zeros(env.action_size))
     assert np.isfinite(np.asarray(state.obs)).all()
-    assert set(sorts) == {"_sort_contacts", "_sort_constraints"}, sorts
+    assert modes.count(warp.DeterministicMode.RUN_TO_RUN) >= 10, collections.Counter(modes)
     with pytest.raises(ValueError, match="one setting per process"):
         make_env("hopper", physics="warp", deterministic=False)
 
