@@ -386,6 +386,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "warp_mode_set_on_no_bridge": ("admissable_jax/envs/warp_package.py",
                                    'importlib.import_module(f"mujoco.mjx.warp.{name}")._o.deterministic = mode',
                                    "mode", "test_envs.py"),
+    "collision_kernels_not_run_to_run": ("admissable_jax/envs/warp_package.py", "            _collision_kernels_run_to_run()\n",
+                                         "            pass\n", "test_envs.py"),
     "mjx_own_warp_not_kept": ("admissable_jax/envs/warp_package.py", 'if os.environ.get(OWN_COPY_VARIABLE) == "1":',
                               'if os.environ.get(OWN_COPY_VARIABLE) == "yes":', "test_envs.py"),
     "campaign_repeatability_not_run": ("benchmarks/gpu_campaign.sh", "      stage repeatability-hopper 600 ",

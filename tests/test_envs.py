@@ -130,21 +130,25 @@ def test_contact_frame_patches_are_installed_and_current():
 def test_warp_steps_the_mujoco_warp_package_deterministically(monkeypatch):
     """MJX's Warp bridge runs the mujoco-warp package in its deterministic mode: an Ant step
     launches kernels built in Warp's RUN_TO_RUN mode (atomic sums and atomic slot counters
-    made run-to-run invariant). A second setting in one process is refused."""
+    made run-to-run invariant), its collision kernels among them. A second setting in one
+    process is refused."""
     import warp
 
     from admissable_jax.envs import warp_package
 
     env = make_env("ant", physics="warp", max_batch=N_RESETS)  # the parity test's kernels
     assert warp_package.runs_package()
-    modes = []
+    modes, run_to_run = [], set()
     for name in ("launch", "launch_tiled"):
         original = getattr(warp, name)
         monkeypatch.setattr(warp, name, lambda kernel, *args, _original=original, **kwargs: (
-            modes.append(kernel.module.options.get("deterministic")), _original(kernel, *args, **kwargs))[1])
+            modes.append(kernel.module.options.get("deterministic")),
+            modes[-1] and run_to_run.add(kernel.key), _original(kernel, *args, **kwargs))[-1])
     state = jax.jit(env.step)(env.reset(jax.random.key(1)), jnp.zeros(env.action_size))
     assert np.isfinite(np.asarray(state.obs)).all()
     assert modes.count(warp.DeterministicMode.RUN_TO_RUN) >= 10, collections.Counter(modes)
+    # The collision kernels too (the package leaves them out): contact slots in a fixed order.
+    assert {"_nxn_broadphase__locals__kernel", "_primitive_narrowphase__locals__primitive_narrowphase"} <= set(run_to_run)
     with pytest.raises(ValueError, match="one setting per process"):
         make_env("hopper", physics="warp", deterministic=False)
 

@@ -9,12 +9,16 @@ re-trained bit for bit on the next machine (:mod:`admissable_jax.fast_forward`).
 deterministic mode (``Option.deterministic``, a ``DeterminismType`` bitmask). Of it, 3.17.0
 implements ATOMICS: the kernels that sum floats or take slots with atomics are built in
 Warp's ``RUN_TO_RUN`` mode, which reduces the sums and assigns the slots in a fixed order
-(568 of a Hopper env step's 1,840 kernel launches, 818 of Ant's 2,440, counted on the CPU).
+(568 of a Hopper env step's 1,840 kernel launches, 818 of Ant's 2,440, counted on the CPU;
+600 and 858 with the collision kernels below).
 CONTACTS (a stable sort of the contacts) and CONSTRAINT (canonical constraint rows) are
-declared but empty (``# TODO``, in 4.0.0 too): the collision kernels still take contact slots
-in the GPU's order, so a world where two geom pairs touch at once may order its contacts, and
-with them its constraint rows, differently from run to run. Whether a GPU repeats our runs is
-measured by ``benchmarks/repeatability.py``.
+declared but empty (``# TODO``, in 4.0.0 too), and the collision kernels, which take
+broadphase candidates and contacts from atomic counters, are not built in ``RUN_TO_RUN``
+mode; so in the GPU's order a world where two geom pairs touch at once could order its
+contacts, and with them its constraint rows, differently from run to run. We build them in
+that mode too (:func:`_collision_kernels_run_to_run`): then every kernel of an env step that
+uses atomics runs in it. Whether a GPU repeats our runs is measured by
+``benchmarks/repeatability.py``.
 
 MJX's Warp bridge imports MuJoCo Warp by its vendored module names when ``mujoco.mjx`` is
 first imported. So :func:`use_package`, called by :mod:`.physics` and :mod:`.contact_frames`
@@ -26,6 +30,7 @@ setting per process, which :func:`set_deterministic` enforces.
 
 from __future__ import annotations
 
+import functools
 import importlib
 import os
 import pkgutil
@@ -92,5 +97,35 @@ def set_deterministic(deterministic: bool) -> None:
         mode = DeterminismType.ALL if deterministic else DeterminismType.NONE
         for name in _BRIDGE_MODULES:
             importlib.import_module(f"mujoco.mjx.warp.{name}")._o.deterministic = mode
+        if deterministic:
+            _collision_kernels_run_to_run()
     _process_setting = deterministic
+
+
+def _collision_kernels_run_to_run() -> None:
+    """Build MuJoCo Warp's collision kernels in Warp's ``RUN_TO_RUN`` mode, which the
+    package's empty contact sort leaves out: their slot counters (broadphase candidates,
+    contacts) are then assigned in a fixed order. Warp gives a kernel module the mode
+    ``warp.config.deterministic`` holds when it is created, and the collision pass creates
+    its kernels (each in a module of its own) on its first call; so that call, and every
+    later one, runs with the mode set. Idempotent."""
+    import warp
+    from mujoco_warp._src import collision_driver
+
+    collision = collision_driver.collision
+    if getattr(collision, "run_to_run", False):
+        return
+
+    @functools.wraps(collision)
+    def collision_run_to_run(*args, **kwargs):
+        before = warp.config.deterministic
+        warp.config.deterministic = warp.DeterministicMode.RUN_TO_RUN
+        try:
+            return collision(*args, **kwargs)
+        finally:
+            warp.config.deterministic = before
+
+    collision_run_to_run.run_to_run = True
+    collision_driver.collision = collision_run_to_run  # what the step's forward calls
+    sys.modules[PACKAGE].collision = collision_run_to_run  # what MJX's own collision() calls
 
