@@ -90,9 +90,10 @@
 #   CAMPAIGN_FIRST_SEED     the runs' first seed (default 0): CAMPAIGN_FIRST_SEED=5 trains seeds
 #                           5-9, new seeds for a result that seeds 0-4 gave
 #   CAMPAIGN_DETERMINISTIC  1 (default): runs on the mujoco-warp package in its deterministic mode,
-#                           which a later lease needs to continue them; 0: on MJX's own copy of
-#                           MuJoCo Warp in the GPU's own order (ADMISSABLE_MJX_OWN_WARP=1,
-#                           deterministic_physics=false), as every run before 2026-12-04: the
+#                           with XLA's deterministic GPU ops, which a later lease needs to continue
+#                           them; 0: on MJX's own copy of MuJoCo Warp in the GPU's own order
+#                           (ADMISSABLE_MJX_OWN_WARP=1, deterministic_physics=false, XLA's
+#                           defaults), as every run before 2026-12-04: the
 #                           fallback should the package fail on a GPU (the hopper, walker2d and ant
 #                           steps; the speed step's benchmarks build their envs deterministic)
 #   PYTHON                  the interpreter (default python3)
@@ -122,11 +123,6 @@ if [ -n "$records" ]; then
   records=$(cd "$(dirname "$records")" && pwd)/$(basename "$records")
 fi
 export BENCHMARK_RESULTS_DIR=$dir/results PYTHONUNBUFFERED=1 PYTHONPATH=$repo:$repo/benchmarks${PYTHONPATH:+:$PYTHONPATH}
-# Runs that a GPU repeats bit for bit, so that a later lease can continue them (fast_forward):
-# MuJoCo Warp in its deterministic mode (experiment's deterministic_physics, on by default),
-# and XLA's deterministic GPU ops without timing-based kernel choices (autotuning), which
-# may differ from machine to machine.
-export XLA_FLAGS="--xla_gpu_deterministic_ops=true --xla_gpu_autotune_level=0${XLA_FLAGS:+ $XLA_FLAGS}"
 
 kernels=$dir/warp_cache  # a Warp kernel cache: MuJoCo Warp's CUDA modules, prebuilt on the CPU
 
@@ -172,10 +168,16 @@ else
   deadline=${CAMPAIGN_DEADLINE:-}; lease=690
 fi
 sizes+=(first_seed=${CAMPAIGN_FIRST_SEED:-0})  # seeds first_seed, first_seed + 1, ...
-if [ "${CAMPAIGN_DETERMINISTIC:-1}" = 0 ]; then  # MJX's own MuJoCo Warp, the GPU's own order (header)
+# Runs that a GPU repeats bit for bit, so that a later lease can continue them (fast_forward):
+# MuJoCo Warp in its deterministic mode (experiment's deterministic_physics, on by default),
+# and XLA's deterministic GPU ops without timing-based kernel choices (autotuning), which
+# may differ from machine to machine. CAMPAIGN_DETERMINISTIC=0: neither (header).
+if [ "${CAMPAIGN_DETERMINISTIC:-1}" = 0 ]; then
   export ADMISSABLE_MJX_OWN_WARP=1
   sizes+=(deterministic_physics=false)
   repeat_keys+=" deterministic_physics=false"
+else
+  export XLA_FLAGS="--xla_gpu_deterministic_ops=true --xla_gpu_autotune_level=0${XLA_FLAGS:+ $XLA_FLAGS}"
 fi
 ALL=adversarial,uniform,none
 PAIRED=adversarial,uniform
