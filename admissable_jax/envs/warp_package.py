@@ -16,9 +16,10 @@ declared but empty (``# TODO``, in 4.0.0 too), and the collision kernels, which 
 broadphase candidates and contacts from atomic counters, are not built in ``RUN_TO_RUN``
 mode; so in the GPU's order a world where two geom pairs touch at once could order its
 contacts, and with them its constraint rows, differently from run to run. We build them in
-that mode too (:func:`_collision_kernels_run_to_run`): then every kernel of an env step that
-uses atomics runs in it. Whether a GPU repeats our runs is measured by
-``benchmarks/repeatability.py``.
+that mode too (:func:`_collision_kernels_run_to_run`): then the kernels the package marks as
+using atomics and the collision kernels all run in it. Whether any other kernel still
+depends on the GPU's order, i.e. whether a GPU repeats our runs, is what
+``benchmarks/repeatability.py`` measures.
 
 MJX's Warp bridge imports MuJoCo Warp by its vendored module names when ``mujoco.mjx`` is
 first imported. So :func:`use_package`, called by :mod:`.physics` and :mod:`.contact_frames`
