@@ -8,7 +8,8 @@ machine re-trains it from its records bit for bit (``resume=true fast_forward=tr
 checks every rebuilt state against its recorded fingerprint). This measures the half of it
 one machine can: ``experiment`` trains ``total_steps`` (past ``learning_starts``, so the SAC
 updates are in it, not only the physics) into ``out/recorded``; its records, without their
-checkpoints, are copied to ``out/rebuilt``, and a second process fast-forwards them. Every
+checkpoints, are copied to ``out/rebuilt``, and a second process fast-forwards them,
+compiling its programs anew (a JAX compilation cache of its own), as the next machine would. Every
 fingerprint matching says this machine repeats the run; a divergence says at which env step
 (5,000 points at the physics: nothing is learnt before ``learning_starts``). A GPU run needs
 MuJoCo Warp's deterministic mode (``deterministic_physics=true``, the default) and XLA's
@@ -56,13 +57,14 @@ def _validate(config: RepeatabilityConfig) -> None:
         raise ValueError(f"learning_starts must be in (0, total_steps = {config.total_steps}), got {config.learning_starts}")
 
 
-def _experiment(config: RepeatabilityConfig, out: str, *more: str) -> tuple[subprocess.CompletedProcess, float]:
+def _experiment(config: RepeatabilityConfig, out: str, *more: str,
+                environment: dict[str, str] | None = None) -> tuple[subprocess.CompletedProcess, float]:
     command = [sys.executable, "-m", "admissable_jax.experiment", f"env={config.env}", f"seeds={config.seeds}",
                f"modes={config.modes}", f"total_steps={config.total_steps}", f"learning_starts={config.learning_starts}",
                "progress=false", f"out={out}", *shlex.split(config.extra), *more]
     print("$", shlex.join(command[1:]), flush=True)
     start = time.perf_counter()
-    done = subprocess.run(command, capture_output=True, text=True)
+    done = subprocess.run(command, capture_output=True, text=True, env=environment)
     seconds = time.perf_counter() - start
     print(done.stdout + done.stderr, end="", flush=True)
     return done, seconds
@@ -76,7 +78,9 @@ def main(argv: list[str]) -> int:
     if first.returncode != 0:
         raise ValueError(f"the recorded experiment failed (exit {first.returncode}); its output is above")
     shutil.copytree(recorded, rebuilt, ignore=shutil.ignore_patterns("checkpoints*"))
-    second, rebuild_seconds = _experiment(config, rebuilt, "resume=true", "fast_forward=true")
+    # Compiled anew, as on the next machine: a JAX compilation cache of its own, empty.
+    fresh_cache = {**os.environ, "JAX_COMPILATION_CACHE_DIR": os.path.abspath(os.path.join(config.out, "rebuild-jax-cache"))}
+    second, rebuild_seconds = _experiment(config, rebuilt, "resume=true", "fast_forward=true", environment=fresh_cache)
     said = second.stdout + second.stderr
     diverged = DIVERGED.search(said)
     if second.returncode != 0 and not diverged:

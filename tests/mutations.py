@@ -392,6 +392,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                               'if os.environ.get(OWN_COPY_VARIABLE) == "yes":', "test_envs.py"),
     "campaign_repeatability_not_run": ("benchmarks/gpu_campaign.sh", "      stage repeatability-hopper 600 ",
                                        "      : stage repeatability-hopper 600 ", "test_hopper_pipelines.py"),
+    "repeatability_rebuild_reuses_the_compiled_programs": ("benchmarks/repeatability.py", ", environment=fresh_cache)", ")",
+                                                           "test_repeatability.py"),
     "repeatability_copies_checkpoints": ("benchmarks/repeatability.py", 'ignore=shutil.ignore_patterns("checkpoints*")',
                                          'ignore=shutil.ignore_patterns("nothing")', "test_repeatability.py"),
 }

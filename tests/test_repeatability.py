@@ -12,6 +12,9 @@ import repeatability
 
 def test_a_cpu_experiment_repeats_from_its_records_alone(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(common, "RESULTS_DIR", str(tmp_path / "results"))
+    # Every compiled program cached, so that the caches show which process compiled what.
+    monkeypatch.setenv("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(tmp_path / "recording-cache"))
     out = tmp_path / "runs"
     status = repeatability.main([
         "env=point_mass", "total_steps=2000", "learning_starts=1000", f"out={out}",
@@ -22,6 +25,8 @@ def test_a_cpu_experiment_repeats_from_its_records_alone(tmp_path, monkeypatch, 
     assert "point_mass, 2000 env steps: repeated bit for bit" in said
     # The rebuild re-trained every interval: no checkpoint went with the records.
     assert repeatability.FROM_THE_START + "2000" in said
+    # ...and compiled its programs anew, in a cache of its own, as the next machine would.
+    assert os.listdir(out / "rebuild-jax-cache") and os.listdir(tmp_path / "recording-cache")
     rebuilt_pairs = [name for name in os.listdir(out / "rebuilt") if (out / "rebuilt" / name / "scores.jsonl").is_file()]
     assert len(rebuilt_pairs) == 2
     record = json.loads((tmp_path / "results" / "repeatability.jsonl").read_text().splitlines()[-1])
