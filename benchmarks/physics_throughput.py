@@ -11,7 +11,9 @@ warm-up run. Prints ms per batched env step and env steps/s, and appends one rec
 pair to ``benchmarks/results/physics_throughput.jsonl``; ``env_over_bare`` is the cost of
 our env layer over the physics it wraps (the Warp issue's target: <= 1.15 on a GPU).
 ``graph_modes`` (Warp only) repeats each Warp measurement per MuJoCo Warp graph mode
-(``default`` = MJX's own choice).
+(``default`` = MJX's own choice). ``deterministic`` (Warp only; default true, as runs) is
+MuJoCo Warp's deterministic mode; ``deterministic=false`` times the GPU's own order, and with
+``ADMISSABLE_MJX_OWN_WARP=1`` MJX's own copy of MuJoCo Warp, as every record before 2026-12-04.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ import jax
 import jax.numpy as jnp
 
 from admissable_jax.cli import parse_args
-from admissable_jax.envs import EnvOptions, canonical_env_name, make_env, resolve_physics
+from admissable_jax.envs import EnvOptions, canonical_env_name, make_env, resolve_physics, warp_package
 from admissable_jax.rollout import random_rollout
 from common import append_record, run_benchmark
 
@@ -35,6 +37,7 @@ class PhysicsBenchConfig:
     batches: str = dataclasses.field(default="8,32", metadata={"help": "comma-separated batch sizes (envs stepped at once)"})
     steps: int = dataclasses.field(default=50, metadata={"help": "batched steps per timed run"})
     graph_modes: str = dataclasses.field(default="default", metadata={"help": "comma-separated Warp graph modes: default, WARP, WARP_STAGED"})
+    deterministic: bool = dataclasses.field(default=True, metadata={"help": "Warp: its deterministic mode (deterministic_physics)"})
 
 
 def _graph_modes(bench: PhysicsBenchConfig) -> list[str | None]:
@@ -76,7 +79,7 @@ def main(argv: list[str]) -> None:
     cases = [(physics.strip(), batch, mode) for physics in bench.physics.split(",")
              for batch in (int(b) for b in bench.batches.split(",")) for mode in _graph_modes(bench)]
     for physics, batch, mode in cases:
-        env = make_env(bench.env, physics=physics, max_batch=batch, graph_mode=mode)
+        env = make_env(bench.env, physics=physics, max_batch=batch, graph_mode=mode, deterministic=bench.deterministic)
         if env.physics_name != "warp" and mode != _graph_modes(bench)[0]:
             continue  # graph modes are Warp's: measure the JAX backend once
         env_compile_s, env_s = _time(random_rollout, env, batch, bench.steps, rng)
@@ -84,6 +87,9 @@ def main(argv: list[str]) -> None:
         record = {
             "env": env.gymnasium_id, "physics": env.physics_name, "num_envs": batch, "steps": bench.steps,
             "graph_mode": mode if env.physics_name == "warp" else None,
+            "deterministic": bench.deterministic if env.physics_name == "warp" else None,
+            "mujoco_warp": ("mujoco-warp package" if warp_package.runs_package() else "MJX's own copy")
+            if env.physics_name == "warp" else None,
             "env_ms_per_step": round(1000 * env_s / bench.steps, 3),
             "bare_ms_per_step": round(1000 * bare_s / bench.steps, 3),
             "env_steps_per_s": round(batch * bench.steps / env_s, 1),
