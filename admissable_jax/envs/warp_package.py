@@ -80,9 +80,10 @@ def runs_package() -> bool:
 
 
 def set_deterministic(deterministic: bool) -> None:
-    """Run every MuJoCo Warp call of this process in deterministic mode (all of
-    ``DeterminismType``) or not. Raises ``ValueError`` (one line) when the package does not
-    run, or when this process's Warp envs were already built the other way."""
+    """Run every MuJoCo Warp call of this process in deterministic mode (``DeterminismType.ALL``,
+    of which 3.17.0 implements ATOMICS, and the collision kernels in ``RUN_TO_RUN`` mode) or
+    not. Raises ``ValueError`` (one line) when the package does not run, or when this
+    process's Warp envs were already built the other way."""
     global _process_setting
     if _process_setting is not None and _process_setting != deterministic:
         raise ValueError(f"this process already steps MuJoCo Warp with deterministic_physics={_process_setting} "
