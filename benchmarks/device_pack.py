@@ -48,10 +48,10 @@ TRANSFER_LIMIT = 64 * 2**20  # bytes one device call may carry: the working tree
 FIRST_PART, REST = "a/warp.part0", "b/warp.part1"  # pack.sh's names, which its stage.sh and finish.sh join
 KERNELS = "kernels"  # benchmarks/warp_kernels.py's archive, carried with .dev/b by the call that starts the worker
 UNUSED_AT_RUN_TIME = ("warp/tests",)
-# pack.sh's wheels no campaign step imports, by distribution name (as in a wheel's file name,
-# lower case) and the top-level module each installs.
 # Wheels the campaign needs that pack.sh's default list lacks, added to its .dev/a/whl.
 EXTRA_WHEELS = ("mujoco-warp==3.17.0",)  # MuJoCo Warp's own package, for its deterministic mode (envs/warp_package.py)
+# pack.sh's wheels no campaign step imports, by distribution name (as in a wheel's file name,
+# lower case) and the top-level module each installs.
 LEFT_OUT_WHEELS = {"pyopengl": "OpenGL", "glfw": "glfw", "flask": "flask", "flask_cors": "flask_cors",
                    "websockets": "websockets"}
 BLOCK, ARCHIVE_END = 512, 10240  # tar's block, and the most its end takes

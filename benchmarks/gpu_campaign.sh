@@ -261,7 +261,7 @@ worker() {
   if [ "$smoke" != 1 ]; then  # the versions and the device, for the log that comes back
     $py -c "import jax, mujoco, os, warp; print('campaign step $step: jax', jax.__version__, jax.devices(), 'mujoco', mujoco.__version__, 'warp', warp.__version__, 'WARP_CACHE_PATH', os.environ.get('WARP_CACHE_PATH'))" \
       2>&1 | grep -v '^Warp'
-    $py -c "from admissable_jax.envs import physics, warp_package; import os; print('MuJoCo Warp:', 'the mujoco-warp package' if warp_package.runs_package() else 'MJX\'s own copy', '| XLA_FLAGS:', os.environ.get('XLA_FLAGS'))" \
+    $py -c "from admissable_jax.envs import physics, warp_package; import os; print('MuJoCo Warp:', warp_package.which(), '| XLA_FLAGS:', os.environ.get('XLA_FLAGS'))" \
       2>&1 | grep -v '^Warp'
   fi
   # Continuing records (CAMPAIGN_RECORDS; never with speed): the records' pairs, past them as

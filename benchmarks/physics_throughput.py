@@ -88,8 +88,7 @@ def main(argv: list[str]) -> None:
             "env": env.gymnasium_id, "physics": env.physics_name, "num_envs": batch, "steps": bench.steps,
             "graph_mode": mode if env.physics_name == "warp" else None,
             "deterministic": bench.deterministic if env.physics_name == "warp" else None,
-            "mujoco_warp": ("mujoco-warp package" if warp_package.runs_package() else "MJX's own copy")
-            if env.physics_name == "warp" else None,
+            "mujoco_warp": warp_package.which() if env.physics_name == "warp" else None,
             "env_ms_per_step": round(1000 * env_s / bench.steps, 3),
             "bare_ms_per_step": round(1000 * bare_s / bench.steps, 3),
             "env_steps_per_s": round(batch * bench.steps / env_s, 1),

@@ -8,9 +8,11 @@ MuJoCo Warp runs the same Python launch sequence a CUDA graph captures (``wp.lau
 ``wp.launch_tiled`` wrapped), for each ``solver_iterations`` setting (0 = the XML's, 100):
 whether a lower iteration cap would cut launches, i.e. whether the Newton loop launches
 every iteration or stops when all worlds converge (MuJoCo Warp's ``capture_while`` when
-``opt.graph_conditional``). ``deterministic`` (default true) is MuJoCo Warp's deterministic mode, whose sorts add
-launches; ``ADMISSABLE_MJX_OWN_WARP=1`` with ``deterministic=false`` counts MJX's own copy of
-MuJoCo Warp, as every GPU record before 2026-12-04 ran. It also steps a random-action rollout and histograms
+``opt.graph_conditional``). ``deterministic`` (default true) is MuJoCo Warp's deterministic
+mode, whose ``RUN_TO_RUN`` kernels record, sort and reduce inside their own launches (the
+count is the same either way); ``ADMISSABLE_MJX_OWN_WARP=1`` with ``deterministic=false``
+counts MJX's own copy of MuJoCo Warp, as every GPU record before 2026-12-04 ran. It also
+steps a random-action rollout and histograms
 ``solver_niter``, the iterations the last forward of each step used. Appends a record per
 setting to benchmarks/results/warp_launches.jsonl.
 """
@@ -109,7 +111,7 @@ def main(argv: list[str]) -> None:
             "env": env.gymnasium_id, "solver_iterations": int(env.mj_model.opt.iterations),
             "graph_conditional": bool(env.physics.model.opt._impl.graph_conditional),  # pylint: disable=protected-access
             "num_envs": bench.num_envs, "deterministic": bench.deterministic,
-            "mujoco_warp": "mujoco-warp package" if warp_package.runs_package() else "MJX's own copy",
+            "mujoco_warp": warp_package.which(),
             "launches_per_env_step": sum(counts.values()),
             "most_launched": dict(counts.most_common(8)),
             "solver_niter_histogram": solver_niter_histogram(env, bench.num_envs, bench.steps),

@@ -91,7 +91,7 @@ class Physics:
     """A MuJoCo model on one backend (``impl``: ``"jax"`` or ``"warp"``)."""
 
     def __init__(self, mj_model: mujoco.MjModel, impl: str, frame_skip: int, max_batch: int,
-                 contact_forces: bool, graph_mode: str | None = None, deterministic: bool = False):
+                 contact_forces: bool, graph_mode: str | None = None, *, deterministic: bool):
         self.impl, self.frame_skip, self.max_batch = impl, frame_skip, max_batch
         self.contact_forces = contact_forces
         condim = collision_driver.make_condim(mj_model)

@@ -79,6 +79,11 @@ def runs_package() -> bool:
     return getattr(sys.modules.get(VENDORED), "__name__", None) == PACKAGE
 
 
+def which() -> str:
+    """Which MuJoCo Warp MJX runs, for records and logs."""
+    return "mujoco-warp package" if runs_package() else "MJX's own copy"
+
+
 def set_deterministic(deterministic: bool) -> None:
     """Run every MuJoCo Warp call of this process in deterministic mode (``DeterminismType.ALL``,
     of which 3.17.0 implements ATOMICS, and the collision kernels in ``RUN_TO_RUN`` mode) or
