@@ -43,19 +43,30 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import tomllib
 
 TRANSFER_LIMIT = 64 * 2**20  # bytes one device call may carry: the working tree and its carried folders
 FIRST_PART, REST = "a/warp.part0", "b/warp.part1"  # pack.sh's names, which its stage.sh and finish.sh join
 KERNELS = "kernels"  # benchmarks/warp_kernels.py's archive, carried with .dev/b by the call that starts the worker
 UNUSED_AT_RUN_TIME = ("warp/tests",)
-# Wheels the campaign needs that pack.sh's default list lacks, added to its .dev/a/whl.
-EXTRA_WHEELS = ("mujoco-warp==3.17.0",)  # MuJoCo Warp's own package, for its deterministic mode (envs/warp_package.py)
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _cuda_extra_pins(*names: str) -> tuple[str, ...]:
+    """The pyproject.toml 'cuda' extra's requirements of these distributions, as pinned there."""
+    with open(os.path.join(REPO, "pyproject.toml"), "rb") as file:
+        extra = tomllib.load(file)["project"]["optional-dependencies"]["cuda"]
+    return tuple(requirement for requirement in extra if requirement.split("==")[0] in names)
+
+
+# Wheels the campaign needs that pack.sh's default list lacks, added to its .dev/a/whl:
+# MuJoCo Warp's own package, for its deterministic mode (envs/warp_package.py).
+EXTRA_WHEELS = _cuda_extra_pins("mujoco-warp")
 # pack.sh's wheels no campaign step imports, by distribution name (as in a wheel's file name,
 # lower case) and the top-level module each installs.
 LEFT_OUT_WHEELS = {"pyopengl": "OpenGL", "glfw": "glfw", "flask": "flask", "flask_cors": "flask_cors",
                    "websockets": "websockets"}
 BLOCK, ARCHIVE_END = 512, 10240  # tar's block, and the most its end takes
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RECORD = os.path.join(REPO, "benchmarks", "results", "device_pack.json")
 
 

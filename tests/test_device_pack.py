@@ -3,6 +3,7 @@ and the figures results commit stay small (benchmarks/compact_pngs.py)."""
 
 from __future__ import annotations
 
+import importlib.metadata
 import io
 import json
 import os
@@ -43,7 +44,9 @@ def _joined(dev) -> dict[str, bytes]:
 
 
 def test_the_wheels_pack_sh_lacks_are_added_once(tmp_path, monkeypatch):
-    """mujoco-warp (MJX runs it for its deterministic mode) is downloaded into .dev/a/whl unless there."""
+    """mujoco-warp (MJX runs it for its deterministic mode), as pyproject.toml's 'cuda' extra pins it
+    (mujoco-mjx's release), is downloaded into .dev/a/whl unless there."""
+    assert device_pack.EXTRA_WHEELS == (f"mujoco-warp=={importlib.metadata.version('mujoco-mjx')}",)
     downloads = []
     monkeypatch.setattr(device_pack.subprocess, "run", lambda command, check: downloads.append(command[-1]))
     device_pack.add_extra_wheels(str(tmp_path))

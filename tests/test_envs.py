@@ -11,6 +11,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import functools
+import importlib.metadata
 import math
 import os
 import subprocess
@@ -153,9 +154,10 @@ def test_warp_steps_the_mujoco_warp_package_deterministically(monkeypatch):
         make_env("hopper", physics="warp", deterministic=False)
 
 
-def test_mjx_keeps_its_own_warp_when_asked():
+def test_mjx_keeps_its_own_warp_when_asked_or_given_another_release():
     """ADMISSABLE_MJX_OWN_WARP=1 (the GPU campaign's fallback): MJX runs its own MuJoCo Warp, a
-    deterministic env is refused in one line, a non-deterministic one builds."""
+    deterministic env is refused in one line, a non-deterministic one builds. A mujoco-warp of
+    another release than mujoco-mjx's is not put in MJX's place, and the refusal names both."""
     script = (
         "from admissable_jax import make_env\n"
         "from admissable_jax.envs import warp_package\n"
@@ -172,6 +174,21 @@ def test_mjx_keeps_its_own_warp_when_asked():
     assert done.returncode == 0, done.stderr[-2000:]
     assert "refused: deterministic_physics=true needs the mujoco-warp package" in done.stdout
     assert "package: False mujoco.mjx.third_party.mujoco_warp" in done.stdout
+
+    another_release = (
+        "import importlib.metadata as metadata\n"
+        "installed = metadata.version\n"
+        "metadata.version = lambda name: '4.0.0' if name == 'mujoco-warp' else installed(name)\n"
+        "from admissable_jax.envs import physics, warp_package  # physics imports MJX\n"
+        "print('package:', warp_package.runs_package())\n"
+        "warp_package.set_deterministic(True)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", another_release], capture_output=True, text=True)
+    assert done.returncode == 1 and "package: False" in done.stdout, done.stdout + done.stderr[-2000:]
+    mjx = importlib.metadata.version("mujoco-mjx")
+    assert (f"ValueError: deterministic_physics=true needs the mujoco-warp package imported before MJX (mujoco-warp "
+            f"4.0.0 is not mujoco-mjx {mjx}'s release (pip install mujoco-warp=={mjx}, or the 'cuda' extra)), "
+            "or deterministic_physics=false") in done.stderr
 
 
 def test_reset_distribution_and_observation(env_case):

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import functools
 import importlib
+import importlib.metadata
 import os
 import pkgutil
 import sys
@@ -42,19 +43,35 @@ PACKAGE = "mujoco_warp"
 # MJX's bridge modules that each hold a shared Option (``_o``) for their calls.
 _BRIDGE_MODULES = ("forward", "smooth", "collision_driver", "bvh", "render")
 _NOT_FOR_MJX = ("cli",)  # the package's command line (absl flags), which MJX never imports
-INSTALL_HINT = "pip install mujoco-warp==3.17.0, or the 'cuda' extra"
 # Set to 1 to keep MJX on its own copy (then deterministic_physics=false): MuJoCo Warp as MJX
 # ships it, as every GPU record before the package was measured with; a fallback should the
 # package fail where the CPU cannot show it (a GPU-only code path).
 OWN_COPY_VARIABLE = "ADMISSABLE_MJX_OWN_WARP"
 
 _process_setting: bool | None = None  # the deterministic setting this process's Warp envs run with
+_package_refused: str | None = None  # why use_package() kept MJX's own copy though the package is installed
+
+
+def install_hint() -> str:
+    """How to install the package MJX runs: the mujoco-warp release of the installed mujoco-mjx."""
+    return f"pip install mujoco-warp=={importlib.metadata.version('mujoco-mjx')}, or the 'cuda' extra"
+
+
+def version_mismatch() -> str | None:
+    """Why the installed mujoco-warp cannot stand in for MJX's copy (another release than
+    mujoco-mjx's, whose bridge calls it by that release's names), or None."""
+    try:
+        package, mjx = (importlib.metadata.version(name) for name in ("mujoco-warp", "mujoco-mjx"))
+    except importlib.metadata.PackageNotFoundError:  # a source checkout without its metadata: nothing to compare
+        return None
+    return None if package == mjx else f"mujoco-warp {package} is not mujoco-mjx {mjx}'s release ({install_hint()})"
 
 
 def use_package() -> bool:
     """Put the ``mujoco_warp`` package under MJX's vendored MuJoCo Warp module names, unless MJX
-    has imported its own copy already or ``ADMISSABLE_MJX_OWN_WARP=1`` keeps it. True when MJX
-    runs (or will run) the package."""
+    has imported its own copy already, ``ADMISSABLE_MJX_OWN_WARP=1`` keeps it, or the package is
+    another release than mujoco-mjx's. True when MJX runs (or will run) the package."""
+    global _package_refused
     if VENDORED in sys.modules:
         return runs_package()
     if os.environ.get(OWN_COPY_VARIABLE) == "1":
@@ -63,6 +80,9 @@ def use_package() -> bool:
         package = importlib.import_module(PACKAGE)
         source = importlib.import_module(f"{PACKAGE}._src")
     except (ImportError, RuntimeError):  # not installed, or warp-lang missing
+        return False
+    _package_refused = version_mismatch()
+    if _package_refused:
         return False
     for module in pkgutil.iter_modules(source.__path__):
         if not module.name.endswith("_test") and module.name not in _NOT_FOR_MJX:
@@ -95,9 +115,10 @@ def set_deterministic(deterministic: bool) -> None:
                          f"(one setting per process: MJX's Warp bridge shares one Option); "
                          f"build envs with deterministic_physics={deterministic} in a process of their own")
     if deterministic and not runs_package():
-        raise ValueError("deterministic_physics=true needs the mujoco-warp package imported before MJX "
-                         f"({INSTALL_HINT}; import admissable_jax before mujoco.mjx or brax; "
-                         f"{OWN_COPY_VARIABLE} unset), or deterministic_physics=false")
+        needs = _package_refused or (f"{install_hint()}; import admissable_jax before mujoco.mjx or brax; "
+                                     f"{OWN_COPY_VARIABLE} unset")
+        raise ValueError(f"deterministic_physics=true needs the mujoco-warp package imported before MJX ({needs}), "
+                         "or deterministic_physics=false")
     if runs_package():
         from mujoco_warp._src.types import DeterminismType
 
