@@ -32,6 +32,8 @@ import time
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 # name: (file, text, its replacement, the test file that caught it last)
+# envs/warp_package.py's MuJoCo Warp passes built in RUN_TO_RUN mode, which two mutations each cut by one.
+_BOTH_PASSES = '_RUN_TO_RUN_PASSES = (("collision_driver", "collision"), ("constraint", "make_constraint"))'
 MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     # The paper's mechanism (§3): u per episode, masking, the adversary's p_miss.
     "u_redrawn_every_step": ("admissable_jax/training.py", "set_index=jnp.where(done, new_sets, state.set_index)",
@@ -386,8 +388,12 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "warp_mode_set_on_no_bridge": ("admissable_jax/envs/warp_package.py",
                                    'importlib.import_module(f"mujoco.mjx.warp.{name}")._o.deterministic = mode',
                                    "mode", "test_envs.py"),
-    "collision_kernels_not_run_to_run": ("admissable_jax/envs/warp_package.py", "            _collision_kernels_run_to_run()\n",
-                                         "            pass\n", "test_envs.py"),
+    "collision_kernels_not_run_to_run": ("admissable_jax/envs/warp_package.py", _BOTH_PASSES,
+                                         '_RUN_TO_RUN_PASSES = (("constraint", "make_constraint"),)', "test_envs.py"),
+    "constraint_rows_not_run_to_run": ("admissable_jax/envs/warp_package.py", _BOTH_PASSES,
+                                       '_RUN_TO_RUN_PASSES = (("collision_driver", "collision"),)', "test_envs.py"),
+    "warp_atomics_counters_read_as_integers": ("benchmarks/warp_atomics.py", "            if result and re.search(",
+                                               "            if False and re.search(", "test_warp_kernels.py"),
     "mjx_own_warp_not_kept": ("admissable_jax/envs/warp_package.py", 'if os.environ.get(OWN_COPY_VARIABLE) == "1":',
                               'if os.environ.get(OWN_COPY_VARIABLE) == "yes":', "test_envs.py"),
     "mujoco_warp_release_not_checked": ("admissable_jax/envs/warp_package.py", "    if _package_refused:\n",

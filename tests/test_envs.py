@@ -128,28 +128,41 @@ def test_contact_frame_patches_are_installed_and_current():
     )
 
 
-def test_warp_steps_the_mujoco_warp_package_deterministically(monkeypatch):
+# The kernels of a Hopper, Walker2d or Ant step that keep float atomics outside RUN_TO_RUN mode,
+# each read (benchmarks/README.md, *Could a run continue*): every thread updates elements of its
+# own, so no element's sum depends on the order of the threads.
+OWN_ELEMENT_FLOAT_ATOMICS = {"_M", "_apply_ft", "_linesearch_iterative_kernel__locals__kernel",
+                             "_rk_accumulate_velocity_acceleration", "_update_gradient_h_incremental"}
+
+
+def test_warp_steps_the_mujoco_warp_package_deterministically():
     """MJX's Warp bridge runs the mujoco-warp package in its deterministic mode: an Ant step
     launches kernels built in Warp's RUN_TO_RUN mode (atomic sums and atomic slot counters
-    made run-to-run invariant), its collision kernels among them. A second setting in one
-    process is refused."""
+    made run-to-run invariant), its collision and constraint-row kernels among them. Outside
+    that mode no kernel takes slots from an atomic counter, and float atomics stay in the
+    kernels read to update elements of their own threads (the C++ Warp generated, read by
+    benchmarks/warp_atomics.py). A second setting in one process is refused."""
     import warp
+    import warp_atomics  # benchmarks/ is on the tests' path (conftest.py)
 
     from admissable_jax.envs import warp_package
 
     env = make_env("ant", physics="warp", max_batch=N_RESETS)  # the parity test's kernels
     assert warp_package.runs_package()
-    modes, run_to_run = [], set()
-    for name in ("launch", "launch_tiled"):
-        original = getattr(warp, name)
-        monkeypatch.setattr(warp, name, lambda kernel, *args, _original=original, **kwargs: (
-            modes.append(kernel.module.options.get("deterministic")),
-            modes[-1] and run_to_run.add(kernel.key), _original(kernel, *args, **kwargs))[-1])
-    state = jax.jit(env.step)(env.reset(jax.random.key(1)), jnp.zeros(env.action_size))
-    assert np.isfinite(np.asarray(state.obs)).all()
-    assert modes.count(warp.DeterministicMode.RUN_TO_RUN) >= 10, collections.Counter(modes)
-    # The collision kernels too (the package leaves them out): contact slots in a fixed order.
-    assert {"_nxn_broadphase__locals__kernel", "_primitive_narrowphase__locals__primitive_narrowphase"} <= set(run_to_run)
+    kernels, launches, empty = warp_atomics.launched_kernels(
+        warp, jax.jit(env.step), env.reset(jax.random.key(1)), jnp.zeros(env.action_size))
+    run_to_run = {key for key, kernel in kernels.items()
+                  if kernel.module.options.get("deterministic") == warp.DeterministicMode.RUN_TO_RUN}
+    assert sum(launches[key] for key in run_to_run) >= 10, launches
+    # The collision and constraint kernels too (the package leaves them out): contact slots,
+    # and each contact's and joint limit's rows in efc, in a fixed order.
+    assert {"_nxn_broadphase__locals__kernel", "_primitive_narrowphase__locals__primitive_narrowphase",
+            "_efc_contact_init__locals__kernel", "_limit_slide_hinge__locals__kernel"} <= run_to_run
+    kinds = collections.defaultdict(set)
+    for key in set(kernels) - run_to_run - empty:
+        for atomic in warp_atomics.atomics_of(key, warp_atomics.generated_source(warp, kernels[key])):
+            kinds[atomic["kind"]].add(key)
+    assert not kinds["slot counter"] and kinds["float"] == OWN_ELEMENT_FLOAT_ATOMICS, dict(kinds)
     with pytest.raises(ValueError, match="one setting per process"):
         make_env("hopper", physics="warp", deterministic=False)
 

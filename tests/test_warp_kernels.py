@@ -1,11 +1,13 @@
-"""benchmarks/warp_kernels.py: the CUDA modules a GPU lease loads, built here on the CPU."""
+"""benchmarks/warp_kernels.py: the CUDA modules a GPU lease loads, built here on the CPU; and
+benchmarks/warp_atomics.py's reading of the atomics in the C++ Warp generates."""
 
 import os
 import types
 
 import numpy as np
 import warp as wp
-import warp_kernels  # benchmarks/ is on the tests' path (conftest.py)
+import warp_atomics  # benchmarks/ is on the tests' path (conftest.py)
+import warp_kernels
 from warp._src import context as warp_context
 
 
@@ -25,6 +27,34 @@ def _double(values: wp.array(dtype=float)):
 @wp.kernel(module="unique")
 def _never_launched(values: wp.array(dtype=float)):
     values[wp.tid()] = 0.0
+
+
+@wp.func
+def _add_to(sums: wp.array(dtype=float), i: int, value: float):
+    sums[i] += value
+
+
+@wp.kernel(module="unique")
+def _atomics_of_each_kind(counts: wp.array(dtype=int), slots: wp.array(dtype=int), sums: wp.array(dtype=float)):
+    i = wp.tid()
+    slots[i] = wp.atomic_add(counts, 0, 1)
+    wp.atomic_add(counts, 1, 1)
+    _add_to(sums, i % 2, 1.0)
+
+
+def test_warp_atomics_reads_each_kind_from_the_generated_code():
+    """A slot counter (the return value used), an integer sum (unused), a float += in a
+    function the kernel calls: each found, of its kind, with the Python line it came from."""
+    arrays = [wp.zeros(2, dtype=int, device="cpu"), wp.zeros(4, dtype=int, device="cpu"), wp.zeros(2, dtype=float, device="cpu")]
+    kernels, launches, empty = warp_atomics.launched_kernels(
+        wp, lambda: wp.launch(_atomics_of_each_kind, dim=4, inputs=arrays, device="cpu"))
+    key = _atomics_of_each_kind.key
+    assert (list(kernels), launches[key], empty) == ([key], 1, set())
+    found = warp_atomics.atomics_of(key, warp_atomics.generated_source(wp, kernels[key]))
+    assert sorted((atomic["kind"], atomic["line"].split(" <L")[0]) for atomic in found) == [
+        ("float", "sums[i] += value"), ("integer", "wp.atomic_add(counts, 1, 1)"),
+        ("slot counter", "slots[i] = wp.atomic_add(counts, 0, 1)")]
+    assert sorted(arrays[1].numpy()) == [0, 1, 2, 3] and list(arrays[2].numpy()) == [2.0, 2.0]
 
 
 class _H200:

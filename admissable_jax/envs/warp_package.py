@@ -7,19 +7,20 @@ arrive; so two runs of one program differ in float rounding, and a run's records
 re-trained bit for bit on the next machine (:mod:`admissable_jax.fast_forward`). The
 ``mujoco-warp`` package of the same version (3.17.0, pinned with warp-lang) has an opt-in
 deterministic mode (``Option.deterministic``, a ``DeterminismType`` bitmask). Of it, 3.17.0
-implements ATOMICS: the kernels that sum floats or take slots with atomics are built in
-Warp's ``RUN_TO_RUN`` mode, which reduces the sums and assigns the slots in a fixed order
-(568 of a Hopper env step's 1,840 kernel launches, 818 of Ant's 2,440, counted on the CPU;
-600 and 858 with the collision kernels below).
-CONTACTS (a stable sort of the contacts) and CONSTRAINT (canonical constraint rows) are
-declared but empty (``# TODO``, in 4.0.0 too), and the collision kernels, which take
-broadphase candidates and contacts from atomic counters, are not built in ``RUN_TO_RUN``
-mode; so in the GPU's order a world where two geom pairs touch at once could order its
-contacts, and with them its constraint rows, differently from run to run. We build them in
-that mode too (:func:`_collision_kernels_run_to_run`): then the kernels the package marks as
-using atomics and the collision kernels all run in it. Whether any other kernel still
-depends on the GPU's order, i.e. whether a GPU repeats our runs, is what
-``benchmarks/repeatability.py`` measures.
+implements ATOMICS: the kernels it marks as summing floats or taking slots with atomics are
+built in Warp's ``RUN_TO_RUN`` mode, which reduces the sums and assigns the slots in a fixed
+order. CONTACTS (a stable sort of the contacts) and CONSTRAINT (canonical constraint rows)
+are declared but empty (``# TODO``, in 4.0.0 too), and two passes still take slots from
+atomic counters outside that mode: the collision pass (broadphase candidates, contacts) and
+the constraint pass (each contact's, joint limit's and friction's rows in ``efc``, from one
+counter per world); so in the GPU's order a world where two contacts or two limits are
+active at once could order its rows differently from run to run, and the solver sum them in
+another order. We build both passes in that mode too (:data:`_RUN_TO_RUN_PASSES`). Then, of
+a Hopper or Walker2d env step's 1,840 kernel launches 776 run in ``RUN_TO_RUN`` mode (Ant:
+1,064 of 2,370), and the atomics left outside it are integer sums and float ``+=`` on
+elements each thread owns, neither of which depends on the threads' order
+(``benchmarks/warp_atomics.py`` reads them in the code Warp generates, counted on the CPU).
+Whether a GPU then repeats our runs is what ``benchmarks/repeatability.py`` measures.
 
 MJX's Warp bridge imports MuJoCo Warp by its vendored module names when ``mujoco.mjx`` is
 first imported. So :func:`use_package`, called by :mod:`.physics` and :mod:`.contact_frames`
@@ -43,6 +44,11 @@ PACKAGE = "mujoco_warp"
 # MJX's bridge modules that each hold a shared Option (``_o``) for their calls.
 _BRIDGE_MODULES = ("forward", "smooth", "collision_driver", "bvh", "render")
 _NOT_FOR_MJX = ("cli",)  # the package's command line (absl flags), which MJX never imports
+# MuJoCo Warp's passes whose kernels take slots from atomic counters outside the package's
+# ATOMICS mode, as (module, function), each also exported by the package: the collision pass
+# (broadphase candidates, contacts) and the constraint pass (each limit's, friction's and
+# contact's rows in ``efc``, from one counter per world).
+_RUN_TO_RUN_PASSES = (("collision_driver", "collision"), ("constraint", "make_constraint"))
 # Set to 1 to keep MJX on its own copy (then deterministic_physics=false): MuJoCo Warp as MJX
 # ships it, as every GPU record before the package was measured with; a fallback should the
 # package fail where the CPU cannot show it (a GPU-only code path).
@@ -106,7 +112,7 @@ def which() -> str:
 
 def set_deterministic(deterministic: bool) -> None:
     """Run every MuJoCo Warp call of this process in deterministic mode (``DeterminismType.ALL``,
-    of which 3.17.0 implements ATOMICS, and the collision kernels in ``RUN_TO_RUN`` mode) or
+    of which 3.17.0 implements ATOMICS, and the collision and constraint passes in ``RUN_TO_RUN`` mode) or
     not. Raises ``ValueError`` (one line) when the package does not run, or when this
     process's Warp envs were already built the other way."""
     global _process_setting
@@ -126,34 +132,33 @@ def set_deterministic(deterministic: bool) -> None:
         for name in _BRIDGE_MODULES:
             importlib.import_module(f"mujoco.mjx.warp.{name}")._o.deterministic = mode
         if deterministic:
-            _collision_kernels_run_to_run()
+            _passes_run_to_run()
     _process_setting = deterministic
 
 
-def _collision_kernels_run_to_run() -> None:
-    """Build MuJoCo Warp's collision kernels in Warp's ``RUN_TO_RUN`` mode, which the
-    package's empty contact sort leaves out: their slot counters (broadphase candidates,
-    contacts) are then assigned in a fixed order. Warp gives a kernel module the mode
-    ``warp.config.deterministic`` holds when it is created, and the collision pass creates
-    its kernels (each in a module of its own) on its first call; so that call, and every
-    later one, runs with the mode set. Idempotent."""
+def _passes_run_to_run() -> None:
+    """Build the kernels of MuJoCo Warp's :data:`_RUN_TO_RUN_PASSES` in Warp's ``RUN_TO_RUN``
+    mode, which the package's ATOMICS mode leaves out: their slot counters are then assigned
+    in a fixed order. Warp gives a kernel module the mode ``warp.config.deterministic`` holds
+    when it is created, and each pass creates its kernels (each in a module of its own) on
+    its first call; so that call, and every later one, runs with the mode set. Idempotent."""
     import warp
-    from mujoco_warp._src import collision_driver
 
-    collision = collision_driver.collision
-    if getattr(collision, "run_to_run", False):
-        return
+    for module_name, function_name in _RUN_TO_RUN_PASSES:
+        module = importlib.import_module(f"{PACKAGE}._src.{module_name}")
+        function = getattr(module, function_name)
+        if getattr(function, "run_to_run", False):
+            continue
 
-    @functools.wraps(collision)
-    def collision_run_to_run(*args, **kwargs):
-        before = warp.config.deterministic
-        warp.config.deterministic = warp.DeterministicMode.RUN_TO_RUN
-        try:
-            return collision(*args, **kwargs)
-        finally:
-            warp.config.deterministic = before
+        @functools.wraps(function)
+        def run_to_run(*args, _function=function, **kwargs):
+            before = warp.config.deterministic
+            warp.config.deterministic = warp.DeterministicMode.RUN_TO_RUN
+            try:
+                return _function(*args, **kwargs)
+            finally:
+                warp.config.deterministic = before
 
-    collision_run_to_run.run_to_run = True
-    collision_driver.collision = collision_run_to_run  # what the step's forward calls
-    sys.modules[PACKAGE].collision = collision_run_to_run  # what MJX's own collision() calls
-
+        run_to_run.run_to_run = True
+        setattr(module, function_name, run_to_run)  # what the step's forward calls
+        setattr(sys.modules[PACKAGE], function_name, run_to_run)  # what MJX's bridge calls by the package's name
