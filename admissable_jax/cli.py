@@ -275,12 +275,15 @@ def stop_at_next_boundary(where: str):
 
 def enable_compilation_cache() -> None:
     """Keep compiled XLA programs in ``~/.cache/admissable_jax/jax_cache`` (outside any repo)
-    unless ``JAX_COMPILATION_CACHE_DIR`` says otherwise: MJX programs take a minute to build."""
+    unless ``JAX_COMPILATION_CACHE_DIR`` says otherwise: MJX programs take a minute to build.
+    Those that compile in under a second are not kept, unless
+    ``JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS`` says otherwise."""
     import jax
 
     default = os.path.join(os.path.expanduser("~"), ".cache", "admissable_jax", "jax_cache")
     jax.config.update("jax_compilation_cache_dir", os.environ.get("JAX_COMPILATION_CACHE_DIR", default))
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+    if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:  # else JAX has read it already
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
 
 def fail(message: str) -> None:

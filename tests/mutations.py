@@ -394,6 +394,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                        '_RUN_TO_RUN_PASSES = (("collision_driver", "collision"),)', "test_envs.py"),
     "warp_atomics_counters_read_as_integers": ("benchmarks/warp_atomics.py", "            if result and re.search(",
                                                "            if False and re.search(", "test_warp_kernels.py"),
+    "compile_time_floor_forced": ("admissable_jax/cli.py", '    if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:',
+                                  "    if True:", "test_repeatability.py"),
     "mjx_own_warp_not_kept": ("admissable_jax/envs/warp_package.py", 'if os.environ.get(OWN_COPY_VARIABLE) == "1":',
                               'if os.environ.get(OWN_COPY_VARIABLE) == "yes":', "test_envs.py"),
     "mujoco_warp_release_not_checked": ("admissable_jax/envs/warp_package.py", "    if _package_refused:\n",

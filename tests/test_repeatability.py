@@ -31,3 +31,26 @@ def test_a_cpu_experiment_repeats_from_its_records_alone(tmp_path, monkeypatch, 
     assert len(rebuilt_pairs) == 2
     record = json.loads((tmp_path / "results" / "repeatability.jsonl").read_text().splitlines()[-1])
     assert record["repeated"] is True and record["diverged_at"] is None and record["total_steps"] == 2000
+
+
+def test_commands_keep_the_compile_time_floor_the_environment_sets(monkeypatch):
+    """With JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS set, a command keeps the floor JAX read
+    from it (the check above counts on every program cached: at 0, a program compiled in under
+    a second is kept too); unset, programs compiled in under a second are not kept."""
+    import jax
+
+    from admissable_jax import cli
+
+    floor = "jax_persistent_cache_min_compile_time_secs"
+    before = {name: getattr(jax.config, name) for name in ("jax_compilation_cache_dir", floor)}
+    try:
+        jax.config.update(floor, 0.0)  # as JAX reads the variable when imported
+        monkeypatch.setenv("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+        cli.enable_compilation_cache()
+        assert getattr(jax.config, floor) == 0.0
+        monkeypatch.delenv("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS")
+        cli.enable_compilation_cache()
+        assert getattr(jax.config, floor) == 1.0
+    finally:
+        for name, value in before.items():
+            jax.config.update(name, value)
