@@ -37,6 +37,7 @@ import jax.numpy as jnp
 from admissable_jax.cli import parse_args
 from admissable_jax.envs import canonical_env_name, make_env, warp_package
 from common import append_record, run_benchmark
+from warp_launches import launched_kernels
 
 FUNCTION_HEAD = re.compile(r"^static (?:WP_FORCEINLINE |CUDA_CALLABLE )*[\w:<>, ]+?\b(\w+)\($", re.MULTILINE)
 ATOMIC = re.compile(r"(?:(var_\w+) = )?wp::(atomic_\w+)\((var_\w+)")
@@ -55,32 +56,6 @@ def _validate(config: AtomicsConfig) -> None:
     canonical_env_name(config.env)
     if config.num_envs < 1:
         raise ValueError(f"num_envs must be >= 1, got {config.num_envs}")
-
-
-def launched_kernels(warp, step, *args) -> tuple[dict, collections.Counter, set]:
-    """One call of the compiled ``step``: its kernels by key, launches by key, and the keys of
-    the kernels launched over no threads."""
-    kernels, launches, empty = {}, collections.Counter(), set()
-    originals = {name: getattr(warp, name) for name in ("launch", "launch_tiled")}
-
-    def recorded(original):
-        def launch(kernel, *launch_args, **kwargs):
-            kernels[kernel.key] = kernel
-            launches[kernel.key] += 1
-            dim = kwargs.get("dim", launch_args[0] if launch_args else None)
-            if dim is not None and 0 in (dim if isinstance(dim, (tuple, list)) else (dim,)):
-                empty.add(kernel.key)
-            return original(kernel, *launch_args, **kwargs)
-        return launch
-
-    for name, original in originals.items():
-        setattr(warp, name, recorded(original))
-    try:
-        jax.block_until_ready(step(*args))
-    finally:
-        for name, original in originals.items():
-            setattr(warp, name, original)
-    return kernels, launches, empty
 
 
 def generated_source(warp, kernel) -> str:

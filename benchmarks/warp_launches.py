@@ -54,25 +54,30 @@ def solver_caps(config: LaunchConfig) -> list[int]:
     return caps
 
 
-def count_launches(warp, step: callable, *args) -> collections.Counter:
-    """Kernel launches (by kernel) of one call of the compiled ``step``."""
-    counts: collections.Counter = collections.Counter()
+def launched_kernels(warp, step, *args) -> tuple[dict, collections.Counter, set]:
+    """One call of the compiled ``step``: its kernels by key, launches by key, and the keys of
+    the kernels launched over no threads."""
+    kernels, launches, empty = {}, collections.Counter(), set()
     originals = {name: getattr(warp, name) for name in ("launch", "launch_tiled")}
 
-    def counted(original):
+    def recorded(original):
         def launch(kernel, *launch_args, **kwargs):
-            counts[getattr(kernel, "key", str(kernel))] += 1
+            kernels[kernel.key] = kernel
+            launches[kernel.key] += 1
+            dim = kwargs.get("dim", launch_args[0] if launch_args else None)
+            if dim is not None and 0 in (dim if isinstance(dim, (tuple, list)) else (dim,)):
+                empty.add(kernel.key)
             return original(kernel, *launch_args, **kwargs)
         return launch
 
     for name, original in originals.items():
-        setattr(warp, name, counted(original))
+        setattr(warp, name, recorded(original))
     try:
         jax.block_until_ready(step(*args))
     finally:
         for name, original in originals.items():
             setattr(warp, name, original)
-    return counts
+    return kernels, launches, empty
 
 
 def solver_niter_histogram(env, num_envs: int, steps: int) -> dict[int, int]:
@@ -106,7 +111,7 @@ def main(argv: list[str]) -> None:
         step = jax.jit(jax.vmap(env.step))
         actions = jnp.zeros((bench.num_envs, env.action_size))
         states = jax.block_until_ready(step(states, actions))  # compiled and run once, uncounted
-        counts = count_launches(warp, step, states, actions)
+        _, counts, _ = launched_kernels(warp, step, states, actions)
         record = {
             "env": env.gymnasium_id, "solver_iterations": int(env.mj_model.opt.iterations),
             "graph_conditional": bool(env.physics.model.opt._impl.graph_conditional),  # pylint: disable=protected-access

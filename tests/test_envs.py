@@ -144,12 +144,13 @@ def test_warp_steps_the_mujoco_warp_package_deterministically():
     benchmarks/warp_atomics.py). A second setting in one process is refused."""
     import warp
     import warp_atomics  # benchmarks/ is on the tests' path (conftest.py)
+    import warp_launches
 
     from admissable_jax.envs import warp_package
 
     env = make_env("ant", physics="warp", max_batch=N_RESETS)  # the parity test's kernels
     assert warp_package.runs_package()
-    kernels, launches, empty = warp_atomics.launched_kernels(
+    kernels, launches, empty = warp_launches.launched_kernels(
         warp, jax.jit(env.step), env.reset(jax.random.key(1)), jnp.zeros(env.action_size))
     run_to_run = {key for key, kernel in kernels.items()
                   if kernel.module.options.get("deterministic") == warp.DeterministicMode.RUN_TO_RUN}

@@ -8,6 +8,7 @@ import numpy as np
 import warp as wp
 import warp_atomics  # benchmarks/ is on the tests' path (conftest.py)
 import warp_kernels
+import warp_launches
 from warp._src import context as warp_context
 
 
@@ -46,7 +47,7 @@ def test_warp_atomics_reads_each_kind_from_the_generated_code():
     """A slot counter (the return value used), an integer sum (unused), a float += in a
     function the kernel calls: each found, of its kind, with the Python line it came from."""
     arrays = [wp.zeros(2, dtype=int, device="cpu"), wp.zeros(4, dtype=int, device="cpu"), wp.zeros(2, dtype=float, device="cpu")]
-    kernels, launches, empty = warp_atomics.launched_kernels(
+    kernels, launches, empty = warp_launches.launched_kernels(
         wp, lambda: wp.launch(_atomics_of_each_kind, dim=4, inputs=arrays, device="cpu"))
     key = _atomics_of_each_kind.key
     assert (list(kernels), launches[key], empty) == ([key], 1, set())
