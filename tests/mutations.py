@@ -396,6 +396,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                                "            if False and re.search(", "test_warp_kernels.py"),
     "compile_time_floor_forced": ("admissable_jax/cli.py", '    if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:',
                                   "    if True:", "test_repeatability.py"),
+    "notebook_pngs_not_compacted": ("benchmarks/compact_pngs.py", 'png = smaller_png(base64.b64decode(data["image/png"]))',
+                                    'png = base64.b64decode(data["image/png"])', "test_device_pack.py"),
     "mjx_own_warp_not_kept": ("admissable_jax/envs/warp_package.py", 'if os.environ.get(OWN_COPY_VARIABLE) == "1":',
                               'if os.environ.get(OWN_COPY_VARIABLE) == "yes":', "test_envs.py"),
     "mujoco_warp_release_not_checked": ("admissable_jax/envs/warp_package.py", "    if _package_refused:\n",

@@ -3,6 +3,7 @@ and the figures results commit stay small (benchmarks/compact_pngs.py)."""
 
 from __future__ import annotations
 
+import base64
 import importlib.metadata
 import io
 import json
@@ -135,6 +136,7 @@ def test_compacted_figures_look_the_same_at_a_fraction_of_the_bytes(tmp_path):
     plt.close(figure)
     with Image.open(path) as image:
         original = np.asarray(image.convert("RGB"), dtype=np.int16)
+    full_colour = path.read_bytes()
 
     before, after = compact_pngs.compact(str(path))
     assert after == os.path.getsize(path) < 0.6 * before
@@ -144,6 +146,21 @@ def test_compacted_figures_look_the_same_at_a_fraction_of_the_bytes(tmp_path):
     difference = np.abs(compacted - original)
     assert difference.mean() < 0.5 and np.percentile(difference, 99) <= 8, (difference.mean(), np.percentile(difference, 99))
     assert compact_pngs.compact(str(path)) == (after, after)
-    assert compact_pngs.png_files([str(tmp_path)]) == [str(path)]
-    with pytest.raises(ValueError, match=r"^.*notes\.txt: not a PNG file nor a folder$"):
+    # A notebook's PNG outputs likewise (base64 in its JSON), the rest of it as it was.
+    cells = [{"cell_type": "markdown", "metadata": {}, "source": ["# Ünïcode stays"]},
+             {"cell_type": "code", "execution_count": 1, "metadata": {}, "source": ["plot()"], "outputs": [
+                 {"output_type": "display_data", "metadata": {},
+                  "data": {"image/png": base64.b64encode(full_colour).decode("ascii"), "text/plain": ["<Figure>"]}}]}]
+    notebook = tmp_path / "figures" / "walkthrough.ipynb"
+    notebook.write_text(json.dumps({"cells": cells, "metadata": {}, "nbformat": 4, "nbformat_minor": 5},
+                                   sort_keys=True, indent=1, ensure_ascii=False) + "\n", encoding="utf-8")
+    notebook_before, notebook_after = compact_pngs.compact(str(notebook))
+    assert notebook_after == os.path.getsize(notebook) < notebook_before - 0.5 * (before - after)
+    compacted_cells = json.loads(notebook.read_text(encoding="utf-8"))["cells"]
+    (output,) = compacted_cells[1]["outputs"]
+    assert base64.b64decode(output["data"].pop("image/png")) == path.read_bytes()  # the file's own compaction
+    assert compacted_cells[0] == cells[0] and output["data"] == {"text/plain": ["<Figure>"]}
+    assert compact_pngs.compact(str(notebook)) == (notebook_after, notebook_after)
+    assert compact_pngs.png_files([str(tmp_path)]) == [str(path), str(notebook)]
+    with pytest.raises(ValueError, match=r"^.*notes\.txt: not a PNG file, a notebook nor a folder$"):
         compact_pngs.png_files([str(tmp_path / "notes.txt")])
