@@ -44,11 +44,10 @@ class EnvOptions:
             (``mjx.put_model(..., graph_mode=...)``): ``"WARP"`` or ``"WARP_STAGED"``
             (CUDA-graph capture modes), ``None`` for MJX's default.
         deterministic: Warp only: MuJoCo Warp's deterministic mode (the ``mujoco-warp``
-            package, :mod:`.warp_package`): atomic sums and atomic slot counters in a fixed
-            order, towards a GPU repeating a run bit for bit (which continuing a run on
-            another machine needs, :mod:`admissable_jax.fast_forward`); contact order is not
-            yet fixed (:mod:`.warp_package`). ``False``: the GPU's own order, which may be
-            faster. One setting per process.
+            package, :mod:`.warp_package`): atomic sums, contact slots and constraint rows
+            in a fixed order, towards a GPU repeating a run bit for bit (which continuing a
+            run on another machine needs, :mod:`admissable_jax.fast_forward`). ``False``:
+            the GPU's own order, which may be faster. One setting per process.
     """
 
     episode_length: int = MAX_EPISODE_STEPS
