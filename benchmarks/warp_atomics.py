@@ -8,10 +8,10 @@ one element rounds differently in another order, and an ``atomic_add`` whose ret
 is used (a slot counter: a contact's index, a constraint's rows) hands out slots in arrival
 order. Warp's ``RUN_TO_RUN`` mode makes both order-free within a kernel; the deterministic
 mode of ``envs/warp_package.py`` builds MuJoCo Warp's atomic kernels, its collision pass and
-its constraint pass in it. This steps the env once on the CPU, then reads, for every kernel
-the step launched that is not built in that mode, the C++ Warp generated for it (the CPU
-kernel cache), and lists each atomic reachable from the kernel with the Python line it came
-from, as one of:
+its constraint pass in it. This steps the env on the CPU (``steps`` random actions, then the
+step it reads), then reads, for every kernel that step launched that is not built in that
+mode, the C++ Warp generated for it (the CPU kernel cache), and lists each atomic reachable
+from the kernel with the Python line it came from, as one of:
 
 - ``slot counter``: the return value is used; order-dependent.
 - ``float``: order-dependent where several threads update one element in one launch, not
@@ -47,6 +47,7 @@ ATOMIC = re.compile(r"(?:(var_\w+) = )?wp::(atomic_\w+)\((var_\w+)")
 class AtomicsConfig:
     env: str = dataclasses.field(default="hopper", metadata={"help": "hopper, walker2d, ant or halfcheetah"})
     num_envs: int = dataclasses.field(default=4, metadata={"help": "worlds stepped at once"})
+    steps: int = dataclasses.field(default=30, metadata={"help": "random-action env steps before the step read (contacts, limits)"})
     deterministic: bool = dataclasses.field(default=True, metadata={"help": "MuJoCo Warp's deterministic mode (deterministic_physics)"})
 
 
@@ -54,8 +55,8 @@ def _validate(config: AtomicsConfig) -> None:
     if jax.default_backend() != "cpu":
         raise ValueError("warp_atomics.py reads the CPU kernels Warp generates; run it with JAX_PLATFORMS=cpu")
     canonical_env_name(config.env)
-    if config.num_envs < 1:
-        raise ValueError(f"num_envs must be >= 1, got {config.num_envs}")
+    if config.num_envs < 1 or config.steps < 0:
+        raise ValueError(f"num_envs must be >= 1 and steps >= 0, got {config.num_envs} and {config.steps}")
 
 
 def generated_source(warp, kernel) -> str:
@@ -106,8 +107,12 @@ def main(argv: list[str]) -> None:
     env = make_env(config.env, physics="warp", max_batch=config.num_envs, deterministic=config.deterministic)
     step = jax.jit(jax.vmap(env.step))
     states = jax.vmap(env.reset)(jax.random.split(jax.random.key(0), config.num_envs))
+    # Random actions first, so that the step read has feet on the floor and joints at their limits.
+    for key in jax.random.split(jax.random.key(1), config.steps):
+        states = step(states, jax.random.uniform(key, (config.num_envs, env.action_size),
+                                                 minval=env.action_low, maxval=env.action_high))
     actions = jnp.zeros((config.num_envs, env.action_size))
-    states = jax.block_until_ready(step(states, actions))  # compiled and run once
+    states = jax.block_until_ready(step(states, actions))  # compiled and run once (steps=0)
     kernels, launches, empty = launched_kernels(warp, step, states, actions)
     run_to_run = {key for key, kernel in kernels.items()
                   if kernel.module.options.get("deterministic") == warp.DeterministicMode.RUN_TO_RUN}
@@ -117,7 +122,7 @@ def main(argv: list[str]) -> None:
         if atomics:
             outside[key] = atomics
     record = {
-        "env": env.gymnasium_id, "num_envs": config.num_envs, "deterministic": config.deterministic,
+        "env": env.gymnasium_id, "num_envs": config.num_envs, "steps_before": config.steps, "deterministic": config.deterministic,
         "mujoco_warp": warp_package.which(),
         "launches_per_env_step": sum(launches.values()),
         "run_to_run_launches": sum(launches[key] for key in run_to_run),
