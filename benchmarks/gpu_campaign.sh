@@ -153,7 +153,7 @@ if [ "$smoke" = 1 ]; then
          buffer_size=1000 score_episodes=2 score_envs=24 episode_length=10 checkpoint_every=1)
   min_steps=${CAMPAIGN_MIN_STEPS:-40}; worlds=4,8; graph_modes=default; physics_steps=5; scoring=(n_episodes=1 max_steps=10)
   train_bench=(num_envs=4 iterations=4 batch_size=32 buffer_size=1000); brax=(num_envs=4 steps_per_epoch=4 batch_size=32 num_eval_envs=2 episode_length=10)
-  repeat=(total_steps=80 learning_starts=48)
+  repeat=(total_steps=80 learning_starts=48); cost_worlds=4
   repeat_keys="physics=warp score_every=40 num_envs=4 batch_size=32 hidden_size=32 buffer_size=1000 score_episodes=2 score_envs=24 episode_length=10"
   deadline=${CAMPAIGN_DEADLINE:-3600}; lease=3600
 else
@@ -165,6 +165,7 @@ else
   min_steps=${CAMPAIGN_MIN_STEPS:-200000}; worlds=125,1250,10000; graph_modes=default,WARP,WARP_STAGED; physics_steps=100
   scoring=(n_episodes=10); train_bench=(num_envs=125 iterations=40); brax=(num_envs=125 steps_per_epoch=40)
   repeat=(total_steps=20000 learning_starts=10000); repeat_keys="physics=warp score_every=5000"
+  cost_worlds=1875  # the Hopper step's 15 pairs x 125 envs
   deadline=${CAMPAIGN_DEADLINE:-}; lease=690
 fi
 sizes+=(first_seed=${CAMPAIGN_FIRST_SEED:-0})  # seeds first_seed, first_seed + 1, ...
@@ -277,6 +278,14 @@ worker() {
       # fast-forwarded in a fresh process): what continuing a run on the next lease needs.
       stage repeatability-hopper 600 $py benchmarks/repeatability.py env=hopper "${repeat[@]}" "extra=$repeat_keys" \
           out="$dir/repeatability"
+      # ...and what that mode costs: the env step at the Hopper step's size with it and without
+      # (the package in the GPU's own order), one process each (one setting per process).
+      if [ "${CAMPAIGN_DETERMINISTIC:-1}" != 0 ]; then
+        for deterministic in true false; do
+          stage "determinism-cost-hopper-$deterministic" 200 $py benchmarks/physics_throughput.py env=hopper physics=warp \
+              batches=$cost_worlds steps=$physics_steps deterministic=$deterministic
+        done
+      fi
       stage measure-hopper 300 $py benchmarks/campaign.py measure env=hopper modes=$ALL "${sizes[@]}"
       stage measure-walker2d 300 $py benchmarks/campaign.py measure env=walker2d modes=$ALL "${sizes[@]}"
       stage measure-ant 300 $py benchmarks/campaign.py measure env=ant modes=$PAIRED "${sizes[@]}"

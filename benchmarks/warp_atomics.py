@@ -19,7 +19,15 @@ from the kernel with the Python line it came from, as one of:
 - ``integer``: return value unused; integer sums are the same in any order.
 
 It prints the launches per env step (all, and those in ``RUN_TO_RUN`` mode) and the list, and
-appends a record to benchmarks/results/warp_atomics.jsonl. Kernels launched over no threads
+appends a record to benchmarks/results/warp_atomics.jsonl.
+
+It also counts what the mode adds on a GPU, where a ``RUN_TO_RUN`` kernel with atomics
+takes Warp's deterministic launch path (on the CPU, which runs threads in order, Warp
+launches it as any other): each of its atomic targets is recorded, then sorted and reduced
+(a *sort-reduce*: a CUB radix sort, a reduce by key and an apply kernel), and each slot
+counter is scanned between two passes of the kernel. A latency-bound GPU pays for each of
+those kernels as for a launch, so these counts against the launches per env step say what
+the mode may cost there; only a GPU says what it does. Kernels launched over no threads
 (the model has none of what they loop over) are never built, so nothing is read for them;
 they are counted apart.
 """
@@ -116,6 +124,12 @@ def main(argv: list[str]) -> None:
     kernels, launches, empty = launched_kernels(warp, step, states, actions)
     run_to_run = {key for key, kernel in kernels.items()
                   if kernel.module.options.get("deterministic") == warp.DeterministicMode.RUN_TO_RUN}
+    deterministic_path = collections.Counter()  # what the run_to_run kernels with atomics add on a GPU
+    for key in run_to_run - empty:
+        meta = kernels[key].adj.det_meta
+        if meta is not None and meta.needs_deterministic:
+            deterministic_path.update({"launches": launches[key], "sort_reduces": launches[key] * len(meta.scatter_targets),
+                                       "counter_scans": launches[key] * len(meta.counter_targets)})
     outside = {}
     for key in sorted(set(kernels) - run_to_run - empty):
         atomics = atomics_of(key, generated_source(warp, kernels[key]))
@@ -127,6 +141,7 @@ def main(argv: list[str]) -> None:
         "launches_per_env_step": sum(launches.values()),
         "run_to_run_launches": sum(launches[key] for key in run_to_run),
         "kernels": len(kernels), "run_to_run_kernels": len(run_to_run), "launched_over_no_threads": len(empty - run_to_run),
+        "gpu_deterministic_path": {name: deterministic_path[name] for name in ("launches", "sort_reduces", "counter_scans")},
         "atomics_outside_run_to_run": outside,
     }
     append_record("warp_atomics", record)
@@ -134,6 +149,8 @@ def main(argv: list[str]) -> None:
           f"{record['launches_per_env_step']} launches per env step, {record['run_to_run_launches']} in RUN_TO_RUN "
           f"mode; {len(kernels)} kernels, {len(run_to_run)} in RUN_TO_RUN mode, "
           f"{record['launched_over_no_threads']} others launched over no threads")
+    print(f"on a GPU, per env step: {deterministic_path['launches']} launches take Warp's deterministic path, "
+          f"with {deterministic_path['sort_reduces']} sort-reduces and {deterministic_path['counter_scans']} counter scans")
     kinds = collections.Counter(atomic["kind"] for atomics in outside.values() for atomic in atomics)
     print(f"atomics outside RUN_TO_RUN mode, in {len(outside)} kernels: {dict(kinds) or 'none'}")
     for key, atomics in outside.items():

@@ -150,7 +150,7 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     room for another interval; first of all, whether the machine repeats a run from its records.
     All of it without the modules of the wheels the device packs leave out."""
     directory = str(tmp_path / "campaign")
-    speed = _campaign("speed", directory, CAMPAIGN_ONLY="^(repeatability-hopper|measure-hopper|projections)$")
+    speed = _campaign("speed", directory, CAMPAIGN_ONLY="^(repeatability-hopper|determinism-cost-hopper-.*|measure-hopper|projections)$")
     assert speed.returncode == 0, speed.stdout + speed.stderr
     # First, whether the machine repeats a run from its records alone (the CPU does), in the
     # deterministic mode, with XLA's deterministic flags (which the CPU's XLA accepts).
@@ -158,6 +158,11 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     (repeat,) = [json.loads(line) for line in open(os.path.join(directory, "results", "repeatability.jsonl"))]
     assert repeat["repeated"] and "--xla_gpu_deterministic_ops=true" in repeat["xla_flags"]
     assert "deterministic_physics=false" not in repeat["extra"]
+    # ...and what the mode costs: the env step with it and without, each in a process of its own.
+    with open(os.path.join(directory, "results", "physics_throughput.jsonl")) as file:
+        costs = [json.loads(line) for line in file]
+    assert sorted((row["deterministic"], row["mujoco_warp"], row["num_envs"]) for row in costs) == [
+        (False, "mujoco-warp package", 4), (True, "mujoco-warp package", 4)], costs
     # The speed step ends with steps 2-4 projected from what it measured (here Hopper only).
     assert "projected wall time for Hopper-v5, 3 pairs x 4 envs (warp" in speed.stdout
     assert "projected wall time for Hopper-v5, 2 pairs x 4 envs, timed with 3 (an upper bound)" in speed.stdout
