@@ -130,10 +130,14 @@ install() {  # the packages ../shared/device/pack.sh packs, into /tmp/site (devi
   export PYTHONPATH=/tmp/site:$PYTHONPATH
   # The CUDA modules benchmarks/warp_kernels.py built on the CPU, if this call carried them
   # (a call's carried folders do not stay for the next: the call that starts the worker
-  # carries them): Warp loads them instead of compiling them in the run's first chunk.
-  local archive=.dev/kernels/warp-kernels.tar.xz
-  if [ ! -e "$kernels/.unpacked" ] && [ -f "$archive" ]; then
-    tar -xmJf "$archive" -C "$dir" && touch "$kernels/.unpacked"  # -m: their times, this clock's
+  # carries them), an archive per MuJoCo Warp setup: Warp loads them instead of compiling
+  # them in the run's first chunk.
+  local archive unpacked=true
+  if [ ! -e "$kernels/.unpacked" ] && compgen -G ".dev/kernels/*.tar.xz" > /dev/null; then
+    for archive in .dev/kernels/*.tar.xz; do
+      tar -xmJf "$archive" -C "$dir" || unpacked=false  # -m: their times, this clock's
+    done
+    [ "$unpacked" = true ] && touch "$kernels/.unpacked"
   fi
   [ -e "$kernels/.unpacked" ] && export WARP_CACHE_PATH=$kernels
   local check="import mujoco, warp, mujoco_warp, brax, omegaconf, gymnasium"

@@ -1,6 +1,11 @@
 """MuJoCo Warp's CUDA kernels for a GPU lease, built here on the CPU.
 
     python benchmarks/warp_kernels.py [envs=hopper,walker2d,ant] [arch=90] [out=.dev/kernels/warp-kernels.tar.xz]
+    python benchmarks/warp_kernels.py envs=hopper deterministic=false leave_out=.dev/kernels/warp-kernels.tar.xz \
+        out=.dev/kernels/warp-kernels-hopper-package.tar.xz
+    python benchmarks/warp_kernels.py envs=ant deterministic=false mjx_own_warp=true \
+        leave_out=.dev/kernels/warp-kernels.tar.xz,.dev/kernels/warp-kernels-hopper-package.tar.xz \
+        out=.dev/kernels/warp-kernels-ant-own.tar.xz
 
 A fresh device machine compiles Warp's modules the first time a program steps an env: on the
 H100 (2026-11-24) a campaign run's first chunk took 36-58 s more than the next ones. Two kinds
@@ -24,6 +29,14 @@ unpacks it into ``runs/campaign/warp_cache`` and points Warp there (``WARP_CACHE
 module missing from it is compiled on the device as before, and each call's pack says how
 many modules came prebuilt and how many were compiled on the machine.
 
+The modules depend on which MuJoCo Warp runs and in which mode (their names and options do),
+so each setup a lease runs needs its own: the campaign's runs step the ``mujoco-warp``
+package in its deterministic mode (the default here), the speed step's cost stage also
+steps it in the GPU's own order (``deterministic=false``), and ``CAMPAIGN_DETERMINISTIC=0``
+steps MJX's own copy (``deterministic=false mjx_own_warp=true``). One setup per process, as
+for our envs: one archive each, all in ``.dev/kernels``, which the worker unpacks together;
+``leave_out`` keeps out of one what the others hold (the modules no setup changes).
+
 This reads Warp's module loading from inside (``warp._src.context``, Warp 1.19); another Warp
 version stops it with a one-line error rather than building a cache the device would miss.
 """
@@ -43,7 +56,7 @@ import jax
 import jax.numpy as jnp
 
 from admissable_jax.cli import parse_args
-from admissable_jax.envs import canonical_env_name, make_env
+from admissable_jax.envs import canonical_env_name, make_env, warp_package
 
 CUDA_DEFAULT_BLOCK_DIM = 256  # what a CUDA launch that names no block size gets (Warp's default)
 KNOWN_WARP = "1.19."
@@ -56,6 +69,9 @@ class WarpKernelsConfig:
     out: str = dataclasses.field(default=".dev/kernels/warp-kernels.tar.xz",
                                  metadata={"help": "the archive to write (carry its folder to the device)"})
     batch: int = dataclasses.field(default=4, metadata={"help": "worlds stepped on the CPU (modules do not depend on it)"})
+    deterministic: bool = dataclasses.field(default=True, metadata={"help": "MuJoCo Warp's deterministic mode (deterministic_physics)"})
+    mjx_own_warp: bool = dataclasses.field(default=False, metadata={"help": "MJX's own copy of MuJoCo Warp (needs deterministic=false)"})
+    leave_out: str = dataclasses.field(default="", metadata={"help": "comma-separated archives whose files are not packed again"})
 
 
 def _validate(config: WarpKernelsConfig) -> None:
@@ -65,6 +81,12 @@ def _validate(config: WarpKernelsConfig) -> None:
         raise ValueError(f"arch must be a CUDA architecture Warp supports (>= 75), got {config.arch}")
     if config.batch < 1:
         raise ValueError("batch must be >= 1")
+    if config.mjx_own_warp and config.deterministic:
+        raise ValueError("mjx_own_warp=true steps MJX's own copy of MuJoCo Warp, which has no deterministic mode: "
+                         "pass deterministic=false")
+    for archive in filter(None, config.leave_out.split(",")):
+        if not os.path.isfile(archive):
+            raise ValueError(f"leave_out names no archive: {archive}")
     if not config.out.endswith(".tar.xz"):
         raise ValueError(f"out must name a .tar.xz archive, got {config.out!r}")
 
@@ -109,10 +131,10 @@ class ModuleLoads:
         self._context._resolve_launch_block_dim, self._context.Module.load = self._originals  # pylint: disable=protected-access
 
 
-def step_env_on_cpu(name: str, batch: int) -> None:
+def step_env_on_cpu(name: str, batch: int, deterministic: bool = True) -> None:
     """Reset ``batch`` worlds of env ``name`` on MuJoCo Warp and step them twice: every module
     the campaign's programs launch (reset, step, contact forces) loads."""
-    env = make_env(name, physics="warp", max_batch=batch)
+    env = make_env(name, physics="warp", max_batch=batch, deterministic=deterministic)
     states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), batch))
     step = jax.jit(jax.vmap(env.step))
     actions = jnp.zeros((batch, env.action_size))
@@ -146,8 +168,24 @@ def compile_for_cuda(variants: list[tuple[object, int]], arch: int, cache_dir: s
     return files
 
 
+def pack(files: list[str], root: str, out: str, leave_out: list[str]) -> list[str]:
+    """Write ``files`` (under ``root``, named relative to it) into the archive ``out``, but those
+    the ``leave_out`` archives hold under the same name; returns the names packed."""
+    packed = set()
+    for other in leave_out:
+        with tarfile.open(other) as archive:
+            packed.update(archive.getnames())
+    names = sorted({os.path.relpath(path, root) for path in files} - packed)
+    with tarfile.open(out, "w:xz") as archive:
+        for name in names:
+            archive.add(os.path.join(root, name), arcname=name)
+    return names
+
+
 def main(argv: list[str]) -> None:
     config = parse_args(WarpKernelsConfig, argv, "benchmarks/warp_kernels.py", __doc__.strip().splitlines()[0], _validate)
+    if config.mjx_own_warp:  # before the first env imports MJX
+        os.environ[warp_package.OWN_COPY_VARIABLE] = "1"
     import warp
 
     if not warp.__version__.startswith(KNOWN_WARP):
@@ -157,17 +195,16 @@ def main(argv: list[str]) -> None:
     start = time.perf_counter()
     with ModuleLoads() as loads:
         for name in config.envs.split(","):
-            step_env_on_cpu(name.strip(), config.batch)
+            step_env_on_cpu(name.strip(), config.batch, config.deterministic)
     variants = cuda_variants(loads, list(user_modules.values()))
     print(f"{config.envs}: {len(loads.loads)} module variants launched, {len(variants)} with every registered "
           f"module's default ({time.perf_counter() - start:.0f} s); compiling for sm_{config.arch}", flush=True)
     with tempfile.TemporaryDirectory() as scratch:
         files = compile_for_cuda(variants, config.arch, os.path.join(scratch, "warp_cache", warp.__version__))
         os.makedirs(os.path.dirname(os.path.abspath(config.out)), exist_ok=True)
-        with tarfile.open(config.out, "w:xz") as archive:
-            for path in sorted(set(files)):
-                archive.add(path, arcname=os.path.relpath(path, scratch))
-    print(f"{len(variants)} Warp module variants for sm_{config.arch} in {config.out}, "
+        names = pack(files, scratch, config.out, list(filter(None, config.leave_out.split(","))))
+    print(f"{len(variants)} Warp module variants for sm_{config.arch} ({len(set(files)) - len(names)} of their "
+          f"{len(set(files))} files already in {config.leave_out or 'no other archive'}) in {config.out}, "
           f"{os.path.getsize(config.out):,} bytes ({time.perf_counter() - start:.0f} s in all)")
 
 

@@ -400,6 +400,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                     'png = base64.b64decode(data["image/png"])', "test_device_pack.py"),
     "campaign_determinism_cost_not_measured": ("benchmarks/gpu_campaign.sh", "for deterministic in true false; do",
                                                "for deterministic in true; do", "test_hopper_pipelines.py"),
+    "kernel_archive_packs_what_another_holds": ("benchmarks/warp_kernels.py", "for path in files} - packed)",
+                                                "for path in files})", "test_warp_kernels.py"),
     "mjx_own_warp_not_kept": ("admissable_jax/envs/warp_package.py", 'if os.environ.get(OWN_COPY_VARIABLE) == "1":',
                               'if os.environ.get(OWN_COPY_VARIABLE) == "yes":', "test_envs.py"),
     "mujoco_warp_release_not_checked": ("admissable_jax/envs/warp_package.py", "    if _package_refused:\n",

@@ -2,6 +2,7 @@
 benchmarks/warp_atomics.py's reading of the atomics in the C++ Warp generates."""
 
 import os
+import tarfile
 import types
 
 import numpy as np
@@ -106,3 +107,21 @@ def test_modules_are_built_for_the_block_sizes_a_cuda_device_loads(tmp_path):
         expected += [str(tmp_path / identifier / on_the_device), str(tmp_path / identifier / f"{identifier}.meta")]
     assert sorted(files) == sorted(expected)
     assert all(os.path.getsize(path) > 0 for path in files)
+
+
+def test_an_archive_leaves_out_what_another_holds(tmp_path):
+    """warp_kernels.py's archive per MuJoCo Warp setup packs only the files that the archives
+    named in leave_out do not hold (the modules no setup changes), under the same names."""
+    root = tmp_path / "scratch"
+    files = []
+    for name in ("warp_cache/1.19.0/wp_shared_1/m.cubin", "warp_cache/1.19.0/wp_own_2/m.cubin"):
+        (root / name).parent.mkdir(parents=True)
+        (root / name).write_bytes(name.encode())
+        files.append(str(root / name))
+    first = str(tmp_path / "first.tar.xz")
+    assert warp_kernels.pack(files[:1], str(root), first, []) == ["warp_cache/1.19.0/wp_shared_1/m.cubin"]
+    second = str(tmp_path / "second.tar.xz")
+    assert warp_kernels.pack(files, str(root), second, [first]) == ["warp_cache/1.19.0/wp_own_2/m.cubin"]
+    with tarfile.open(second) as archive:
+        assert archive.extractfile("warp_cache/1.19.0/wp_own_2/m.cubin").read() == b"warp_cache/1.19.0/wp_own_2/m.cubin"
+
