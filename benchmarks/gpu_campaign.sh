@@ -89,7 +89,8 @@
 #                           repository root); read when the worker starts
 #   CAMPAIGN_FIRST_SEED     the runs' first seed (default 0): CAMPAIGN_FIRST_SEED=5 trains seeds
 #                           5-9, new seeds for a result that seeds 0-4 gave
-#   CAMPAIGN_DETERMINISTIC  1 (default): runs on the mujoco-warp package in its deterministic mode,
+#   CAMPAIGN_DETERMINISTIC  1 (default): runs on the mujoco-warp package in its deterministic mode
+#                           (deterministic_physics=true, said whatever experiment's default),
 #                           with XLA's deterministic GPU ops, which a later lease needs to continue
 #                           them; 0: on MJX's own copy of MuJoCo Warp in the GPU's own order
 #                           (ADMISSABLE_MJX_OWN_WARP=1, deterministic_physics=false, XLA's
@@ -172,7 +173,6 @@ else
   cost_worlds=1875  # the Hopper step's 15 pairs x 125 envs
   deadline=${CAMPAIGN_DEADLINE:-}; lease=690
 fi
-sizes+=(first_seed=${CAMPAIGN_FIRST_SEED:-0})  # seeds first_seed, first_seed + 1, ...
 # Runs that a GPU repeats bit for bit, so that a later lease can continue them (fast_forward):
 # MuJoCo Warp in its deterministic mode (experiment's deterministic_physics, on by default),
 # and XLA's deterministic GPU ops without timing-based kernel choices (autotuning), which
@@ -181,9 +181,12 @@ if [ "${CAMPAIGN_DETERMINISTIC:-1}" = 0 ]; then
   export ADMISSABLE_MJX_OWN_WARP=1
   sizes+=(deterministic_physics=false)
   repeat_keys+=" deterministic_physics=false"
-else
+else  # said, not left to the default, which may change (benchmarks/README.md, Leases, in order, 5)
+  sizes+=(deterministic_physics=true)
+  repeat_keys+=" deterministic_physics=true"
   export XLA_FLAGS="--xla_gpu_deterministic_ops=true --xla_gpu_autotune_level=0${XLA_FLAGS:+ $XLA_FLAGS}"
 fi
+sizes+=(first_seed=${CAMPAIGN_FIRST_SEED:-0})  # seeds first_seed, first_seed + 1, ...
 ALL=adversarial,uniform,none
 PAIRED=adversarial,uniform
 

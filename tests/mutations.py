@@ -402,6 +402,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                                "for deterministic in true; do", "test_hopper_pipelines.py"),
     "kernel_archive_packs_what_another_holds": ("benchmarks/warp_kernels.py", "for path in files} - packed)",
                                                 "for path in files})", "test_warp_kernels.py"),
+    "campaign_runs_leave_the_mode_to_the_default": ("benchmarks/gpu_campaign.sh", "  sizes+=(deterministic_physics=true)\n", "",
+                                                    "test_hopper_pipelines.py"),
     "mjx_own_warp_not_kept": ("admissable_jax/envs/warp_package.py", 'if os.environ.get(OWN_COPY_VARIABLE) == "1":',
                               'if os.environ.get(OWN_COPY_VARIABLE) == "yes":', "test_envs.py"),
     "mujoco_warp_release_not_checked": ("admissable_jax/envs/warp_package.py", "    if _package_refused:\n",

@@ -157,7 +157,7 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     assert "hopper, 80 env steps: repeated bit for bit" in speed.stdout
     (repeat,) = [json.loads(line) for line in open(os.path.join(directory, "results", "repeatability.jsonl"))]
     assert repeat["repeated"] and "--xla_gpu_deterministic_ops=true" in repeat["xla_flags"]
-    assert "deterministic_physics=false" not in repeat["extra"]
+    assert "deterministic_physics=true" in repeat["extra"]
     # ...and what the mode costs: the env step with it and without, each in a process of its own.
     with open(os.path.join(directory, "results", "physics_throughput.jsonl")) as file:
         costs = [json.loads(line) for line in file]
@@ -196,6 +196,7 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     assert first.returncode == CALL_AGAIN, first.stdout + first.stderr
     assert "projected wall time for Hopper-v5, 3 pairs x 4 envs (warp" in first.stdout and "fits" in first.stdout
     assert "hopper is not finished: the next worker resumes it" in first.stdout
+    assert " deterministic_physics=true first_seed=0 " in first.stdout  # the mode said, not left to the default
     halfway = str(tmp_path / "halfway.tar.gz")  # what that call brought back: the runs' records to env step 40
     shutil.copy(os.path.join(directory, "out", "campaign-hopper.tar.gz"), halfway)
     started = _campaign("hopper", directory, CAMPAIGN_CALL_SECONDS="0")
