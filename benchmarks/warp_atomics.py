@@ -18,8 +18,10 @@ from the kernel with the Python line it came from, as one of:
   where each thread updates elements of its own (read the line).
 - ``integer``: return value unused; integer sums are the same in any order.
 
-It prints the launches per env step (all, and those in ``RUN_TO_RUN`` mode) and the list, and
-appends a record to benchmarks/results/warp_atomics.jsonl.
+Kernels launched over no threads (the model has none of what they loop over) are never
+built, so nothing is read for them; they are counted apart. It prints the launches per env
+step (all, and those in ``RUN_TO_RUN`` mode) and the list, and appends a record to
+benchmarks/results/warp_atomics.jsonl.
 
 It also counts what the mode adds on a GPU, where a ``RUN_TO_RUN`` kernel with atomics
 takes Warp's deterministic launch path (on the CPU, which runs threads in order, Warp
@@ -27,9 +29,7 @@ launches it as any other): each of its atomic targets is recorded, then sorted a
 (a *sort-reduce*: a CUB radix sort, a reduce by key and an apply kernel), and each slot
 counter is scanned between two passes of the kernel. A latency-bound GPU pays for each of
 those kernels as for a launch, so these counts against the launches per env step say what
-the mode may cost there; only a GPU says what it does. Kernels launched over no threads
-(the model has none of what they loop over) are never built, so nothing is read for them;
-they are counted apart.
+the mode may cost there; only a GPU says what it does.
 """
 
 from __future__ import annotations
