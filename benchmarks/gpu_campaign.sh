@@ -177,7 +177,8 @@ fi
 # MuJoCo Warp in its deterministic mode (experiment's deterministic_physics, on by default),
 # and XLA's deterministic GPU ops without timing-based kernel choices (autotuning), which
 # may differ from machine to machine. CAMPAIGN_DETERMINISTIC=0: neither (header).
-if [ "${CAMPAIGN_DETERMINISTIC:-1}" = 0 ]; then
+deterministic=${CAMPAIGN_DETERMINISTIC:-1}
+if [ "$deterministic" = 0 ]; then
   export ADMISSABLE_MJX_OWN_WARP=1
   sizes+=(deterministic_physics=false)
   repeat_keys+=" deterministic_physics=false"
@@ -287,10 +288,10 @@ worker() {
           out="$dir/repeatability"
       # ...and what that mode costs: the env step at the Hopper step's size with it and without
       # (the package in the GPU's own order), one process each (one setting per process).
-      if [ "${CAMPAIGN_DETERMINISTIC:-1}" != 0 ]; then
-        for deterministic in true false; do
-          stage "determinism-cost-hopper-$deterministic" 200 $py benchmarks/physics_throughput.py env=hopper physics=warp \
-              batches=$cost_worlds steps=$physics_steps deterministic=$deterministic
+      if [ "$deterministic" != 0 ]; then
+        for mode in true false; do
+          stage "determinism-cost-hopper-$mode" 200 $py benchmarks/physics_throughput.py env=hopper physics=warp \
+              batches=$cost_worlds steps=$physics_steps deterministic=$mode
         done
       fi
       stage measure-hopper 300 $py benchmarks/campaign.py measure env=hopper modes=$ALL "${sizes[@]}"

@@ -9,8 +9,9 @@ MuJoCo Warp runs the same Python launch sequence a CUDA graph captures (``wp.lau
 whether a lower iteration cap would cut launches, i.e. whether the Newton loop launches
 every iteration or stops when all worlds converge (MuJoCo Warp's ``capture_while`` when
 ``opt.graph_conditional``). ``deterministic`` (default true) is MuJoCo Warp's deterministic
-mode, whose ``RUN_TO_RUN`` kernels record, sort and reduce inside their own launches (the
-count is the same either way); ``ADMISSABLE_MJX_OWN_WARP=1`` with ``deterministic=false``
+mode (the count is the same either way: on a GPU its ``RUN_TO_RUN`` kernels with atomics
+add sort-reduce kernels within their launches, which this count does not see and
+``warp_atomics.py`` counts); ``ADMISSABLE_MJX_OWN_WARP=1`` with ``deterministic=false``
 counts MJX's own copy of MuJoCo Warp, as every GPU record before 2026-12-04 ran. It also
 steps a random-action rollout and histograms
 ``solver_niter``, the iterations the last forward of each step used. Appends a record per
