@@ -25,11 +25,15 @@ benchmarks/results/warp_atomics.jsonl.
 
 It also counts what the mode adds on a GPU, where a ``RUN_TO_RUN`` kernel with atomics
 takes Warp's deterministic launch path (on the CPU, which runs threads in order, Warp
-launches it as any other): each of its atomic targets is recorded, then sorted and reduced
-(a *sort-reduce*: a CUB radix sort, a reduce by key and an apply kernel), and each slot
-counter is scanned between two passes of the kernel. A latency-bound GPU pays for each of
-those kernels as for a launch, so these counts against the launches per env step say what
-the mode may cost there; only a GPU says what it does.
+launches it as any other): each atomic target of the forward launch is recorded, then
+sorted and reduced (a *sort-reduce*: a CUB radix sort, a reduce by key and an apply
+kernel), and each slot counter is scanned between two passes of the kernel. A kernel's
+deterministic metadata also lists the targets of its adjoint (the gradients its backward
+launch would sum into its inputs); a forward launch leaves those alone (Warp's
+``launch_deterministic`` keeps the targets marked ``use_forward``), and the env step
+launches no backward, so they are not counted. A latency-bound GPU pays for each of those
+kernels as for a launch, so these counts against the launches per env step say what the
+mode may cost there; only a GPU says what it does.
 """
 
 from __future__ import annotations
@@ -108,6 +112,21 @@ def atomics_of(key: str, source: str) -> list[dict]:
     return found
 
 
+def gpu_deterministic_path(kernels: dict, launches: collections.Counter, run_to_run: set) -> collections.Counter:
+    """What the ``run_to_run`` kernels' forward launches add on a GPU: ``launches`` taking Warp's
+    deterministic path, ``sort_reduces`` (one per forward atomic target and launch) and
+    ``counter_scans`` (one per forward slot counter and launch). Adjoint targets are left out:
+    only a backward launch reduces them."""
+    added = collections.Counter({"launches": 0, "sort_reduces": 0, "counter_scans": 0})
+    for key in run_to_run:
+        meta = kernels[key].adj.det_meta
+        if meta is not None and meta.needs_deterministic:
+            added.update({"launches": launches[key],
+                          "sort_reduces": launches[key] * sum(target.use_forward for target in meta.scatter_targets),
+                          "counter_scans": launches[key] * sum(target.use_forward for target in meta.counter_targets)})
+    return added
+
+
 def main(argv: list[str]) -> None:
     import warp
 
@@ -124,12 +143,7 @@ def main(argv: list[str]) -> None:
     kernels, launches, empty = launched_kernels(warp, step, states, actions)
     run_to_run = {key for key, kernel in kernels.items()
                   if kernel.module.options.get("deterministic") == warp.DeterministicMode.RUN_TO_RUN}
-    deterministic_path = collections.Counter()  # what the run_to_run kernels with atomics add on a GPU
-    for key in run_to_run - empty:
-        meta = kernels[key].adj.det_meta
-        if meta is not None and meta.needs_deterministic:
-            deterministic_path.update({"launches": launches[key], "sort_reduces": launches[key] * len(meta.scatter_targets),
-                                       "counter_scans": launches[key] * len(meta.counter_targets)})
+    deterministic_path = gpu_deterministic_path(kernels, launches, run_to_run - empty)
     outside = {}
     for key in sorted(set(kernels) - run_to_run - empty):
         atomics = atomics_of(key, generated_source(warp, kernels[key]))

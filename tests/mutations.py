@@ -414,6 +414,9 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                        "      : stage repeatability-hopper 600 ", "test_hopper_pipelines.py"),
     "repeatability_rebuild_reuses_the_compiled_programs": ("benchmarks/repeatability.py", ", environment=fresh_cache)", ")",
                                                            "test_repeatability.py"),
+    "warp_atomics_counts_adjoint_targets": ("benchmarks/warp_atomics.py",
+                                            "sum(target.use_forward for target in meta.scatter_targets)",
+                                            "len(meta.scatter_targets)", "test_warp_kernels.py"),
     "repeatability_copies_checkpoints": ("benchmarks/repeatability.py", 'ignore=shutil.ignore_patterns("checkpoints*")',
                                          'ignore=shutil.ignore_patterns("nothing")', "test_repeatability.py"),
 }

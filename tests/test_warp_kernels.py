@@ -59,6 +59,36 @@ def test_warp_atomics_reads_each_kind_from_the_generated_code():
     assert sorted(arrays[1].numpy()) == [0, 1, 2, 3] and list(arrays[2].numpy()) == [2.0, 2.0]
 
 
+@wp.kernel(module="unique", module_options={"deterministic": wp.DeterministicMode.RUN_TO_RUN})
+def _sum_and_slots_run_to_run(values: wp.array(dtype=float), total: wp.array(dtype=float),
+                              counts: wp.array(dtype=int), slots: wp.array(dtype=int)):
+    i = wp.tid()
+    wp.atomic_add(total, 0, values[i])
+    slots[i] = wp.atomic_add(counts, 0, 1)
+
+
+def test_warp_atomics_counts_what_a_forward_launch_adds_on_a_gpu():
+    """A RUN_TO_RUN kernel with a float sum and a slot counter: on a GPU each forward launch
+    sort-reduces the sum's target and scans the counter. The sum's adjoint (the gradient it
+    would add into ``values``) is a target of the backward launch only, and is not counted."""
+    arrays = [wp.full(4, 0.5, dtype=float, device="cpu"), wp.zeros(1, dtype=float, device="cpu"),
+              wp.zeros(1, dtype=int, device="cpu"), wp.zeros(4, dtype=int, device="cpu")]
+
+    def twice():
+        for _ in range(2):
+            wp.launch(_sum_and_slots_run_to_run, dim=4, inputs=arrays, device="cpu")
+
+    kernels, launches, _ = warp_launches.launched_kernels(wp, twice)
+    key = _sum_and_slots_run_to_run.key
+    meta = kernels[key].adj.det_meta
+    assert any(target.adjoint and not target.use_forward for target in meta.scatter_targets)  # the adjoint, listed
+    added = warp_atomics.gpu_deterministic_path(kernels, launches, {key})
+    assert dict(added) == {"launches": 2, "sort_reduces": 2, "counter_scans": 2}
+    assert arrays[1].numpy()[0] == 4.0 and sorted(arrays[3].numpy()) == [4, 5, 6, 7]  # the second launch's slots
+    assert dict(warp_atomics.gpu_deterministic_path(kernels, launches, set())) == {
+        "launches": 0, "sort_reduces": 0, "counter_scans": 0}
+
+
 class _H200:
     """What Warp's CUDA load reads of a device to name the binary it looks up: an sm_90 GPU
     whose driver is CUDA 13.0, as on the lent H200s (the device library's KINDS.md)."""
