@@ -158,7 +158,7 @@ if [ "$smoke" = 1 ]; then
          buffer_size=1000 score_episodes=2 score_envs=24 episode_length=10 checkpoint_every=1)
   min_steps=${CAMPAIGN_MIN_STEPS:-40}; worlds=4,8; graph_modes=default; physics_steps=5; scoring=(n_episodes=1 max_steps=10)
   train_bench=(num_envs=4 iterations=4 batch_size=32 buffer_size=1000); brax=(num_envs=4 steps_per_epoch=4 batch_size=32 num_eval_envs=2 episode_length=10)
-  repeat=(total_steps=80 learning_starts=48); cost_worlds=4
+  repeat=(total_steps=80 learning_starts=48); cost_worlds=4; check=(batches=4 steps=5)
   repeat_keys="physics=warp score_every=40 num_envs=4 batch_size=32 hidden_size=32 buffer_size=1000 score_episodes=2 score_envs=24 episode_length=10"
   deadline=${CAMPAIGN_DEADLINE:-3600}; lease=3600
 else
@@ -171,6 +171,7 @@ else
   scoring=(n_episodes=10); train_bench=(num_envs=125 iterations=40); brax=(num_envs=125 steps_per_epoch=40)
   repeat=(total_steps=20000 learning_starts=10000); repeat_keys="physics=warp score_every=5000"
   cost_worlds=1875  # the Hopper step's 15 pairs x 125 envs
+  check=(batches=125 steps=20)  # one pair's envs: every kernel launched from Python, Warp's buffers read back
   deadline=${CAMPAIGN_DEADLINE:-}; lease=690
 fi
 # Runs that a GPU repeats bit for bit, so that a later lease can continue them (fast_forward):
@@ -287,12 +288,17 @@ worker() {
       stage repeatability-hopper 600 $py benchmarks/repeatability.py env=hopper "${repeat[@]}" "extra=$repeat_keys" \
           out="$dir/repeatability"
       # ...and what that mode costs: the env step at the Hopper step's size with it and without
-      # (the package in the GPU's own order), one process each (one setting per process).
+      # (the package in the GPU's own order), one process each (one setting per process); then
+      # the mode without a CUDA graph (graph mode NONE), where Warp checks after each launch that
+      # no thread outgrew the mode's record buffers (in a graph, an overflow goes unsaid): a
+      # fault fails that stage with Warp's message.
       if [ "$deterministic" != 0 ]; then
         for mode in true false; do
           stage "determinism-cost-hopper-$mode" 200 $py benchmarks/physics_throughput.py env=hopper physics=warp \
               batches=$cost_worlds steps=$physics_steps deterministic=$mode
         done
+        stage determinism-cost-hopper-true-graphless 200 $py benchmarks/physics_throughput.py env=hopper physics=warp \
+            "${check[@]}" deterministic=true graph_modes=NONE
       fi
       stage measure-hopper 300 $py benchmarks/campaign.py measure env=hopper modes=$ALL "${sizes[@]}"
       stage measure-walker2d 300 $py benchmarks/campaign.py measure env=walker2d modes=$ALL "${sizes[@]}"

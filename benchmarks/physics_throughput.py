@@ -11,7 +11,8 @@ warm-up run. Prints ms per batched env step and env steps/s, and appends one rec
 pair to ``benchmarks/results/physics_throughput.jsonl``; ``env_over_bare`` is the cost of
 our env layer over the physics it wraps (the Warp issue's target: <= 1.15 on a GPU).
 ``graph_modes`` (Warp only) repeats each Warp measurement per MuJoCo Warp graph mode
-(``default`` = MJX's own choice). ``deterministic`` (Warp only; default true, as runs) is
+(``default`` = MJX's own choice; ``NONE``: no CUDA graph, where a GPU's Warp checks the
+deterministic mode's buffers after each launch, see ``EnvOptions.graph_mode``). ``deterministic`` (Warp only; default true, as runs) is
 MuJoCo Warp's deterministic mode; ``deterministic=false`` times the GPU's own order, and with
 ``ADMISSABLE_MJX_OWN_WARP=1`` MJX's own copy of MuJoCo Warp, as every record before 2026-12-04.
 """
@@ -36,7 +37,7 @@ class PhysicsBenchConfig:
     physics: str = dataclasses.field(default="jax,warp", metadata={"help": "comma-separated backends (auto, jax, warp)"})
     batches: str = dataclasses.field(default="8,32", metadata={"help": "comma-separated batch sizes (envs stepped at once)"})
     steps: int = dataclasses.field(default=50, metadata={"help": "batched steps per timed run"})
-    graph_modes: str = dataclasses.field(default="default", metadata={"help": "comma-separated Warp graph modes: default, WARP, WARP_STAGED"})
+    graph_modes: str = dataclasses.field(default="default", metadata={"help": "comma-separated Warp graph modes: default, WARP, WARP_STAGED, NONE"})
     deterministic: bool = dataclasses.field(default=True, metadata={"help": "Warp: its deterministic mode (deterministic_physics)"})
 
 

@@ -417,6 +417,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "warp_atomics_counts_adjoint_targets": ("benchmarks/warp_atomics.py",
                                             "sum(target.use_forward for target in meta.scatter_targets)",
                                             "len(meta.scatter_targets)", "test_warp_kernels.py"),
+    "campaign_deterministic_buffers_not_checked": ("benchmarks/gpu_campaign.sh", "deterministic=true graph_modes=NONE",
+                                                   "deterministic=true", "test_hopper_pipelines.py"),
     "repeatability_copies_checkpoints": ("benchmarks/repeatability.py", 'ignore=shutil.ignore_patterns("checkpoints*")',
                                          'ignore=shutil.ignore_patterns("nothing")', "test_repeatability.py"),
 }

@@ -158,11 +158,13 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     (repeat,) = [json.loads(line) for line in open(os.path.join(directory, "results", "repeatability.jsonl"))]
     assert repeat["repeated"] and "--xla_gpu_deterministic_ops=true" in repeat["xla_flags"]
     assert "deterministic_physics=true" in repeat["extra"]
-    # ...and what the mode costs: the env step with it and without, each in a process of its own.
+    # ...and what the mode costs: the env step with it and without, each in a process of its own;
+    # with it, also without a CUDA graph (NONE), where a GPU's Warp checks the mode's buffers.
     with open(os.path.join(directory, "results", "physics_throughput.jsonl")) as file:
         costs = [json.loads(line) for line in file]
-    assert sorted((row["deterministic"], row["mujoco_warp"], row["num_envs"]) for row in costs) == [
-        (False, "mujoco-warp package", 4), (True, "mujoco-warp package", 4)], costs
+    assert sorted((row["deterministic"], row["graph_mode"] or "", row["mujoco_warp"], row["num_envs"]) for row in costs) == [
+        (False, "", "mujoco-warp package", 4), (True, "", "mujoco-warp package", 4),
+        (True, "NONE", "mujoco-warp package", 4)], costs
     # The speed step ends with steps 2-4 projected from what it measured (here Hopper only).
     assert "projected wall time for Hopper-v5, 3 pairs x 4 envs (warp" in speed.stdout
     assert "projected wall time for Hopper-v5, 2 pairs x 4 envs, timed with 3 (an upper bound)" in speed.stdout
