@@ -12,9 +12,10 @@ pair to ``benchmarks/results/physics_throughput.jsonl``; ``env_over_bare`` is th
 our env layer over the physics it wraps (the Warp issue's target: <= 1.15 on a GPU).
 ``graph_modes`` (Warp only) repeats each Warp measurement per MuJoCo Warp graph mode
 (``default`` = MJX's own choice; ``NONE``: no CUDA graph, where a GPU's Warp checks the
-deterministic mode's buffers after each launch, see ``EnvOptions.graph_mode``). ``deterministic`` (Warp only; default true, as runs) is
-MuJoCo Warp's deterministic mode; ``deterministic=false`` times the GPU's own order, and with
-``ADMISSABLE_MJX_OWN_WARP=1`` MJX's own copy of MuJoCo Warp, as every record before 2026-12-04.
+deterministic mode's buffers after each launch, see ``EnvOptions.graph_mode``).
+``deterministic`` (Warp only; default true, as runs) is MuJoCo Warp's deterministic mode;
+``deterministic=false`` times the GPU's own order, and with ``ADMISSABLE_MJX_OWN_WARP=1``
+MJX's own copy of MuJoCo Warp, as every record before 2026-12-04.
 """
 
 from __future__ import annotations
