@@ -419,6 +419,9 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                             "len(meta.scatter_targets)", "test_warp_kernels.py"),
     "campaign_deterministic_buffers_not_checked": ("benchmarks/gpu_campaign.sh", "deterministic=true graph_modes=NONE",
                                                    "deterministic=true", "test_hopper_pipelines.py"),
+    "cuda_graph_mode_on_cpu_not_refused": ("admissable_jax/envs/physics.py",
+                                           'if graph_mode in CUDA_GRAPH_MODES and jax.default_backend() == "cpu":',
+                                           'if False:', "test_envs.py"),
     "repeatability_copies_checkpoints": ("benchmarks/repeatability.py", 'ignore=shutil.ignore_patterns("checkpoints*")',
                                          'ignore=shutil.ignore_patterns("nothing")', "test_repeatability.py"),
 }

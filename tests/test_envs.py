@@ -410,5 +410,8 @@ def test_make_env_names_and_spaces(tmp_path, monkeypatch, capfd):
                          (dict(solver_iterations=0), "solver_iterations")):
         with pytest.raises(ValueError, match=message):
             make_env("hopper", **bad)
+    # A CUDA-graph mode on the CPU: refused in one line when the env is made, not at its first step.
+    with pytest.raises(ValueError, match=r"^graph_mode='WARP' captures CUDA graphs, which MuJoCo Warp on the CPU has not"):
+        make_env("hopper", physics="warp", graph_mode="WARP")
     with pytest.raises(TypeError):
         make_env(3)

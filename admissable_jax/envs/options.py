@@ -14,7 +14,8 @@ import functools
 import jax
 
 PHYSICS_CHOICES = ("auto", "jax", "warp")
-WARP_GRAPH_MODES = ("WARP", "WARP_STAGED", "NONE")  # MuJoCo Warp's CUDA-graph modes under JAX, and none
+CUDA_GRAPH_MODES = ("WARP", "WARP_STAGED")  # MuJoCo Warp's CUDA-graph modes under JAX (a GPU's)
+WARP_GRAPH_MODES = (*CUDA_GRAPH_MODES, "NONE")  # and none
 MAX_EPISODE_STEPS = 1000  # Gymnasium's TimeLimit for all four v5 envs.
 DEFAULT_MAX_BATCH = 1024
 
@@ -42,7 +43,7 @@ class EnvOptions:
             the longest scoring rounds with an untrained policy.
         graph_mode: Warp only: how MuJoCo Warp's kernels run under JAX
             (``mjx.put_model(..., graph_mode=...)``): ``"WARP"`` or ``"WARP_STAGED"``
-            (CUDA-graph capture modes), ``None`` for MJX's default, or ``"NONE"``: no
+            (CUDA-graph capture modes, a GPU's only), ``None`` for MJX's default, or ``"NONE"``: no
             graph, every kernel launched from Python at every step; slow, but a check:
             on a GPU, Warp then reads its deterministic mode's buffers after each launch
             and raises where a thread outgrew them, which inside a captured graph drops

@@ -55,7 +55,7 @@ from mujoco.mjx._src.types import IntegratorType  # noqa: E402
 
 from admissable_jax.branching import broadcast_unbatched  # noqa: E402
 from admissable_jax.envs import contact_frames  # noqa: E402
-from admissable_jax.envs.options import warp_installed  # noqa: E402
+from admissable_jax.envs.options import CUDA_GRAPH_MODES, warp_installed  # noqa: E402
 
 contact_frames.install()
 if warp_installed():
@@ -102,6 +102,9 @@ class Physics:
             self.data_template = mjx.make_data(self.model, impl="jax")
             self._shared = {}  # JAX data has no fields shared across a batch
         elif impl == "warp":
+            if graph_mode in CUDA_GRAPH_MODES and jax.default_backend() == "cpu":
+                raise ValueError(f"graph_mode={graph_mode!r} captures CUDA graphs, which MuJoCo Warp on the CPU has not: "
+                                 "use graph_mode None (MJX's default) or 'NONE' there")
             warp_package.set_deterministic(deterministic)
             model = mjx.put_model(mj_model, impl="warp", graph_mode=_warp_graph_mode(graph_mode))
             if contact_forces:
