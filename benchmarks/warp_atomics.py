@@ -33,7 +33,9 @@ launch would sum into its inputs); a forward launch leaves those alone (Warp's
 ``launch_deterministic`` keeps the targets marked ``use_forward``), and the env step
 launches no backward, so they are not counted. A latency-bound GPU pays for each of those
 kernels as for a launch, so these counts against the launches per env step say what the
-mode may cost there; only a GPU says what it does.
+mode may cost there; only a GPU says what it does. Last, per kernel, the records per thread
+Warp gives each slot counter there: a thread that calls it more often gets slot 0, unsaid
+inside a CUDA graph (``EnvOptions.graph_mode``'s ``NONE`` checks it on a GPU).
 """
 
 from __future__ import annotations
@@ -127,6 +129,24 @@ def gpu_deterministic_path(kernels: dict, launches: collections.Counter, run_to_
     return added
 
 
+def slot_counter_records(kernels: dict, run_to_run: set) -> dict[str, dict[str, int]]:
+    """Per ``run_to_run`` kernel with slot counters: the records per thread Warp gives each
+    counter on a GPU (the atomic call sites in the kernel's code, or the module's
+    ``deterministic_max_records``). A thread that calls a counter more often gets slot 0, and
+    inside a CUDA graph nobody is told (``EnvOptions.graph_mode``'s ``NONE`` checks it), so
+    compare these with the calls a thread can make, read in MuJoCo Warp's source."""
+    records = {}
+    for key in sorted(run_to_run):
+        meta = kernels[key].adj.det_meta
+        if meta is None:
+            continue
+        counters = {target.array_var_label: max(meta.counter_records_per_thread.get(target, 0), meta.max_records, 1)
+                    for target in meta.counter_targets if target.use_forward}  # as Warp's allocate_counter_buffers
+        if counters:
+            records[key] = counters
+    return records
+
+
 def main(argv: list[str]) -> None:
     import warp
 
@@ -144,6 +164,7 @@ def main(argv: list[str]) -> None:
     run_to_run = {key for key, kernel in kernels.items()
                   if kernel.module.options.get("deterministic") == warp.DeterministicMode.RUN_TO_RUN}
     deterministic_path = gpu_deterministic_path(kernels, launches, run_to_run - empty)
+    counter_records = slot_counter_records(kernels, run_to_run - empty)
     outside = {}
     for key in sorted(set(kernels) - run_to_run - empty):
         atomics = atomics_of(key, generated_source(warp, kernels[key]))
@@ -156,6 +177,7 @@ def main(argv: list[str]) -> None:
         "run_to_run_launches": sum(launches[key] for key in run_to_run),
         "kernels": len(kernels), "run_to_run_kernels": len(run_to_run), "launched_over_no_threads": len(empty - run_to_run),
         "gpu_deterministic_path": {name: deterministic_path[name] for name in ("launches", "sort_reduces", "counter_scans")},
+        "slot_counter_records_per_thread": counter_records,
         "atomics_outside_run_to_run": outside,
     }
     append_record("warp_atomics", record)
@@ -165,6 +187,8 @@ def main(argv: list[str]) -> None:
           f"{record['launched_over_no_threads']} others launched over no threads")
     print(f"on a GPU, per env step: {deterministic_path['launches']} launches take Warp's deterministic path, "
           f"with {deterministic_path['sort_reduces']} sort-reduces and {deterministic_path['counter_scans']} counter scans")
+    for key, counters in counter_records.items():
+        print(f"  slot counters of {key}, records per thread: {counters}")
     kinds = collections.Counter(atomic["kind"] for atomics in outside.values() for atomic in atomics)
     print(f"atomics outside RUN_TO_RUN mode, in {len(outside)} kernels: {dict(kinds) or 'none'}")
     for key, atomics in outside.items():

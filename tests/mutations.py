@@ -422,6 +422,9 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "cuda_graph_mode_on_cpu_not_refused": ("admissable_jax/envs/physics.py",
                                            'if graph_mode in CUDA_GRAPH_MODES and jax.default_backend() == "cpu":',
                                            'if False:', "test_envs.py"),
+    "warp_atomics_counter_records_not_counted": ("benchmarks/warp_atomics.py",
+                                                 "max(meta.counter_records_per_thread.get(target, 0), meta.max_records, 1)",
+                                                 "max(meta.max_records, 1)", "test_warp_kernels.py"),
     "repeatability_copies_checkpoints": ("benchmarks/repeatability.py", 'ignore=shutil.ignore_patterns("checkpoints*")',
                                          'ignore=shutil.ignore_patterns("nothing")', "test_repeatability.py"),
 }

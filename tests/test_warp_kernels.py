@@ -61,18 +61,20 @@ def test_warp_atomics_reads_each_kind_from_the_generated_code():
 
 @wp.kernel(module="unique", module_options={"deterministic": wp.DeterministicMode.RUN_TO_RUN})
 def _sum_and_slots_run_to_run(values: wp.array(dtype=float), total: wp.array(dtype=float),
-                              counts: wp.array(dtype=int), slots: wp.array(dtype=int)):
+                              counts: wp.array(dtype=int), slots: wp.array(dtype=int), others: wp.array(dtype=int)):
     i = wp.tid()
     wp.atomic_add(total, 0, values[i])
     slots[i] = wp.atomic_add(counts, 0, 1)
+    others[i] = wp.atomic_add(counts, 1, 1)
 
 
 def test_warp_atomics_counts_what_a_forward_launch_adds_on_a_gpu():
-    """A RUN_TO_RUN kernel with a float sum and a slot counter: on a GPU each forward launch
-    sort-reduces the sum's target and scans the counter. The sum's adjoint (the gradient it
-    would add into ``values``) is a target of the backward launch only, and is not counted."""
+    """A RUN_TO_RUN kernel with a float sum and a slot counter called twice: on a GPU each
+    forward launch sort-reduces the sum's target and scans the counter, which holds two
+    records per thread. The sum's adjoint (the gradient it would add into ``values``) is a
+    target of the backward launch only, and is not counted."""
     arrays = [wp.full(4, 0.5, dtype=float, device="cpu"), wp.zeros(1, dtype=float, device="cpu"),
-              wp.zeros(1, dtype=int, device="cpu"), wp.zeros(4, dtype=int, device="cpu")]
+              wp.zeros(2, dtype=int, device="cpu"), wp.zeros(4, dtype=int, device="cpu"), wp.zeros(4, dtype=int, device="cpu")]
 
     def twice():
         for _ in range(2):
@@ -84,9 +86,12 @@ def test_warp_atomics_counts_what_a_forward_launch_adds_on_a_gpu():
     assert any(target.adjoint and not target.use_forward for target in meta.scatter_targets)  # the adjoint, listed
     added = warp_atomics.gpu_deterministic_path(kernels, launches, {key})
     assert dict(added) == {"launches": 2, "sort_reduces": 2, "counter_scans": 2}
-    assert arrays[1].numpy()[0] == 4.0 and sorted(arrays[3].numpy()) == [4, 5, 6, 7]  # the second launch's slots
+    assert arrays[1].numpy()[0] == 4.0
+    assert sorted(arrays[3].numpy()) == sorted(arrays[4].numpy()) == [4, 5, 6, 7]  # the second launch's slots
     assert dict(warp_atomics.gpu_deterministic_path(kernels, launches, set())) == {
         "launches": 0, "sort_reduces": 0, "counter_scans": 0}
+    # Two call sites of the slot counter: two records per thread, which a third call would outgrow.
+    assert warp_atomics.slot_counter_records(kernels, {key}) == {key: {"counts": 2}}
 
 
 class _H200:
