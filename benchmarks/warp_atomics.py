@@ -163,8 +163,9 @@ def main(argv: list[str]) -> None:
     kernels, launches, empty = launched_kernels(warp, step, states, actions)
     run_to_run = {key for key, kernel in kernels.items()
                   if kernel.module.options.get("deterministic") == warp.DeterministicMode.RUN_TO_RUN}
-    deterministic_path = gpu_deterministic_path(kernels, launches, run_to_run - empty)
-    counter_records = slot_counter_records(kernels, run_to_run - empty)
+    launched_run_to_run = run_to_run - empty
+    deterministic_path = gpu_deterministic_path(kernels, launches, launched_run_to_run)
+    counter_records = slot_counter_records(kernels, launched_run_to_run)
     outside = {}
     for key in sorted(set(kernels) - run_to_run - empty):
         atomics = atomics_of(key, generated_source(warp, kernels[key]))
