@@ -11,6 +11,7 @@ import concurrent.futures
 import contextlib
 import dataclasses
 import gc
+import math
 import os
 import signal
 import sys
@@ -97,6 +98,7 @@ def parse_args(
     if malformed:
         fail(f"expected key=value, got {malformed[0]!r} (see --help)")
     schema = OmegaConf.structured(config_cls)
+    int_keys = {field.name for field in dataclasses.fields(config_cls) if field.type in (int, "int")}
     if config_file is not None:
         files = [arg.split("=", 1)[1] for arg in argv if arg.startswith("config=")]
         argv = [arg for arg in argv if not arg.startswith("config=")]
@@ -104,13 +106,15 @@ def parse_args(
             fail(f"config= given {len(files)} times; give one file and override its keys with key=value")
         if files:
             try:
-                schema = OmegaConf.merge(schema, OmegaConf.create(_read_config_file(files[0], config_file)))
+                from_file = _whole_numbers_as_ints(_read_config_file(files[0], config_file), int_keys)
+                schema = OmegaConf.merge(schema, OmegaConf.create(from_file))
             except OmegaConfBaseException as error:
                 fail(f"in config={files[0]}: {_one_line(error)}")
     # "key=" means the empty string (OmegaConf would read None, which no key accepts).
     argv = [f"{arg}''" if arg.endswith("=") else arg for arg in argv]
     try:
-        merged = OmegaConf.merge(schema, OmegaConf.from_dotlist(argv))
+        overrides = _whole_numbers_as_ints(OmegaConf.to_container(OmegaConf.from_dotlist(argv)), int_keys)
+        merged = OmegaConf.merge(schema, OmegaConf.create(overrides))
         config = OmegaConf.to_object(merged)
     except OmegaConfBaseException as error:
         fail(_one_line(error))
@@ -120,6 +124,23 @@ def parse_args(
         except (ValueError, TypeError) as error:
             fail(str(error))
     return config
+
+
+def _whole_numbers_as_ints(items: dict[str, Any], int_keys: set[str]) -> dict[str, Any]:
+    """``items`` with each int key's whole number written as a float taken as that int:
+    ``total_steps=1e6`` (OmegaConf reads a float) or ``total_steps: 1e6`` in YAML (a string),
+    as researchers write step counts. Anything else is left for OmegaConf to refuse."""
+
+    def as_int(value: Any) -> Any:
+        if isinstance(value, (bool, int)):
+            return value
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            return value
+        return int(number) if math.isfinite(number) and number.is_integer() else value
+
+    return {key: as_int(value) if key in int_keys else value for key, value in items.items()}
 
 
 def _read_config_file(path: str, config_file: ConfigFile) -> dict[str, Any]:

@@ -295,6 +295,12 @@ def validate(config: TrainConfig) -> None:
             raise ValueError(f"{name} must be >= 0, got {getattr(config, name)}")
     if config.fast_forward and not config.resume:
         raise ValueError("fast_forward=true continues a run from its records: pass resume=true too")
+    if config.resume_step < -1:
+        raise ValueError(f"resume_step must be -1 (the latest checkpoint) or a checkpoint's env step, got {config.resume_step}")
+    if config.resume_step != -1 and not config.resume:
+        raise ValueError(f"resume_step={config.resume_step} picks the checkpoint a run continues from: pass resume=true too")
+    if config.seed < 0:
+        raise ValueError(f"seed must be >= 0, got {config.seed}")
     if config.time_limit < 0:
         raise ValueError(f"time_limit must be >= 0 (0 = no limit), got {config.time_limit}")
     if config.utd <= 0:
@@ -303,8 +309,10 @@ def validate(config: TrainConfig) -> None:
         raise ValueError(f"epsilon must be > 0, got {config.epsilon}")
     if config.learning_rate <= 0:
         raise ValueError(f"learning_rate must be > 0, got {config.learning_rate}")
-    if not 0 <= config.gamma <= 1 or not 0 < config.tau <= 1:
-        raise ValueError("gamma must be in [0, 1] and tau in (0, 1]")
+    if not 0 <= config.gamma <= 1:
+        raise ValueError(f"gamma must be in [0, 1], got {config.gamma}")
+    if not 0 < config.tau <= 1:
+        raise ValueError(f"tau must be in (0, 1], got {config.tau}")
     if config.learning_starts < config.batch_size:
         raise ValueError(
             f"learning_starts ({config.learning_starts}) must be >= batch_size ({config.batch_size})"

@@ -425,6 +425,11 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "warp_atomics_counter_records_not_counted": ("benchmarks/warp_atomics.py",
                                                  "max(meta.counter_records_per_thread.get(target, 0), meta.max_records, 1)",
                                                  "max(meta.max_records, 1)", "test_warp_kernels.py"),
+    "step_counts_in_float_notation_refused": ("admissable_jax/cli.py",
+                                              "return int(number) if math.isfinite(number) and number.is_integer() else value",
+                                              "return value", "test_training.py"),
+    "resume_step_without_resume_ignored": ("admissable_jax/config.py", "if config.resume_step != -1 and not config.resume:",
+                                           "if False:", "test_training.py"),
     "repeatability_copies_checkpoints": ("benchmarks/repeatability.py", 'ignore=shutil.ignore_patterns("checkpoints*")',
                                          'ignore=shutil.ignore_patterns("nothing")', "test_repeatability.py"),
 }

@@ -586,7 +586,12 @@ def test_a_checkpoint_of_an_older_state_layout_is_named_and_its_networks_still_r
         (["time_limit=-5"], "time_limit must be >= 0 (0 = no limit), got -5.0"),
         (["utd=0"], "utd must be > 0, got 0.0"),
         (["epsilon=0"], "epsilon must be > 0, got 0.0"),
-        (["gamma=1.5"], "gamma must be in [0, 1] and tau in (0, 1]"),
+        (["gamma=1.5"], "gamma must be in [0, 1], got 1.5"),
+        (["tau=0"], "tau must be in (0, 1], got 0.0"),
+        (["total_steps=1234.5"], "bad value for 'total_steps'"),
+        (["seed=-1"], "seed must be >= 0, got -1"),
+        (["resume_step=2000"], "resume_step=2000 picks the checkpoint a run continues from: pass resume=true too"),
+        (["resume=true", "resume_step=-2"], "resume_step must be -1 (the latest checkpoint) or a checkpoint's env step"),
         (["learning_starts=100"], "learning_starts (100) must be >= batch_size (256)"),
         (["episode_length=1001"], "episode_length must be <= 1000 (the v5 limit)"),
         (["fast_forward=true"], "fast_forward=true continues a run from its records: pass resume=true too"),
@@ -633,6 +638,16 @@ def test_config_file_sets_keys_the_command_line_overrides(tmp_path, capsys):
     assert (experiment.env, experiment.k, experiment.score_episodes, experiment.seeds, experiment.modes) == (
         "point_mass", 2, 3, 2, "adversarial,uniform")
     assert "fast_forward, missingness, out, resume, resume_step, seed not taken" in capsys.readouterr().err
+
+    # Step counts as researchers write them: 1e6 on the command line (a float to OmegaConf),
+    # 2e5 in YAML (a string to it), both taken as ints; 1234.5 is refused (above).
+    (tmp_path / "counts.yaml").write_text("total_steps: 2e5\nseeds: 3.0\n")
+    experiment = parse_args(ExperimentConfig, [f"config={tmp_path / 'counts.yaml'}", "score_every=5e3"], "e", "",
+                            config_file=config_file_of(ExperimentConfig))
+    assert (experiment.total_steps, experiment.seeds, experiment.score_every) == (200_000, 3, 5000)
+    assert type(experiment.total_steps) is type(experiment.score_every) is int
+    train = parse_args(TrainConfig, ["total_steps=1e6", "epsilon=1e-8"], "t", "")
+    assert (train.total_steps, train.epsilon) == (1_000_000, 1e-8) and type(train.total_steps) is int
 
     (tmp_path / "typo.yaml").write_text("env: hopper\nlerning_rate: 0.001\n")
     (tmp_path / "bad_value.yaml").write_text("k: two\n")
