@@ -57,7 +57,7 @@
 # Step 5 runs here, on the CPU, from the tarballs that came back: unpack each into
 # benchmarks/results/ and run `python benchmarks/figure1.py hopper=DIR walker2d=DIR ant=DIR`.
 #
-# Settings (environment):
+# Settings (environment; a value the script cannot read is refused at once: one line, exit 2):
 #   CAMPAIGN_DEADLINE       device seconds this step may use, from its worker's start (needed to
 #                           start a run; the run stops within it): the budget_left_s the first call
 #                           reports less about 75 s (the second call's transfer, the last pack and return);
@@ -105,6 +105,20 @@ case "$step" in
   *) echo "usage: bash benchmarks/gpu_campaign.sh speed|hopper|walker2d|ant (see the header)" >&2; exit 2 ;;
 esac
 role=${2:-call}  # call, or --worker: the step itself (started by a call, never by hand)
+# The settings checked at once, one line and exit 2 for a bad one: read as they are, a typo
+# would pass for the default (CAMPAIGN_DETERMINISTIC=false runs the deterministic mode) or
+# fail minutes into the lease.
+setting() {  # setting NAME REGEX WHAT: NAME, where set, must match REGEX
+  local value=${!1:-}
+  [[ -z "$value" || "$value" =~ $2 ]] || { echo "$1=$value: give $3 (see the header)" >&2; exit 2; }
+}
+for name in CAMPAIGN_SMOKE CAMPAIGN_DETERMINISTIC; do setting "$name" '^[01]$' "1 or 0"; done
+for name in CAMPAIGN_CALL_SECONDS CAMPAIGN_PACK_SECONDS CAMPAIGN_MIN_STEPS CAMPAIGN_FIRST_SEED; do
+  setting "$name" '^[0-9]+$' "a whole number >= 0"
+done
+for name in CAMPAIGN_DEADLINE CAMPAIGN_RESERVE CAMPAIGN_RUN_SECONDS; do
+  setting "$name" '^[0-9]+([.][0-9]*)?$' "a number of seconds >= 0"
+done
 repo=$(cd "$(dirname "$0")/.." && pwd)
 cd "$repo"
 smoke=${CAMPAIGN_SMOKE:-0}

@@ -430,6 +430,9 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                               "return value", "test_training.py"),
     "resume_step_without_resume_ignored": ("admissable_jax/config.py", "if config.resume_step != -1 and not config.resume:",
                                            "if False:", "test_training.py"),
+    "campaign_settings_unchecked": ("benchmarks/gpu_campaign.sh",
+                                    '[[ -z "$value" || "$value" =~ $2 ]] || { echo',
+                                    'true || { echo', "test_campaign_plan.py"),
     "repeatability_copies_checkpoints": ("benchmarks/repeatability.py", 'ignore=shutil.ignore_patterns("checkpoints*")',
                                          'ignore=shutil.ignore_patterns("nothing")', "test_repeatability.py"),
 }

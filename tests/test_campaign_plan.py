@@ -2,6 +2,7 @@
 bad input to the benchmarks' command lines."""
 
 import os
+import subprocess
 import sys
 import tarfile
 
@@ -98,3 +99,19 @@ def test_a_benchmark_refuses_bad_input_in_one_line(monkeypatch, capsys):
     with pytest.raises(SystemExit) as helped:
         common.run_benchmark(campaign.main)
     assert helped.value.code == 0 and capsys.readouterr().out.startswith("usage: python benchmarks/campaign.py plan [key")
+
+
+def test_the_campaign_script_refuses_a_bad_setting_before_it_starts(tmp_path):
+    """A CAMPAIGN_* setting the script cannot read is one line and exit 2 before anything
+    starts: read as it was, ``CAMPAIGN_DETERMINISTIC=false`` passed for the deterministic
+    mode, and a deadline of ``-5`` reached the plan."""
+    script = os.path.join(os.path.dirname(__file__), "..", "benchmarks", "gpu_campaign.sh")
+    for setting, expected in [("CAMPAIGN_DETERMINISTIC=false", "give 1 or 0"),
+                              ("CAMPAIGN_DEADLINE=-5", "give a number of seconds >= 0"),
+                              ("CAMPAIGN_MIN_STEPS=5e4", "give a whole number >= 0")]:
+        name, value = setting.split("=")
+        env = {**os.environ, "CAMPAIGN_SMOKE": "1", "CAMPAIGN_DIR": str(tmp_path / "campaign"), name: value}
+        result = subprocess.run(["bash", script, "hopper"], env=env, capture_output=True, text=True, timeout=60)
+        assert result.returncode == 2 and result.stdout == "", (setting, result.stdout, result.stderr)
+        assert result.stderr == f"{setting}: {expected} (see the header)\n"
+    assert not (tmp_path / "campaign").exists()
