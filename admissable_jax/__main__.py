@@ -40,8 +40,11 @@ def main(argv: list[str]) -> int:
         print(versions())
         return 0
     if argv and argv not in (["--help"], ["-h"]):
-        print(f"error: run one of the package's commands, e.g. python -m admissable_jax.train {' '.join(argv)} "
-              f"(python -m admissable_jax lists them)", file=sys.stderr)
+        if argv[0] in COMMANDS:  # `python -m admissable_jax train env=ant`: each command is a module of its own
+            print(f"error: run python -m admissable_jax.{' '.join(argv)}", file=sys.stderr)
+        else:
+            print(f"error: run one of the package's commands, e.g. python -m admissable_jax.train {' '.join(argv)} "
+                  f"(python -m admissable_jax lists them)", file=sys.stderr)
         return USAGE_ERROR
     print("commands (each takes key=value settings; --help lists them):")
     for command in COMMANDS:

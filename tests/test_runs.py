@@ -163,6 +163,8 @@ def test_the_package_lists_its_commands(capsys):
     assert main(["env=ant"]) == 2
     assert capsys.readouterr().err == ("error: run one of the package's commands, e.g. python -m admissable_jax.train "
                                        "env=ant (python -m admissable_jax lists them)\n")
+    assert main(["audit", "runs/h", "k=2"]) == 2  # a command given as a word, not as its module
+    assert capsys.readouterr().err == "error: run python -m admissable_jax.audit runs/h k=2\n"
     # --version: what a bug report needs, read from the installed metadata (no JAX imported).
     import importlib.metadata
 
