@@ -433,6 +433,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "campaign_settings_unchecked": ("benchmarks/gpu_campaign.sh",
                                     '[[ -z "$value" || "$value" =~ $2 ]] || { echo',
                                     'true || { echo', "test_campaign_plan.py"),
+    "policy_action_shape_unchecked": ("admissable_jax/scoring/estimators.py", "    _check_policy(env, policy_fn, params)\n",
+                                      "", "test_audit.py"),
     "repeatability_copies_checkpoints": ("benchmarks/repeatability.py", 'ignore=shutil.ignore_patterns("checkpoints*")',
                                          'ignore=shutil.ignore_patterns("nothing")', "test_repeatability.py"),
 }

@@ -88,6 +88,10 @@ def test_full_horizon_without_discount_is_the_papers_rollout():
                                       (SETS, 0, "n_episodes must be an int >= 1, got 0")):
         with pytest.raises(ValueError, match=message):
             score_missingness(ENV, steer, gain, rng, sets, n_episodes)
+    # ...and a policy whose action is not one of the env's, found by tracing it (nothing runs).
+    with pytest.raises(ValueError, match=r"policy_fn\(params, masked_obs\) must return one action of shape \(2,\) "
+                                         r"for a masked observation of shape \(8,\), got \(3,\)"):
+        score_missingness(ENV, lambda gain, masked: jnp.zeros(3), gain, rng, SETS, N)
     np.testing.assert_array_equal(score_missingness(ENV, steer, gain, rng, SETS, np.int64(N)).scores, rollout.scores)
 
 

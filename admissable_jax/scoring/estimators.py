@@ -15,6 +15,7 @@ import numbers
 from typing import Any, Callable
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from admissable_jax.scoring.rollout_scores import MissingnessScores, PolicyFn, score_by_rollout
@@ -50,6 +51,7 @@ def score_missingness(
     shape of ``hidden_sets`` (op by op, each call compiled its rollout again and each eager
     op of its start states once); inside a caller's jit it is part of the caller's program."""
     _check_arguments(env, hidden_sets, n_episodes)
+    _check_policy(env, policy_fn, params)
     if score_estimator not in SCORE_ESTIMATORS:
         raise ValueError(f"score_estimator must be one of {', '.join(SCORE_ESTIMATORS)}, got {score_estimator!r}")
     if score_estimator != "rollout" and critic_fn is None:
@@ -70,6 +72,18 @@ def _scores(env, policy_fn: PolicyFn, params: Any, rng: jax.Array, hidden_sets: 
                                 steps_per_check, progress)
     horizon = score_horizon if score_estimator == "horizon" else 0
     return estimate_scores(env, policy_fn, params, critic_fn, critic_params, rng, hidden_sets, n_episodes, horizon, gamma)
+
+
+def _check_policy(env, policy_fn: PolicyFn, params: Any) -> None:
+    """ValueError in one line for a ``policy_fn`` whose action for one masked observation
+    (2·d) is not one of the env's actions, ``(action_size,)``: found by tracing it (nothing
+    runs), where the rollout would fail deep inside with a broadcasting error."""
+    masked_obs = jax.ShapeDtypeStruct((2 * env.observation_size,), jnp.float32)
+    action = jax.eval_shape(policy_fn, params, masked_obs)
+    if getattr(action, "shape", None) != (env.action_size,):
+        returned = jax.tree.map(lambda leaf: tuple(leaf.shape), action)
+        raise ValueError(f"policy_fn(params, masked_obs) must return one action of shape ({env.action_size},) "
+                         f"for a masked observation of shape ({2 * env.observation_size},), got {returned}")
 
 
 def _check_arguments(env, hidden_sets, n_episodes: int) -> None:
