@@ -430,8 +430,6 @@ def main(argv: list[str]) -> int:
     try:
         formats = parse_formats(config.formats)
         runs = find_runs(paths)
-        if not runs:
-            raise ValueError(f"no run directories (config.yaml + scores.jsonl) under {', '.join(paths)}")
         by_env: dict[str, list[Run]] = collections.defaultdict(list)
         for path in runs:
             run = load_run(path)

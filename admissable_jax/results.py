@@ -25,6 +25,7 @@ from __future__ import annotations
 import collections
 import csv
 import dataclasses
+import glob
 import math
 import os
 import re
@@ -198,7 +199,10 @@ def per_feature(rows: list[dict], num_features: int) -> tuple[np.ndarray, np.nda
 
 
 def find_runs(paths: list[str]) -> list[str]:
-    """Every directory at or under ``paths`` that holds a ``scores.jsonl``."""
+    """Every directory at or under ``paths`` that holds a run's ``config.yaml`` and
+    ``scores.jsonl``. FileNotFoundError for a path that is no directory; ValueError where
+    none holds a run, naming an archive beside them to unpack first (``benchmarks/results``
+    keeps a campaign's runs packed, ``runs.tar.xz``, beside their figures)."""
     found = []
     for path in paths:
         if not os.path.isdir(path):
@@ -206,6 +210,12 @@ def find_runs(paths: list[str]) -> list[str]:
         for root, _, files in os.walk(path):
             if "scores.jsonl" in files and "config.yaml" in files:
                 found.append(root)
+    if not found:
+        beside = {folder for path in paths for folder in (path, os.path.normpath(os.path.join(path, os.pardir)))}
+        archives = sorted(archive for folder in beside for archive in glob.glob(os.path.join(folder, "*.tar*")))
+        unpack = (f"; are they packed in {archives[0]}? unpack it (mkdir DIR && tar -xf {archives[0]} -C DIR) "
+                  f"and give DIR" if archives else "")
+        raise ValueError(f"no run directories (config.yaml + scores.jsonl) under {', '.join(paths)}{unpack}")
     return sorted(found)
 
 

@@ -150,8 +150,6 @@ def env_section(env: str, folder: str, window: int, out_file: str, formats: tupl
     figures folder it makes is appended to ``made`` first, so that a caller stopped midway
     knows it."""
     run_dirs = find_runs([folder])
-    if not run_dirs:
-        raise ValueError(f"no run directories (config.yaml + scores.jsonl) under {folder}")
     runs = [load_run(path) for path in run_dirs]
     others = sorted({run.env for run in runs} - {env})
     if others:

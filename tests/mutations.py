@@ -435,6 +435,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                     'true || { echo', "test_campaign_plan.py"),
     "policy_action_shape_unchecked": ("admissable_jax/scoring/estimators.py", "    _check_policy(env, policy_fn, params)\n",
                                       "", "test_audit.py"),
+    "packed_runs_not_named": ("admissable_jax/results.py", '        unpack = (f"; are they packed in',
+                              '        unpack = "" and (f"; are they packed in', "test_plots.py"),
     "repeatability_copies_checkpoints": ("benchmarks/repeatability.py", 'ignore=shutil.ignore_patterns("checkpoints*")',
                                          'ignore=shutil.ignore_patterns("nothing")', "test_repeatability.py"),
 }

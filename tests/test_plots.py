@@ -4,6 +4,7 @@ import csv
 import json
 import os
 import shutil
+import tarfile
 
 import numpy as np
 import pytest
@@ -375,6 +376,18 @@ def test_plots_say_what_they_show(tmp_path, capsys, monkeypatch):
     assert capsys.readouterr().err.strip().splitlines()[-1] == (
         f"error: {narrow}/scores.jsonl: each row must hold 11 scores and p_miss values (one per set of hopper "
         "with k=1), got (3,) and (3,)")
+    # A folder of figures whose runs are packed beside them, as benchmarks/results keeps a
+    # campaign's: the error names the archive to unpack.
+    packed = tmp_path / "packed"
+    (packed / "hopper" / "figures").mkdir(parents=True)
+    with tarfile.open(packed / "runs.tar.xz", "w:xz") as tar:
+        tar.add(narrow, arcname="hopper/uniform-s0")
+    with pytest.raises(SystemExit) as exit_info:
+        main([str(packed / "hopper")])
+    assert exit_info.value.code == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        f"error: no run directories (config.yaml + scores.jsonl) under {packed / 'hopper'}; are they packed in "
+        f"{packed / 'runs.tar.xz'}? unpack it (mkdir DIR && tar -xf {packed / 'runs.tar.xz'} -C DIR) and give DIR")
 
 
 def test_long_runs_and_large_candidate_sets_stay_readable(tmp_path, monkeypatch):
