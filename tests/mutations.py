@@ -437,6 +437,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                       "", "test_audit.py"),
     "packed_runs_not_named": ("admissable_jax/results.py", '        unpack = (f"; are they packed in',
                               '        unpack = "" and (f"; are they packed in', "test_plots.py"),
+    "audited_policy_error_unnamed": ("admissable_jax/audit/command.py", "audit_gymnasium(config.gym, _named(policy, config.policy), ks,",
+                                     "audit_gymnasium(config.gym, policy, ks,", "test_audit.py"),
     "repeatability_copies_checkpoints": ("benchmarks/repeatability.py", 'ignore=shutil.ignore_patterns("checkpoints*")',
                                          'ignore=shutil.ignore_patterns("nothing")', "test_repeatability.py"),
 }

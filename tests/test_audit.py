@@ -409,12 +409,23 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
         error = capfd.readouterr().err.strip().splitlines()
         assert status == 2 and len(error) == 1 and error[0].startswith(f"error: {message}"), error
     assert not (tmp_path / "never").exists() and not (tmp_path / "MUJOCO_LOG.TXT").exists()
+    # A bug in one's own policy: its exception named with it in the last line, exit 2, not a
+    # traceback through the rollout; the folder made for the report is gone again.
+    assert audit_main(["policy=test_audit:failing_policy", "gym=ConstantFeatures-v0", "episodes=2",
+                       f"out={tmp_path / 'failed'}"]) == 2
+    assert capfd.readouterr().err.strip().splitlines()[-1] == (
+        "error: policy=test_audit:failing_policy raised ZeroDivisionError: integer division or modulo by zero")
+    assert not (tmp_path / "failed").exists()
     # Ctrl-C while the policy runs: one line that says what was written, exit 130.
     assert audit_main(["policy=test_audit:interrupted_policy", "gym=ConstantFeatures-v0", "episodes=2",
                        f"out={tmp_path / 'stopped'}"]) == 130
     assert capfd.readouterr().err.strip().splitlines()[-1] == ("interrupted: the audit in progress wrote nothing; audit "
                                                               "folders finished before it are kept")
     assert not (tmp_path / "stopped").exists()  # made before the rollout, and gone with it
+
+
+def failing_policy(obs):
+    return 1 // 0  # a bug in one's own policy
 
 
 def interrupted_policy(obs):

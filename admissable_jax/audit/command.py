@@ -8,7 +8,7 @@ import contextlib
 import dataclasses
 import math
 import os
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Callable
 
 from admissable_jax.audit.report import compare_modes, comparison_chart, over_training_chart, over_training_table, \
     pair_curves, shapley_order, write_audit
@@ -21,6 +21,8 @@ from admissable_jax.scoring import SCORE_ESTIMATORS
 from admissable_jax.scoring.attribution import MIN_ORDERS, ShapleyPlan
 
 if TYPE_CHECKING:  # for the annotations only
+    import numpy as np
+
     from admissable_jax.config import TrainConfig
     from admissable_jax.envs import MjxEnv
     from admissable_jax.policies import TrainedPolicy
@@ -138,7 +140,8 @@ def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     out = config.out or f"audit-{config.gym}-{name}"
     with _audit_folder(out):
         with reporting(f"auditing {config.policy} on {config.gym} for k={_sizes(ks)} ({_episodes_asked(config)})"):
-            result = audit_gymnasium(config.gym, policy, ks, config.episodes, num_envs=config.slots or 8,
+            result = audit_gymnasium(config.gym, _named(policy, config.policy), ks, config.episodes,
+                                     num_envs=config.slots or 8,
                                      seed=config.seed, shapley=_shapley(config.shapley), progress=True,
                                      tell_apart=config.tell_apart)
         return result, write_audit(result, out, config.top)
@@ -171,6 +174,20 @@ def audit_run(config: AuditConfig) -> tuple[AuditResult, list[str]]:
 
     policy = load_policy(config.run_dir, None if config.step < 0 else config.step)
     return _audit_policy(config, policy, _audit_env(config, policy), policy.trainer)
+
+
+def _named(policy: Callable[[np.ndarray], Any], name: str) -> Callable[[np.ndarray], Any]:
+    """``policy``, whose own exception ends the audit in one line that names it (a usage
+    error of the command), not in a traceback through the rollout; a Ctrl-C passes as it is."""
+
+    def call(masked_obs_batch: np.ndarray) -> Any:
+        try:
+            return policy(masked_obs_batch)
+        except Exception as error:
+            first_line = next(iter(str(error).splitlines()), "")
+            raise ValueError(f"policy={name} raised {type(error).__name__}: {first_line}") from error
+
+    return call
 
 
 def _audit_env(config: AuditConfig, policy: TrainedPolicy) -> MjxEnv:
