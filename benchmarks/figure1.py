@@ -12,7 +12,8 @@ side, as the paper lays Figure 1 out, into ``figure1.png`` beside the file), and
 runs used; final and AUC min_u a_u, the final mean_u a_u (the average over U) and the
 final clean return per mode, mean ± 95% t-interval over seeds, and the set most often worst
 at the end (``summary_table``);
-adversarial − uniform on each with Welch's 95% interval and p-value (``format_comparison``);
+adversarial − uniform on each with Welch's 95% interval and p-value, and the probability
+that a seed of adversarial training ends above one of uniform (``format_comparison``);
 the verdict those numbers give, in words; mode ``none``'s clean return against the SB3
 RL-Zoo SAC at 1M env steps; what the runs cost, from their ``metrics.jsonl`` (seconds per
 training chunk and per scoring round), with a 1M-step run projected from it where they
@@ -84,13 +85,15 @@ def _verdict(difference: Difference) -> str:
     if interval is None:
         return f"{difference.metric}: adversarial − uniform = {difference.mean:+.1f} (one seed in a mode: no test)."
     low, high, p = interval
+    improvement = f", P(adversarial > uniform) = {difference.improvement_text()}"
     words = {"adversarial higher": "adversarial training is higher, and 0 lies outside the 95% interval",
              "uniform higher": "uniform training is higher, and 0 lies outside the 95% interval",
              }.get(difference.reading(), "the seeds cannot tell the modes apart (the 95% interval holds 0)")
     seeds = difference.seeds_needed()
     if seeds:
         words += f"; {seeds} seeds per mode would (80% power at the difference and spread seen)"
-    return f"{difference.metric}: adversarial − uniform = {difference.mean:+.1f} [{low:.1f}, {high:.1f}], p = {p:.3g}: {words}."
+    return (f"{difference.metric}: adversarial − uniform = {difference.mean:+.1f} [{low:.1f}, {high:.1f}], "
+            f"p = {p:.3g}{improvement}: {words}.")
 
 
 def _clean_sac_line(env: str, all_runs: list[Run]) -> str:
@@ -228,7 +231,10 @@ def main(argv: list[str]) -> int:
         "# Figure 1: adversarial against uniform missingness (min_u a_u)", "",
         f"Written by `{command}` on {datetime.date.today()} at commit {commit}, from the runs' `scores.jsonl` "
         "and `config.yaml`. Final: the last scoring; AUC: the mean of min_u a_u over all scorings; ± and [ ]: 95% "
-        "t-intervals over seeds; adversarial − uniform by Welch's t (seeds independent across modes).", "",
+        "t-intervals over seeds; adversarial − uniform by Welch's t (seeds independent across modes); "
+        "P(adversarial > uniform): the chance that a seed of adversarial training ends above one of uniform "
+        "training (ties half; Agarwal et al. 2021's probability of improvement), with a 95% bootstrap interval "
+        "over the seeds.", "",
         "| env | env steps | metric | adversarial − uniform | reading |", "|---|---|---|---|---|", *rows, "",
         "![every env's min_u a_u, as the paper's Figure 1 lays it out](figure1.png)", "",
         *sections,

@@ -439,6 +439,12 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                               '        unpack = "" and (f"; are they packed in', "test_plots.py"),
     "audited_policy_error_unnamed": ("admissable_jax/audit/command.py", "audit_gymnasium(config.gym, _named(policy, config.policy), ks,",
                                      "audit_gymnasium(config.gym, policy, ks,", "test_audit.py"),
+    "improvement_ties_count_nothing": ("admissable_jax/results.py", "return (above + 0.5 * tied).mean(axis=(-2, -1))",
+                                       "return (above + 0.0 * tied).mean(axis=(-2, -1))", "test_plots.py"),
+    "improvement_resamples_the_modes_together": ("admissable_jax/results.py",
+                                                 "drawn = [values[rng.integers(0, len(values), (resamples, len(values)))]",
+                                                 "drawn = [values[np.random.default_rng(0).integers(0, len(values), (resamples, len(values)))]",
+                                                 "test_plots.py"),
     "repeatability_copies_checkpoints": ("benchmarks/repeatability.py", 'ignore=shutil.ignore_patterns("checkpoints*")',
                                          'ignore=shutil.ignore_patterns("nothing")', "test_repeatability.py"),
 }

@@ -234,6 +234,19 @@ def test_adversarial_minus_uniform_is_welchs_t(tmp_path):
     assert Difference("x", tight_high, tight_low).reading() == "adversarial higher"
     assert Difference("x", tight_low, tight_high).reading() == "uniform higher"
     assert Difference("x", np.array([5.0]), tight_low).interval() is None
+    # P(adversarial > uniform), ties half: both adversarial seeds above both uniform ones: 1, in
+    # every bootstrap resample too. [2, 3] against [2, 1]: a tie (1/2) and 3 wins of 4 pairs,
+    # 3.5 / 4. Resampling each mode's 2 seeds gives 16 equally likely pairs of draws; the
+    # lowest, [2, 2] against [2, 2] (all ties, 0.5), has 1/16 > 2.5% of them, and wins of 1
+    # more (e.g. [3, 3] against [2, 1]): the 95% interval is [0.5, 1].
+    assert difference.probability_of_improvement() == (1.0, 1.0, 1.0)
+    assert Difference("x", np.array([2.0, 3.0]), np.array([2.0, 1.0])).probability_of_improvement() == (0.875, 0.5, 1.0)
+    # The modes' seeds are resampled apart: [1, 3] against [0, 2] (3 wins of 4 pairs) falls to 0
+    # where adversarial draws [1, 1] and uniform [2, 2] (1/16 of the draws): interval [0, 1].
+    # Drawn with the same indices, those two never meet, and the interval would be [0.75, 1].
+    assert Difference("x", np.array([1.0, 3.0]), np.array([0.0, 2.0])).probability_of_improvement() == (0.75, 0.0, 1.0)
+    assert Difference("x", tight_low, tight_high).improvement_text() == "0.00 [0.00, 0.00]"
+    assert Difference("x", np.array([5.0]), tight_low).improvement_text() == "—"
 
     # From run directories: final and AUC min_u a_u, final mean_u a_u and clean return, over
     # the records both modes share (AUC: mean(25, 40) − mean(6.5, 7.5) = 25.5; clean: 110 − 92
@@ -250,13 +263,15 @@ def test_adversarial_minus_uniform_is_welchs_t(tmp_path):
     rows = [cells(row) for row in format_comparison(mode_differences(paths)).splitlines()[2:]]
     assert [row[:3] for row in rows] == [["hopper", "final min_u a_u", "+41.0"], ["hopper", "AUC min_u a_u", "+25.5"],
                                          ["hopper", "final mean_u a_u", "-59.0"], ["hopper", "final clean return", "+18.0"]]
-    assert rows[0][3:] == ["[-80.9, 162.9]", "0.149", "not distinguishable (95% interval holds 0)"]
-    assert rows[2][3:5] == ["[-180.9, 62.9]", "0.104"]
+    assert rows[0][3:] == ["[-80.9, 162.9]", "0.149", "1.00 [1.00, 1.00]", "not distinguishable (95% interval holds 0)"]
+    assert rows[2][3:6] == ["[-180.9, 62.9]", "0.104", "0.00 [0.00, 0.00]"]
     assert format_comparison(mode_differences(paths[:2])) == ""  # one mode: nothing to compare
     # The CLI's summary.md carries it under the per-mode table.
     assert main([str(tmp_path), f"out={tmp_path / 'figures'}", "formats=png"]) == 0
     summary = (tmp_path / "figures" / "summary.md").read_text()
-    assert "| hopper | final min_u a_u | +41.0 | [-80.9, 162.9] | 0.149 |" in summary
+    assert "| hopper | final min_u a_u | +41.0 | [-80.9, 162.9] | 0.149 | 1.00 [1.00, 1.00] |" in summary
+    assert "| env | metric | adversarial − uniform | 95% interval (Welch) | p (two-sided) | P(adversarial > uniform) " \
+           "[95% bootstrap] | reading |\n|---|---|---|---|---|---|---|" in summary
     # None of the four told apart: the seeds per mode that would be (80% power at the difference
     # and spread seen). Finals: s² = 200 + 2, Welch's df (n − 1) · 202² / (200² + 2²) = 1.02 (n − 1);
     # n = 3: (t_0.975 + t_0.8 at 2.04 df)² · 202 / 41² = (4.23 + 1.06)² · 0.120 = 3.4 > 3; n = 4:
