@@ -186,7 +186,8 @@ def env_section(env: str, folder: str, window: int, out_file: str, formats: tupl
         f"Every scoring of every run, as tidy tables for one's own analysis: `{curves_csv}` (a row per run and "
         f"scoring) and `{scores_csv}` (a row per run, scoring and hidden set).", "",
     ]
-    rows = [f"| {env} | {steps:,} | {d.metric} | {d.mean:+.1f} | {d.reading()} |" for d in differences[:2]]
+    rows = [f"| {env} | {steps:,} | {d.metric} | {d.mean:+.1f} | {d.improvement_text()} | {d.reading()} |"
+            for d in differences[:2]]
     return "\n".join(lines), rows
 
 
@@ -235,7 +236,8 @@ def main(argv: list[str]) -> int:
         "P(adversarial > uniform): the chance that a seed of adversarial training ends above one of uniform "
         "training (ties half; Agarwal et al. 2021's probability of improvement), with a 95% bootstrap interval "
         "over the seeds.", "",
-        "| env | env steps | metric | adversarial − uniform | reading |", "|---|---|---|---|---|", *rows, "",
+        "| env | env steps | metric | adversarial − uniform | P(adversarial > uniform) [95% bootstrap] | reading |",
+        "|---|---|---|---|---|---|", *rows, "",
         "![every env's min_u a_u, as the paper's Figure 1 lays it out](figure1.png)", "",
         *sections,
     ])

@@ -60,7 +60,7 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys, 
     assert ("Cost (measured, the program of 6 runs, compiling not counted): 4 scorings in 18 s; a training chunk of "
             "5,000 env steps per run 2.00 s (median), a scoring round 2.50 s on average, 2.50 s over the last 4. "
             "1M env steps projected at 900 s (15.0 min): the remaining 196 scorings") in text
-    assert "| hopper | 20,000 | final min_u a_u | +41.0 | not distinguishable (95% interval holds 0) |" in text
+    assert "| hopper | 20,000 | final min_u a_u | +41.0 | 1.00 [1.00, 1.00] | not distinguishable (95% interval holds 0) |" in text
     assert ("- final min_u a_u: adversarial − uniform = +41.0 [-80.9, 162.9], p = 0.149, P(adversarial > uniform) "
             "= 1.00 [1.00, 1.00]: the seeds cannot tell "
             "the modes apart (the 95% interval holds 0); about 4 seeds per mode would (80% power at the difference "
