@@ -400,9 +400,15 @@ class Difference:
         return f"{self.mean:+.1f} | {low_high} | {p} | {self.improvement_text()} | {self.reading()}"
 
 
+IMPROVEMENT_COLUMN = "P(adversarial > uniform) [95% bootstrap]"  # Difference.improvement_text()'s
 # The columns of Difference.cells(), for each table of them.
-COMPARISON_COLUMNS = ("adversarial − uniform", "95% interval (Welch)", "p (two-sided)",
-                      "P(adversarial > uniform) [95% bootstrap]", "reading")
+COMPARISON_COLUMNS = ("adversarial − uniform", "95% interval (Welch)", "p (two-sided)", IMPROVEMENT_COLUMN, "reading")
+
+
+def comparison_header(*leading: str) -> list[str]:
+    """A Markdown table's header and rule lines: ``leading`` columns, then :data:`COMPARISON_COLUMNS`."""
+    columns = (*leading, *COMPARISON_COLUMNS)
+    return [f"| {' | '.join(columns)} |", "|" + "---|" * len(columns)]
 
 
 def mode_differences(run_dirs: list[str]) -> dict[str, list[Difference]]:
@@ -436,7 +442,7 @@ def format_comparison(differences: dict[str, list[Difference]]) -> str:
     '' without both modes."""
     if not differences:
         return ""
-    lines = [f"| env | metric | {' | '.join(COMPARISON_COLUMNS)} |", "|---|---|" + "---|" * len(COMPARISON_COLUMNS)]
+    lines = comparison_header("env", "metric")
     for env, rows in differences.items():
         for difference in rows:
             lines.append(f"| {env} | {difference.metric} | {difference.cells()} |")

@@ -39,8 +39,8 @@ from admissable_jax.cli import exit_with, fail, parse_args
 from admissable_jax.errors import INTERRUPTED, UnusableDirectory, remove_if_unused
 from admissable_jax.plot import new_folder, parse_formats, plot_envs_side_by_side, plot_runs
 from admissable_jax.results import (
-    Difference, Run, differing_settings, find_runs, format_comparison, load_run, mean_and_interval, mode_differences,
-    summary_table, trained_on, write_tables,
+    IMPROVEMENT_COLUMN, Difference, Run, differing_settings, find_runs, format_comparison, load_run, mean_and_interval,
+    mode_differences, summary_table, trained_on, write_tables,
 )
 from admissable_jax.run_directory import load_config_yaml
 from common import benchmark_commit
@@ -236,7 +236,7 @@ def main(argv: list[str]) -> int:
         "P(adversarial > uniform): the chance that a seed of adversarial training ends above one of uniform "
         "training (ties half; Agarwal et al. 2021's probability of improvement), with a 95% bootstrap interval "
         "over the seeds.", "",
-        "| env | env steps | metric | adversarial − uniform | P(adversarial > uniform) [95% bootstrap] | reading |",
+        f"| env | env steps | metric | adversarial − uniform | {IMPROVEMENT_COLUMN} | reading |",
         "|---|---|---|---|---|---|", *rows, "",
         "![every env's min_u a_u, as the paper's Figure 1 lays it out](figure1.png)", "",
         *sections,

@@ -15,7 +15,7 @@ import numpy as np
 
 from admissable_jax.audit.sets import AuditResult, drop_below_clean
 from admissable_jax.config import curve_mode, curve_names
-from admissable_jax.results import COMPARISON_COLUMNS, Difference, estimate, mean_and_interval, seeds_sentence
+from admissable_jax.results import Difference, comparison_header, estimate, mean_and_interval, seeds_sentence
 from admissable_jax.scoring.attribution import ShapleyAttribution
 
 
@@ -381,7 +381,7 @@ def compare_modes(results: list[AuditResult]) -> str:
                          f"({names.count(common)} of {len(group)}) | {estimate(clean)} |")
     adversarial = [curve for curve in by_mode if curve_mode(curve) == "adversarial"]  # several in a sweep of l
     if adversarial and "uniform" in by_mode:
-        lines += ["", f"| k | measure | {' | '.join(COMPARISON_COLUMNS)} |", "|---|---|" + "---|" * len(COMPARISON_COLUMNS)]
+        lines += ["", *comparison_header("k", "measure")]
         swept = lambda curve: f" ({curve})" if curve != "adversarial" else ""
         compared = [(k, name + swept(curve), Difference(f"k={k} {name}{swept(curve)}", per_mode[curve][k],
                                                         per_mode["uniform"][k]))
