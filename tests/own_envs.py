@@ -1,5 +1,5 @@
-"""Envs of one's own for the tests: ``BraxFast``, the README's Brax example word for word, and
-classes wrong on purpose (the names that lead to no usable env). The README's other example,
+"""Envs of one's own for the tests: ``BraxFast``, the README's Brax example word for word,
+``BraxFastFinish``, whose Brax env terminates, and classes wrong on purpose (the names that lead to no usable env). The README's other example,
 ``Reach``, is ``benchmarks/toy_envs.py``'s."""
 
 from admissable_jax.envs import BraxEnv
@@ -14,6 +14,29 @@ class BraxFast(BraxEnv):
     observation_size = 2
     action_size = 1
     feature_names = ("position", "velocity")
+
+
+class BraxFastFinish(BraxFast):
+    """``BraxFast`` whose Brax env says done once the body passes position 0.001 (after its
+    second step at full push): a Brax env's own termination."""
+
+    def build(self):
+        return _DoneAfter(super().build(), mark=0.001)
+
+
+class _DoneAfter:
+    """A Brax env whose ``done`` turns 1 once the observation's first entry passes ``mark``."""
+
+    def __init__(self, env, mark: float):
+        self.env, self.mark = env, mark
+        self.observation_size, self.action_size = env.observation_size, env.action_size
+
+    def reset(self, rng):
+        return self.env.reset(rng)
+
+    def step(self, state, action):
+        state = self.env.step(state, action)
+        return state.replace(done=(state.obs[0] > self.mark).astype(state.done.dtype))
 
 
 # Wrong on purpose.

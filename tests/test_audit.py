@@ -243,6 +243,19 @@ def test_gaps_to_the_worst_paired_and_by_welch(tmp_path):
     assert "(N = 4–6 episodes per set, each audit's chosen by its pilot (`tell_apart`), `rollout`)" in compare_modes(pairs)
 
 
+def test_the_drop_below_clean_reads_alike_whatever_the_returns_sign():
+    """A set's drop: how far its a_u lies below the clean return, in percent of the clean
+    return's size, so that an env whose returns are negative (HalfCheetah's early on, an env
+    of one's own) reads as any other: a_u below the clean return by half its size is +50%
+    either way."""
+    from admissable_jax.audit.sets import drop_below_clean
+
+    assert drop_below_clean(200.0, 100.0) == pytest.approx(50.0)
+    assert drop_below_clean(-100.0, -150.0) == pytest.approx(50.0)
+    assert drop_below_clean(-100.0, -50.0) == pytest.approx(-50.0)  # above the clean return: a negative drop
+    assert math.isnan(drop_below_clean(0.0, -1.0))
+
+
 def test_audit_steps_as_many_envs_at_once_as_training_scores():
     """slots=0: 32 on this CPU (a batched MJX step costs its batch size there), fewer where the
     audit has fewer episodes; slots=N: N. Without k=, the audit's sets are those the run

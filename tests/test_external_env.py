@@ -146,13 +146,21 @@ def test_the_benchmarks_distracted_reach_hides_its_signal_among_noise():
 
 def test_a_brax_env_takes_part_by_its_name_and_sizes(tmp_path, capsys):
     """Brax's test env "fast" through BraxEnv: one step by hand (velocity + 0.02 while the
-    action is positive, position + 0.02 · velocity, reward = position), a short run scoring
-    both features, and sizes stated wrong said in one line."""
+    action is positive, position + 0.02 · velocity, reward = position), Brax's done as the
+    termination (unless terminate_when_unhealthy=False), a short run scoring both features,
+    and sizes stated wrong said in one line."""
     env = make_env("own_envs:BraxFast", episode_length=20)
     after = env.step(env.reset(jax.random.key(0)), jnp.ones(1))
     np.testing.assert_allclose(after.obs, [0.0004, 0.02], rtol=1e-6)
     np.testing.assert_allclose([after.reward, after.episode_metrics["return"]], [0.0004, 0.0004], rtol=1e-6)
     assert not bool(after.done) and int(after.step_count) == 1
+    # Brax's done is the termination; with terminate_when_unhealthy=False (Gymnasium's
+    # argument) the episode runs on to its time limit instead.
+    for terminates in (True, False):
+        finish = make_env("own_envs:BraxFastFinish", episode_length=20, terminate_when_unhealthy=terminates)
+        first = finish.step(finish.reset(jax.random.key(0)), jnp.ones(1))  # position 0.0004: short of 0.001
+        second = finish.step(first, jnp.ones(1))  # 0.0012: past it
+        assert [bool(first.terminated), bool(second.terminated), bool(second.truncated)] == [False, terminates, False]
     run = train_fn(TrainConfig(env="own_envs:BraxFast", total_steps=400, out=str(tmp_path / "fast"), score_every=200,
                                num_envs=4, learning_starts=200, episode_length=20, batch_size=32, hidden_size=32,
                                score_episodes=3, progress=False))
