@@ -479,6 +479,29 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "audit_progress_counts_reports_not_episodes": ("admissable_jax/audit/watch.py",
                                                    "self.bar.update(max(0, finished - self.bar.n))",
                                                    "self.bar.update(finished)", "test_audit.py"),
+    # More modules with one mutation or none: the loggers, the pairs' placement, the point
+    # mass, the run lock, plot's folders and caption, joining a SLURM job.
+    "logged_fingerprint_as_a_scalar": ("admissable_jax/loggers.py", 'key not in ("env_steps", FINGERPRINT)',
+                                       'key != "env_steps"', "test_training.py"),
+    "padding_pairs_read_back": ("admissable_jax/placement.py", "return [pair for pair in held if pair < self.num_pairs]",
+                                "return held", "test_sharding.py"),
+    "pair_state_row_not_offset": ("admissable_jax/placement.py", "return shard.data, pair - start", "return shard.data, pair",
+                                  "test_sharding.py"),
+    "point_mass_rewarded_before_its_step": ("admissable_jax/envs/point_mass.py",
+                                            "_observation(data), jnp.exp(-jnp.sum(position**2))",
+                                            "_observation(data), jnp.exp(-jnp.sum(state.data.position**2))",
+                                            "test_external_env.py"),
+    "own_lock_pid_taken_for_alive": ("admissable_jax/locks.py", "if not isinstance(pid, int) or pid == os.getpid():",
+                                     "if not isinstance(pid, int):", "test_runs.py"),
+    "plot_folders_numbered_from_1": ("admissable_jax/plot.py", "candidate, number = path, 1", "candidate, number = path, 0",
+                                     "test_plots.py"),
+    "one_slurm_task_joins_a_distributed_job": ("admissable_jax/placement.py",
+                                               'int(environ.get("SLURM_NTASKS", "1") or 1) > 1',
+                                               'int(environ.get("SLURM_NTASKS", "1") or 1) >= 1', "test_sharding.py"),
+    "one_seed_captioned_with_an_interval": ("admissable_jax/plot.py",
+                                            "return max(collections.Counter(run.curve for run in runs).values()) > 1",
+                                            "return max(collections.Counter(run.curve for run in runs).values()) >= 1",
+                                            "test_plots.py"),
 }
 
 

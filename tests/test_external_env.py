@@ -144,6 +144,20 @@ def test_the_benchmarks_distracted_reach_hides_its_signal_among_noise():
     assert 0.5 < float(np.std(np.asarray(again.obs[3:]))) < 2.0
 
 
+def test_the_point_mass_steps_as_its_docstring_says():
+    """The point mass (the tests' and smoke runs' env) by hand: velocity + 0.1 · force
+    (clipped to [-1, 1]), position + 0.1 · the new velocity, the reward exp(-|p|²) at the
+    position the step reaches, termination past radius 3."""
+    env = make_env("point_mass")
+    start = env.reset(jax.random.key(0))
+    reached = np.asarray(start.obs[:2]) + [0.01, -0.01]
+    after = env.step(start, jnp.array([1.0, -2.0]))
+    np.testing.assert_allclose(after.obs, [*reached, 0.1, -0.1], rtol=1e-6)
+    np.testing.assert_allclose(after.reward, np.exp(-np.sum(reached**2)), rtol=1e-6)
+    leaving = start.replace(data=start.data.replace(position=jnp.array([2.995, 0.0]), velocity=jnp.array([1.0, 0.0])))
+    assert not bool(after.terminated) and bool(env.step(leaving, jnp.zeros(2)).terminated)  # at x = 3.095
+
+
 def test_a_brax_env_takes_part_by_its_name_and_sizes(tmp_path, capsys):
     """Brax's test env "fast" through BraxEnv: one step by hand (velocity + 0.02 while the
     action is positive, position + 0.02 · velocity, reward = position), Brax's done as the

@@ -74,6 +74,13 @@ def test_a_run_directory_has_one_owner_and_a_stale_lock_is_taken_over(tmp_path, 
     (out / LOCK_NAME).write_text(json.dumps({"pid": owner.pid, "host": "another-host"}))
     with pytest.raises(RunDirectoryLocked, match=f"in use by process {owner.pid} on another-host"):
         RunLock(str(out)).acquire()
+    # A lock holding this very process's pid is stale too: no run of this process holds it
+    # (in a container, a run killed in the one before often had the pid this one has now).
+    (out / LOCK_NAME).write_text(json.dumps({"pid": os.getpid(), "host": os.uname().nodename}))
+    taken = RunLock(str(out))
+    taken.acquire()
+    assert taken.held and json.loads((out / LOCK_NAME).read_text())["pid"] == os.getpid()
+    taken.release()
     (out / LOCK_NAME).write_text(json.dumps({"pid": owner.pid, "host": os.uname().nodename}))
     # The owner is gone: its lock is stale, and the next run takes it over and gives it back.
     # (On a disk with 1 kB free, where its checkpoints cannot fit: it says so, and still runs.)

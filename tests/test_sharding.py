@@ -141,6 +141,12 @@ def test_placement_pads_or_refuses_with_one_line(monkeypatch):
     assert result_ready_when_handled == [False]
     with pytest.raises(ValueError, match=f"devices must be 0 \\(all\\) or 1..{jax.device_count()} here"):
         PairPlacement.over(4, jax.device_count() + 1)
+    # A SLURM step of one task is one process: nothing to join (JAX's own detection is not asked).
+    monkeypatch.setattr(jax.distributed, "initialize", lambda *args, **kwargs: pytest.fail("joined a job of one"))
+    monkeypatch.delenv("JAX_COORDINATOR_ADDRESS", raising=False)
+    for name, value in (("SLURM_NTASKS", "1"), ("SLURM_STEP_NODELIST", "node1")):
+        monkeypatch.setenv(name, value)
+    assert initialize_distributed() is False
     monkeypatch.setenv("JAX_COORDINATOR_ADDRESS", "localhost:1")
     monkeypatch.delenv("JAX_PROCESS_ID", raising=False)
     monkeypatch.setenv("JAX_NUM_PROCESSES", "2")
