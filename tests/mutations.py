@@ -502,6 +502,22 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                             "return max(collections.Counter(run.curve for run in runs).values()) > 1",
                                             "return max(collections.Counter(run.curve for run in runs).values()) >= 1",
                                             "test_plots.py"),
+    # The GPU campaign's planner (benchmarks/campaign.py): a projection too short starts a run
+    # that the lease cannot finish; and the speed table's env steps per second.
+    "plan_rounds_the_saves_down": ("benchmarks/campaign.py", "saves = math.ceil(scorings / checkpoint_every)",
+                                   "saves = scorings // checkpoint_every", "test_campaign_plan.py"),
+    "plan_without_the_first_run": ("benchmarks/campaign.py", 'once = record["compile_s"] + first_run_s(record)',
+                                   'once = record["compile_s"]', "test_campaign_plan.py"),
+    "plan_from_fewer_pairs": ("benchmarks/campaign.py", 'r for r in records if r["pairs"] >= len(pairs)',
+                              'r for r in records if r["pairs"] >= 1', "test_campaign_plan.py"),
+    "plan_from_another_device": ("benchmarks/campaign.py",
+                                 'shaped = [r for r in same_shape if r.get("device") == want["device"]]',
+                                 "shaped = same_shape", "test_campaign_plan.py"),
+    "plan_from_the_most_pairs": ("benchmarks/campaign.py", 'fewest = min(r["pairs"] for r in shaped)',
+                                 'fewest = max(r["pairs"] for r in shaped)', "test_campaign_plan.py"),
+    "speed_table_steps_per_s_of_one_env": ("benchmarks/physics_throughput.py",
+                                           '"env_steps_per_s": round(batch * bench.steps / env_s, 1),',
+                                           '"env_steps_per_s": round(bench.steps / env_s, 1),', "test_hopper_pipelines.py"),
 }
 
 

@@ -1,6 +1,7 @@
 """benchmarks/campaign.py's plans from the speed records on main (no training, no GPU), and
 bad input to the benchmarks' command lines."""
 
+import json
 import os
 import subprocess
 import sys
@@ -23,14 +24,15 @@ def test_the_next_lease_is_planned_from_the_committed_h100_record(capsys, monkey
     speed record on main (read through speed_device here, as on an H200 that has none): 1M
     env steps fit neither with the 15 pairs nor with the 10, so the longest run of the 15:
     1,650 s hold 156 scorings once the first run's extra 58 s
-    are counted."""
+    and 8 checkpoint saves (every 20 scorings, and at the end) are counted."""
     status = campaign.main(["plan", *HOPPER_ON_THE_GPU, "total_steps=1000000", "fallback_modes=adversarial,uniform",
                             "or_longest=true", "deadline=1650", H100])
     shown = capsys.readouterr().out
     assert status == 0, shown
     assert shown.count("does not fit, refused") == 2
     assert "hopper cannot reach 1000000 env steps in 1650 s: the longest run that fits instead" in shown
-    assert "compile 50 s + first run 58 s + 156 scorings x (chunk 2.2 s + full-length scoring 7.5 s)" in shown
+    assert ("compile 50 s + first run 58 s + 156 scorings x (chunk 2.2 s + full-length scoring 7.5 s) + 8 checkpoint "
+            "save(s) x 2.3 s = 1,649 s") in shown
     assert shown.strip().splitlines()[-1] == "modes=adversarial,uniform,none total_steps=780000"
 
     # On a device with no record of its own (an H200 lease), the refusal names the device
@@ -49,6 +51,25 @@ def test_the_next_lease_is_planned_from_the_committed_h100_record(capsys, monkey
     # An hour holds more than max_steps: the longest run stops there.
     status = campaign.main(["plan", *HOPPER_ON_THE_GPU, "total_steps=0", "max_steps=200000", "deadline=3600", H100])
     assert status == 0 and capsys.readouterr().out.strip().splitlines()[-1] == "modes=adversarial,uniform,none total_steps=200000"
+
+
+def test_a_plan_times_its_pairs_with_the_fewest_pairs_timed_but_never_fewer(tmp_path, capsys, monkeypatch):
+    """A plan reads the record of its own number of pairs, else of the fewest more (an upper
+    bound: more pairs cost more), never of fewer, which would time the run too short."""
+    with open(os.path.join(common.COMMITTED_RESULTS_DIR, "campaign_speed.jsonl")) as file:
+        records = [json.loads(line) for line in file]
+    hopper = next(record for record in records if record["env"] == "Hopper-v5")  # 15 pairs
+    with open(tmp_path / "campaign_speed.jsonl", "w") as file:  # this campaign's own: 20 pairs, slower
+        file.write(json.dumps({**hopper, "pairs": 20, "chunk_s": 3.0}) + "\n")
+    monkeypatch.setattr(campaign, "RESULTS_DIR", str(tmp_path))
+    paired = [arg for arg in HOPPER_ON_THE_GPU if not arg.startswith("modes=")] + ["modes=adversarial,uniform"]
+    assert campaign.main(["plan", *paired, "total_steps=100000", "deadline=1650", H100]) == 0
+    assert "Hopper-v5, 10 pairs x 125 envs, timed with 15 (an upper bound)" in capsys.readouterr().out
+    # Ant was timed with its 10 (adversarial, uniform) pairs only: 15 have no record to plan from.
+    ant = ["env=ant" if arg == "env=hopper" else arg for arg in HOPPER_ON_THE_GPU]
+    with pytest.raises(ValueError, match=r"no speed record in .* 'pairs': 15\} \(or more pairs\): run the campaign's "
+                                         r"speed step first$"):
+        campaign.main(["plan", *ant, "total_steps=100000", "deadline=1650", H100])
 
 
 def test_a_continuation_is_planned_past_the_records_it_rebuilds(tmp_path, capsys):

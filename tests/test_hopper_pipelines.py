@@ -165,6 +165,8 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     assert sorted((row["deterministic"], row["graph_mode"] or "", row["mujoco_warp"], row["num_envs"]) for row in costs) == [
         (False, "", "mujoco-warp package", 4), (True, "", "mujoco-warp package", 4),
         (True, "NONE", "mujoco-warp package", 4)], costs
+    for row in costs:  # env steps per second: every env's steps, from the ms a batched step takes
+        assert row["env_steps_per_s"] == pytest.approx(row["num_envs"] * 1000 / row["env_ms_per_step"], rel=1e-3), row
     # The speed step ends with steps 2-4 projected from what it measured (here Hopper only).
     assert "projected wall time for Hopper-v5, 3 pairs x 4 envs (warp" in speed.stdout
     assert "projected wall time for Hopper-v5, 2 pairs x 4 envs, timed with 3 (an upper bound)" in speed.stdout
