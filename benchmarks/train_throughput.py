@@ -47,7 +47,7 @@ from common import append_record, compiled_updates, peak_host_memory_mb, run_ben
 
 @dataclasses.dataclass
 class TrainBenchConfig:
-    env: str = dataclasses.field(default="hopper", metadata={"help": "hopper, walker2d or ant"})
+    env: str = dataclasses.field(default="hopper", metadata={"help": "hopper, walker2d, ant (or any env train takes)"})
     num_envs: int = dataclasses.field(default=8, metadata={"help": "parallel envs"})
     iterations: int = dataclasses.field(default=100, metadata={"help": "timed iterations"})
     utd: float = dataclasses.field(default=1.0, metadata={"help": "gradient steps per env step"})
@@ -162,7 +162,7 @@ def main(argv: list[str]) -> None:
     env_steps = bench.iterations * bench.num_envs * bench.seeds
     grad_steps = int(learned.sum()) * trainer.spec.updates_per_iteration
     record = {
-        "env": env.gymnasium_id, "physics": env.physics_name, "num_envs": bench.num_envs, "seeds": bench.seeds, "utd": bench.utd,
+        "env": env.gymnasium_id or env.name, "physics": env.physics_name, "num_envs": bench.num_envs, "seeds": bench.seeds, "utd": bench.utd,
         "batch_size": bench.batch_size, "hidden_sizes": [config.hidden_size] * config.hidden_layers,
         "buffer_size": trainer.spec.buffer_capacity, "iterations": bench.iterations, "before_learning": bench.before_learning,
         "k": bench.k, "up_to_k": bench.up_to_k, "pool_size": bench.pool_size, "sets": trainer.num_sets,
@@ -174,7 +174,7 @@ def main(argv: list[str]) -> None:
     if jax.devices()[0].platform != "cpu":
         record["peak_device_memory_mb"] = round(jax.devices()[0].memory_stats().get("peak_bytes_in_use", 0) / 2**20, 1)
     print(
-        f"{env.gymnasium_id} ({env.physics_name} physics): {bench.seeds} seed(s) x {bench.num_envs} envs, UTD {bench.utd}, batch {bench.batch_size}, "
+        f"{record['env']} ({env.physics_name} physics): {bench.seeds} seed(s) x {bench.num_envs} envs, UTD {bench.utd}, batch {bench.batch_size}, "
         f"|U| = {trainer.num_sets:,} ({record['set_rows']} rows{f', pool {bench.pool_size}' if bench.pool_size else ''}): "
         f"{env_steps / run_s:,.1f} env steps/s, {grad_steps / run_s:,.1f} gradient steps/s over all seeds "
         f"(timed {bench.iterations} iterations in {run_s:.1f} s; compile {compile_s:.1f} s)"

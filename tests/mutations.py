@@ -518,6 +518,9 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "speed_table_steps_per_s_of_one_env": ("benchmarks/physics_throughput.py",
                                            '"env_steps_per_s": round(batch * bench.steps / env_s, 1),',
                                            '"env_steps_per_s": round(bench.steps / env_s, 1),', "test_hopper_pipelines.py"),
+    "train_speed_of_one_seed": ("benchmarks/train_throughput.py",
+                                "env_steps = bench.iterations * bench.num_envs * bench.seeds",
+                                "env_steps = bench.iterations * bench.num_envs", "test_campaign_plan.py"),
 }
 
 

@@ -1,5 +1,6 @@
-"""benchmarks/campaign.py's plans from the speed records on main (no training, no GPU), and
-bad input to the benchmarks' command lines."""
+"""benchmarks/campaign.py's plans from the speed records on main (no training, no GPU), what
+the speed step's training benchmark records (on the point mass: seconds), and bad input to
+the benchmarks' command lines."""
 
 import json
 import os
@@ -12,6 +13,7 @@ import pytest
 import campaign  # benchmarks/ is on the tests' path (conftest.py)
 import common
 import scoring_round
+import train_throughput
 
 
 H100 = "speed_device=gpu:NVIDIA H100 80GB HBM3"
@@ -97,6 +99,21 @@ def test_a_continuation_is_planned_past_the_records_it_rebuilds(tmp_path, capsys
                                          "adversarial-s0, .*, uniform-s4 "):
         campaign.main(["plan", *HOPPER_ON_THE_GPU, "modes=adversarial,uniform", "total_steps=0", "deadline=790",
                        records, H100])
+
+
+def test_training_throughput_counts_every_seeds_env_steps(tmp_path, monkeypatch, capsys):
+    """The speed step's goal "15 pairs train at >= 10x the env steps/s of 1" reads
+    train_throughput's records: env steps and gradient steps per second over all the
+    vmapped seeds (here 2 seeds x 4 envs x 5 iterations, every iteration learning, UTD 1),
+    the env named even where it has no Gymnasium id."""
+    monkeypatch.setattr(common, "RESULTS_DIR", str(tmp_path))
+    train_throughput.main(["env=point_mass", "seeds=2", "num_envs=4", "iterations=5", "batch_size=32", "buffer_size=1000"])
+    (record,) = [json.loads(line) for line in open(tmp_path / "train_throughput.jsonl")]
+    assert (record["env"], record["seeds"], record["num_envs"], record["iterations"]) == ("point_mass", 2, 4, 5)
+    run_s = record["run_s"]  # rounded to 0.01 s
+    assert 2 * 4 * 5 / (run_s + 0.005) <= record["env_steps_per_s"] <= 2 * 4 * 5 / (run_s - 0.005)
+    assert record["grad_steps_per_s"] == record["env_steps_per_s"]
+    assert capsys.readouterr().out.startswith("point_mass (jax physics): 2 seed(s) x 4 envs")
 
 
 def test_a_benchmark_refuses_bad_input_in_one_line(monkeypatch, capsys):
