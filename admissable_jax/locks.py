@@ -64,8 +64,10 @@ def _is_alive(holder: dict, this_host: str) -> bool:
     if holder.get("host") != this_host:
         return True
     pid = holder.get("pid")
-    if not isinstance(pid, int) or pid == os.getpid():  # ours: not taken by this lock, so left by a run
-        return False  # killed before (in a container, pids repeat: the new process often has the old one's)
+    # This process's own pid: not a lock it took (acquire saw the file there), so one left by
+    # a run killed before; in a container the new process often gets the old one's pid.
+    if not isinstance(pid, int) or pid == os.getpid():
+        return False
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
