@@ -521,6 +521,20 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "train_speed_of_one_seed": ("benchmarks/train_throughput.py",
                                 "env_steps = bench.iterations * bench.num_envs * bench.seeds",
                                 "env_steps = bench.iterations * bench.num_envs", "test_campaign_plan.py"),
+    # What keeps finished work: the checkpoint a corrupt one's message offers, the one a
+    # resume continues from; and the Warp buffers an experiment's pairs share.
+    "corrupt_checkpoint_offers_the_oldest_intact": ("admissable_jax/checkpointing.py",
+                                                    "older = sorted((s for s in self._manager.all_steps() if s < step), reverse=True)",
+                                                    "older = sorted(s for s in self._manager.all_steps() if s < step)",
+                                                    "test_runs.py"),
+    "resumed_checkpoint_set_aside_too": ("admissable_jax/checkpointing.py",
+                                         "newer = [later for later in self._manager.all_steps() if later > step]",
+                                         "newer = [later for later in self._manager.all_steps() if later >= step]",
+                                         "test_runs.py"),
+    "physics_buffers_sized_for_one_pair": ("admissable_jax/run_spec.py",
+                                           "max_batch=num_runs * max(config.num_envs, config.score_envs, horizon_ranker_batch(config)),",
+                                           "max_batch=max(config.num_envs, config.score_envs, horizon_ranker_batch(config)),",
+                                           "test_hopper_pipelines.py"),
 }
 
 

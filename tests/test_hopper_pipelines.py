@@ -329,7 +329,9 @@ def test_video_of_the_trained_hopper_beside_its_worst_set(jax_run, tmp_path, cap
 
 
 def test_warp_experiment_pairs_keep_their_modes(warp_experiment):
-    """Nested vmap over Warp data: each pair trains in its own mode."""
+    """Nested vmap over Warp data: each pair trains in its own mode, on physics whose
+    buffers (contacts, constraint rows) are sized for every pair's worlds at once."""
+    assert {result.trainer.env.physics.max_batch for result in warp_experiment} == {3 * HOPPER["score_envs"]}
     assert [(r.config.missingness, r.config.physics) for r in warp_experiment] == [
         ("adversarial", "warp"), ("uniform", "warp"), ("none", "warp")]
     assert not np.allclose(warp_experiment[0].scores[-1]["p_miss"], 1 / 11)

@@ -20,6 +20,7 @@ import time
 import types
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -426,6 +427,26 @@ def test_resume_rules_corrupt_checkpoints_and_moved_directories(tmp_path, capsys
     with open(os.path.join(moved, "scores-superseded.jsonl")) as file:  # and so is what it had scored
         assert [{key: value for key, value in json.loads(line).items() if key != "set_aside_at"}
                 for line in file] == grown.scores[4:]
+
+
+def test_a_corrupt_checkpoint_offers_the_newest_intact_one(tmp_path):
+    """Of several older checkpoints, the one a corrupt checkpoint's message offers is the
+    newest that reads: the least finished work lost."""
+    from admissable_jax.checkpointing import Checkpoints
+
+    checkpoints = Checkpoints(str(tmp_path / "checkpoints"), max_to_keep=3)
+    for step in (500, 1000, 1500):
+        checkpoints.save(step, {"weights": jnp.full(3, float(step))})
+    for root, _, files in os.walk(tmp_path / "checkpoints" / "1500"):
+        for name in files:
+            with open(os.path.join(root, name), "wb") as file:
+                file.write(b"garbage")
+    like = {"weights": jnp.zeros(3)}
+    with pytest.raises(CheckpointError, match="checkpoint 1500 .* is corrupt .*; checkpoint 1000 is intact: "
+                                              "resume with resume_step=1000$"):
+        checkpoints.read(like)
+    assert checkpoints.read(like, 1000)[1]["weights"].tolist() == [1000.0] * 3
+    checkpoints.close()
 
 
 def test_faults_of_long_runs_cost_nothing_finished(tmp_path, monkeypatch, capsys):
