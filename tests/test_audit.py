@@ -411,6 +411,9 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
          "episodes must be at least 2 for a confidence interval"),
         (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "top=0"], "top must be at least 1, got 0"),
         (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "slots=-1"], "slots must be >= 0, got -1"),
+        (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "seed=-1"],
+         "seed must be >= 0 and step an env step or -1 (the latest), got seed=-1, step=-1"),
+        (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "step=-2"], "seed must be >= 0 and step"),
         # checked on the env itself before anything is written (HalfCheetah's settotalmass
         # deprecation, Gymnasium's file, kept out of the output and the working directory)
         (["policy=test_wrappers:sum_of_visible", "gym=HalfCheetah-v5", "k=17"], "ks must be set sizes 1 <= k < d = 17"),

@@ -100,6 +100,9 @@ def check_audit_config(config: AuditConfig) -> None:
         raise ValueError("episodes must be at least 2 for a confidence interval")
     if config.slots < 0:
         raise ValueError(f"slots must be >= 0, got {config.slots}")
+    if config.seed < 0 or config.step < -1:
+        raise ValueError(f"seed must be >= 0 and step an env step or -1 (the latest), got seed={config.seed}, "
+                         f"step={config.step}")
     if config.score_estimator not in SCORE_ESTIMATORS or config.score_horizon < 1:
         raise ValueError(f"score_estimator must be one of {', '.join(SCORE_ESTIMATORS)} and score_horizon >= 1")
     check_search(config.search, config.beam_width, config.ranker)
