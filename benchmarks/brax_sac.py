@@ -30,12 +30,19 @@ import time
 import jax
 import jax.numpy as jnp
 import optax
-from brax.envs import base as brax_base
-from brax.training.agents.sac import train as brax_sac_train
 
-from admissable_jax.cli import parse_args
-from admissable_jax.envs import MjxEnv, make_env
-from common import append_record, compiled_updates, peak_host_memory_mb, run_benchmark, update_flops
+from admissable_jax.envs import warp_package
+
+# Before Brax imports MJX, as envs/physics.py does: MJX's Warp bridge then runs the
+# mujoco-warp package, which the deterministic mode (the default) needs; after Brax, every
+# Warp run here was refused with that one line.
+warp_package.use_package()
+from brax.envs import base as brax_base  # noqa: E402
+from brax.training.agents.sac import train as brax_sac_train  # noqa: E402
+
+from admissable_jax.cli import parse_args  # noqa: E402
+from admissable_jax.envs import MjxEnv, make_env  # noqa: E402
+from common import append_record, compiled_updates, peak_host_memory_mb, run_benchmark, update_flops  # noqa: E402
 
 
 def _device_put_replicated(tree, devices):

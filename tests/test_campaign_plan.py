@@ -139,6 +139,25 @@ def test_a_benchmark_refuses_bad_input_in_one_line(monkeypatch, capsys):
     assert helped.value.code == 0 and capsys.readouterr().out.startswith("usage: python benchmarks/campaign.py plan [key")
 
 
+def test_the_speed_steps_benchmarks_let_mjx_run_the_mujoco_warp_package():
+    """The deterministic mode (the campaign's default) needs MJX's Warp bridge to run the
+    mujoco-warp package, put in its place before anything imports MJX. The smoke chain runs
+    the campaign's other scripts in that mode; these three, which it leaves out, are each
+    imported first in a fresh interpreter, as the campaign starts them. Until 2026-12-05
+    ``brax_sac.py`` imported Brax (and so MJX) first, so its stage was refused in one
+    line and ended the speed step there, in smoke mode as it would have on a GPU."""
+    code = ("import importlib, sys; importlib.import_module(sys.argv[1]); "
+            "from admissable_jax.envs import physics, warp_package; print(warp_package.runs_package())")
+    benchmarks = os.path.join(os.path.dirname(__file__), "..", "benchmarks")
+    env = {**os.environ, "JAX_PLATFORMS": "cpu",
+           "PYTHONPATH": os.pathsep.join(filter(None, (benchmarks, os.environ.get("PYTHONPATH"))))}
+    calls = {script: subprocess.Popen([sys.executable, "-c", code, script], env=env, stdout=subprocess.PIPE,
+                                      stderr=subprocess.PIPE, text=True)
+             for script in ("brax_sac", "scoring_round", "train_throughput")}
+    runs = {script: call.communicate(timeout=120) for script, call in calls.items()}
+    assert {script: out.strip() for script, (out, _) in runs.items()} == dict.fromkeys(calls, "True"), runs
+
+
 def test_the_campaign_script_refuses_a_bad_setting_before_it_starts(tmp_path):
     """A CAMPAIGN_* setting the script cannot read is one line and exit 2 before anything
     starts: read as it was, ``CAMPAIGN_DETERMINISTIC=false`` passed for the deterministic
