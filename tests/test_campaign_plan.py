@@ -116,6 +116,27 @@ def test_training_throughput_counts_every_seeds_env_steps(tmp_path, monkeypatch,
     assert capsys.readouterr().out.startswith("point_mass (jax physics): 2 seed(s) x 4 envs")
 
 
+def test_a_scoring_round_records_what_it_stepped(tmp_path, monkeypatch, capsys):
+    """The speed step's goal "an Ant scoring round of 1,000-step episodes <= 12 s" reads
+    scoring_round's records of ``terminate=false`` (every episode runs ``max_steps``): here
+    the point mass, whose untrained actor drifts out of bounds within 300 steps unless told
+    not to stop there, on a pool of 4 slots (5 sets x 2 episodes refill them); env steps
+    stepped are every slot's, the pure-physics ceiling (zero actions) scaled to them."""
+    monkeypatch.setattr(common, "RESULTS_DIR", str(tmp_path))
+    for terminate in ("true", "false"):
+        scoring_round.main(["env=point_mass", "slots=4", "n_episodes=2", "max_steps=300", f"terminate={terminate}"])
+    ended, full = [json.loads(line) for line in open(tmp_path / "scoring_round.jsonl")]
+    assert capsys.readouterr().out.startswith("point_mass (jax physics), untrained actor: 4+1 sets x 2 episodes")
+    assert (full["env"], full["batch_episodes"], full["slots"]) == ("point_mass", 10, 4)
+    assert full["env_steps_in_episodes"] == 10 * 300 and full["loop_steps"] == 3 * 300  # 4 + 4 + 2 episodes
+    assert ended["env_steps_in_episodes"] < 10 * 300 and ended["loop_steps"] < 3 * 300
+    for record in (ended, full):
+        assert record["env_steps_stepped"] == 4 * record["loop_steps"] >= record["env_steps_in_episodes"]
+        assert record["physics_env_steps_stepped"] == 4 * 3 * 300  # zero actions: the point mass stays put
+        ceiling = record["physics_run_s"] / record["physics_env_steps_stepped"] * record["env_steps_stepped"]
+        assert record["ceiling_s"] == pytest.approx(ceiling, abs=1e-3)
+
+
 def test_a_benchmark_refuses_bad_input_in_one_line(monkeypatch, capsys):
     """Bad input ends a benchmark with one line and exit status 2, not a traceback or a run:
     a key's bad value when the keys are parsed (the benchmark's own check), and one that only
