@@ -10,7 +10,8 @@ fast-forward, the records) or what reports on it (wrappers, audit, video). For e
 script copies the working tree (tracked and untracked files, as git lists them) to a
 temporary folder, writes the bug there (the working tree is never touched), and runs the
 tests: first the file named beside the mutation, where it was caught before, then, if that
-file passes, the whole suite. It prints one JSON line per mutation and exits 1 if any
+file passes, the whole suite. It prints one JSON line per mutation (with what the catching
+test said: a test failing for another reason than the bug shows there) and exits 1 if any
 survives, naming it. Only a failed test is a catch: pytest stopping without one (a
 collection error, a crash: a broken mutation or environment) counts as a survivor, with
 pytest's reason. Record of the last pass: ``tests/data/mutations.jsonl``.
@@ -545,7 +546,7 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "figure_dots_of_the_first_seed": ("admissable_jax/plot.py", 'ax.plot(steps, values.mean(axis=0), "."',
                                       'ax.plot(steps, values[0], "."', "test_plots.py"),
     "beam_up_to_k_finalists_of_the_last_level": ("admissable_jax/scoring/set_search.py", "        if up_to_k or size == k:",
-                                                 "        if size == k:", "test_audit.py"),
+                                                 "        if size == k:", "test_mechanism.py"),
     "beam_keeps_copies": ("admissable_jax/scoring/set_search.py",
                           "    return among & jnp.zeros(m, bool).at[row_of].set(first)", "    return among",
                           "test_training.py"),
@@ -555,7 +556,7 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                 "hidden_row((), self.observation_size)", "test_experiment.py"),
     "loaded_policy_one_obs_as_a_batch": ("admissable_jax/policies.py",
                                          "        return actions.reshape(*obs.shape[:-1], -1)", "        return actions",
-                                         "test_experiment.py"),
+                                         "test_training.py"),
     "video_index_beyond_d_taken": ("admissable_jax/video.py", "if item.isdigit() and int(item) < len(names):",
                                    "if item.isdigit():", "test_hopper_pipelines.py"),
     "video_end_not_held": ("admissable_jax/video.py", "if held > fps:", "if held > 1:", "test_hopper_pipelines.py"),
@@ -565,7 +566,7 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "make_env_overrides_dropped_beside_options": ("admissable_jax/envs/__init__.py", "    elif option_overrides:",
                                                   "    elif False:", "test_envs.py"),
     "point_mass_records_the_asked_physics": ("admissable_jax/envs/__init__.py", '    return "jax"\n',
-                                             "    return resolve_physics(physics)\n", "test_runs.py"),
+                                             "    return resolve_physics(physics)\n", "test_external_env.py"),
     "scoring_round_terminates_anyway": ("benchmarks/scoring_round.py", "terminate_when_unhealthy=bench.terminate)",
                                         "terminate_when_unhealthy=True)", "test_campaign_plan.py"),
     "scoring_round_counts_one_slot": ("benchmarks/scoring_round.py", "    stepped = loop_steps * slots",
@@ -588,19 +589,20 @@ def copy_tree(destination: str) -> None:
 
 
 def run_tests(tree: str, paths: list[str]) -> tuple[bool, list[str], str]:
-    """(whether they all passed, the failed tests' ids, pytest's first ERROR line or else its
-    last line) for pytest on ``paths`` of ``tree``, stopping at the first failure."""
+    """(whether they all passed, the failed tests' ids, the first failed test's reason, or else
+    pytest's first ERROR line or its last line) for pytest on ``paths`` of ``tree``, stopping
+    at the first failure."""
     env = dict(os.environ, PYTHONPATH=tree, JAX_PLATFORMS="cpu")
     result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider", "--rootdir", tree,
                              "-c", os.path.join(tree, "pyproject.toml"), *paths],
                             cwd=tree, env=env, capture_output=True, text=True)
     # The short summary's lines, "FAILED <id> - <reason>" (an id may hold spaces), not logged ERRORs.
-    summary_ids = [rest.split(" - ", 1)[0] for kind, _, rest in (line.partition(" ") for line in result.stdout.splitlines())
-                   if kind in ("FAILED", "ERROR")]
-    failed = [test_id for test_id in summary_ids if "::" in test_id]
+    summary = [rest.partition(" - ") for kind, _, rest in (line.partition(" ") for line in result.stdout.splitlines())
+               if kind in ("FAILED", "ERROR")]
+    failed = [(test_id, reason) for test_id, _, reason in summary if "::" in test_id]
     lines = [line.strip() for line in (result.stdout + result.stderr).splitlines() if line.strip()]
-    summary = next((line for line in lines if line.startswith("ERROR ")), lines[-1] if lines else "")
-    return result.returncode == 0, failed, summary
+    said = failed[0][1] if failed else next((line for line in lines if line.startswith("ERROR ")), lines[-1] if lines else "")
+    return result.returncode == 0, [test_id for test_id, _ in failed], said
 
 
 def check(name: str) -> dict:
@@ -622,7 +624,9 @@ def check(name: str) -> dict:
         if passed:
             passed, failed, summary = run_tests(tree, [os.path.join(tree, "tests")])
     row = {"mutation": name, "file": path, "caught": bool(failed), "by": failed[:3], "seconds": round(time.time() - start)}
-    if not passed and not failed:  # pytest stopped without failing a test (a collection error, a crash): no catch
+    if failed and summary:  # what the test said, where pytest's summary gives it: a flaky catch shows here
+        row["why"] = summary[:200]
+    elif not passed:  # pytest stopped without failing a test (a collection error, a crash): no catch
         row["pytest"] = summary
     return row
 

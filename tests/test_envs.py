@@ -403,6 +403,9 @@ def test_make_env_names_and_spaces(tmp_path, monkeypatch, capfd):
     options = EnvOptions(episode_length=7, physics="jax")
     env = make_env("point_mass", options)
     assert env.max_episode_steps == 7 and env.options is options
+    # Keyword arguments beside the bundle override its fields (make_env's docstring).
+    shorter = make_env("point_mass", options, episode_length=3)
+    assert shorter.max_episode_steps == 3 and shorter.options == dataclasses.replace(options, episode_length=3)
     with pytest.raises(dataclasses.FrozenInstanceError):
         options.episode_length = 8
     for bad, message in ((dict(episode_length=0), "episode_length"), (dict(episode_length=1001), "v5 limit"),

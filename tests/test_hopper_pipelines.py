@@ -322,8 +322,9 @@ def test_video_of_the_trained_hopper_beside_its_worst_set(jax_run, tmp_path, cap
                                                 out=str(tmp_path / "both-clean.mp4")))
     assert same.hidden == () and (same.clean_return, same.clean_length) == (same.hidden_return, same.hidden_length)
 
-    assert video.main([jax_run.run_dir, "hidden=elbow", f"out={tmp_path}/elbow.mp4"]) == 2
-    assert "'elbow' is neither a feature index below 11 nor a feature name of hopper" in capsys.readouterr().err
+    for hidden in ("elbow", "11"):  # Hopper's features are 0 to 10
+        assert video.main([jax_run.run_dir, f"hidden={hidden}", f"out={tmp_path}/bad.mp4"]) == 2
+        assert f"'{hidden}' is neither a feature index below 11 nor a feature name of hopper" in capsys.readouterr().err
     assert video.main([jax_run.run_dir, "out=/dev/null/x.mp4"]) == 2
     assert capsys.readouterr().err.strip() == "error: cannot create the video folder /dev/null: File exists"
 

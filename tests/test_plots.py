@@ -329,6 +329,9 @@ def test_plots_say_what_they_show(tmp_path, capsys, monkeypatch):
         assert len(lines) == (4 if per_seed else 2)
         for run, line in zip(runs, lines[1:-1]):
             np.testing.assert_allclose(line.get_ydata(), moving_average(run.min_score, 3))
+        # The curve: the seeds' mean of their moving averages; the dots: the seeds' mean of each record, unsmoothed.
+        np.testing.assert_allclose(lines[0].get_ydata(), np.mean([moving_average(run.min_score, 3) for run in runs], 0))
+        np.testing.assert_allclose(lines[-1].get_ydata(), np.mean([run.min_score for run in runs], axis=0))
         plt.close(figure)
 
     # The last scoring's bars carry a t-interval over seeds; one seed has none to draw, and says so.
