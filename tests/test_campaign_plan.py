@@ -166,7 +166,8 @@ def test_the_speed_steps_benchmarks_let_mjx_run_the_mujoco_warp_package():
     the campaign's other scripts in that mode; these three, which it leaves out, are each
     imported first in a fresh interpreter, as the campaign starts them. Until 2026-12-05
     ``brax_sac.py`` imported Brax (and so MJX) first, so its stage was refused in one
-    line and ended the speed step there, in smoke mode as it would have on a GPU."""
+    line: smoke mode stopped the speed step there, and on a GPU (where the step goes on past
+    a failed stage) the speed table would have had no Brax row."""
     code = ("import importlib, sys; importlib.import_module(sys.argv[1]); "
             "from admissable_jax.envs import physics, warp_package; print(warp_package.runs_package())")
     benchmarks = os.path.join(os.path.dirname(__file__), "..", "benchmarks")
