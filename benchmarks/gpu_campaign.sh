@@ -391,8 +391,15 @@ kernel_report() {  # how many Warp modules came prebuilt and how many this machi
        "$(find "$kernels" \( -name '*.cubin' -o -name '*.ptx' \) -newer "$kernels/.unpacked" | wc -l) compiled on this machine"
 }
 
-alive() {  # alive PIDFILE: does the worker it names run?
-  [ -s "$1" ] && kill -0 "$(cat "$1")" 2>/dev/null
+alive() {  # alive PIDFILE: does the worker it names run? Its pid alone may say so wrongly: an
+           # ended worker nobody has reaped yet (a zombie has no command line), or its pid
+           # given to another process or thread since (a busy machine cycles through 32,768
+           # in minutes), even to a call of this script; so its command line must be a worker's
+  local pid
+  [ -s "$1" ] || return 1
+  pid=$(cat "$1")
+  kill -0 "$pid" 2>/dev/null || return 1
+  [ ! -e "/proc/$pid" ] || { grep -qa gpu_campaign.sh "/proc/$pid/cmdline" && grep -qa -e --worker "/proc/$pid/cmdline"; } 2>/dev/null
 }
 
 show_log() {  # the worker's log lines no call has printed yet

@@ -541,6 +541,9 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     # scoring round.
     "brax_benchmark_imports_mjx_first": ("benchmarks/brax_sac.py", "warp_package.use_package()\n", "",
                                          "test_campaign_plan.py"),
+    "campaign_worker_known_by_its_pid_alone": ("benchmarks/gpu_campaign.sh",
+                                               '  [ ! -e "/proc/$pid" ] || { grep -qa gpu_campaign.sh',
+                                               '  true || { grep -qa gpu_campaign.sh', "test_campaign_plan.py"),
     "figure_line_unsmoothed": ("admissable_jax/plot.py", "        mean, low, high = mean_and_interval(smoothed)",
                                "        mean, low, high = mean_and_interval(values)", "test_plots.py"),
     "figure_dots_of_the_first_seed": ("admissable_jax/plot.py", 'ax.plot(steps, values.mean(axis=0), "."',
@@ -624,8 +627,8 @@ def check(name: str) -> dict:
         if passed:
             passed, failed, summary = run_tests(tree, [os.path.join(tree, "tests")])
     row = {"mutation": name, "file": path, "caught": bool(failed), "by": failed[:3], "seconds": round(time.time() - start)}
-    if failed and summary:  # what the test said, where pytest's summary gives it: a flaky catch shows here
-        row["why"] = summary[:200]
+    if failed:  # what the test said, where pytest's summary gives it: a flaky catch shows here
+        row.update({"why": summary[:200]} if summary else {})
     elif not passed:  # pytest stopped without failing a test (a collection error, a crash): no catch
         row["pytest"] = summary
     return row

@@ -180,6 +180,21 @@ def test_the_speed_steps_benchmarks_let_mjx_run_the_mujoco_warp_package():
     assert {script: out.strip() for script, (out, _) in runs.items()} == dict.fromkeys(calls, "True"), runs
 
 
+def test_a_pid_file_naming_another_process_is_no_running_worker(tmp_path):
+    """A call follows a worker only while its pid file names a live worker of this script: a
+    pid that ended and went to another process since (here this test's own) is not one. By
+    its pid alone, the call took it for the speed step's worker and refused to go on."""
+    script = os.path.join(os.path.dirname(__file__), "..", "benchmarks", "gpu_campaign.sh")
+    state = tmp_path / "campaign" / "state"
+    state.mkdir(parents=True)
+    (state / "speed.pid").write_text(f"{os.getpid()}\n")
+    (state / "hopper.complete").touch()
+    env = {**os.environ, "CAMPAIGN_SMOKE": "1", "CAMPAIGN_DIR": str(tmp_path / "campaign")}
+    env.pop("OUT", None)
+    result = subprocess.run(["bash", script, "hopper"], env=env, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0 and result.stdout.startswith("step hopper complete\n"), (result.stdout, result.stderr)
+
+
 def test_the_campaign_script_refuses_a_bad_setting_before_it_starts(tmp_path):
     """A CAMPAIGN_* setting the script cannot read is one line and exit 2 before anything
     starts: read as it was, ``CAMPAIGN_DETERMINISTIC=false`` passed for the deterministic
