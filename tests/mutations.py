@@ -574,6 +574,28 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                         "terminate_when_unhealthy=True)", "test_campaign_plan.py"),
     "scoring_round_counts_one_slot": ("benchmarks/scoring_round.py", "    stepped = loop_steps * slots",
                                       "    stepped = loop_steps", "test_campaign_plan.py"),
+    # Cheaper score estimates and the audit's report, in words (a twentieth round).
+    "estimate_bootstraps_past_the_step_limit": ("admissable_jax/scoring/value_estimates.py",
+                                                "        alive = alive & ~states.terminated & (states.step_count < env.max_episode_steps)",
+                                                "        alive = alive & ~states.terminated", "test_audit.py"),
+    "estimate_bootstraps_ended_episodes": ("admissable_jax/scoring/value_estimates.py",
+                                           "jnp.where(alive, gamma**horizon * jnp.min(q, axis=-1), 0.0)",
+                                           "gamma**horizon * jnp.min(q, axis=-1)", "test_audit.py"),
+    "estimate_from_other_start_states": ("admissable_jax/scoring/value_estimates.py",
+                                         "jax.vmap(env.reset)(jax.random.split(rng, n_episodes))",
+                                         "jax.vmap(env.reset)(jax.random.split(jax.random.fold_in(rng, 1), n_episodes))",
+                                         "test_audit.py"),
+    "audit_pilot_seed_named_as_the_audits": ("admissable_jax/audit/report.py", "these are seed {pilot['seed'] + 1}'s",
+                                             "these are seed {pilot['seed']}'s", "test_audit.py"),
+    "audit_runner_up_is_the_best_set": ("admissable_jax/audit/report.py",
+                                        "the runner-up, {', '.join(gaps[1].entry.names)}, lies",
+                                        "the runner-up, {', '.join(gaps[-1].entry.names)}, lies", "test_audit.py"),
+    "audit_mean_drop_is_the_worsts": ("admissable_jax/audit/report.py",
+                                      "{drop_below_clean(result.clean_score, result.mean(k)):.1f}% below clean",
+                                      "{drop_below_clean(result.clean_score, worst[0].score):.1f}% below clean",
+                                      "test_audit.py"),
+    "audit_small_gaps_read_zero": ("admissable_jax/audit/report.py", "abs(value) >= 0.05 else", "abs(value) >= 0.0 else",
+                                   "test_audit.py"),
 }
 
 

@@ -371,6 +371,8 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
     report = (tmp_path / "audit" / "report.md").read_text()
     assert "Gymnasium env ConstantFeatures-v0, policy sum_of_visible" in report and "| 1 | 1, 2 | 1, 2 | 5.0 ± 0.0 | 83.3% |" in report
     assert "N = 2 episodes of the policy as given, each set's from the vector env's own resets" in report
+    assert ("Mean over all 3 sets (the average case, u drawn uniformly): 10.0, 66.7% below clean; the worst: 5.0."
+            in report)  # k = 2: the mean's own drop, (30 − 10) / 30
     with pytest.raises(ValueError, match="ks must be set sizes 1 <= k < d = 3"):
         audit_gymnasium("ConstantFeatures-v0", sum_of_visible, ks=(3,))
 
@@ -398,6 +400,9 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
     assert told["pilot"] == {"episodes": 2, "seed": 0, "needed": {"1": None, "2": None}, "chosen": 2, "most": 1000}
     assert [entry["score"] for entry in told["sets"]["2"]] == [15.0, 10.0, 5.0] and not told["same_starts"]
     assert "N = 2 episodes per set, chosen by a pilot of 2" in capfd.readouterr().out
+    # The report says whose start states each audit ran from: the pilot's seed, then the next.
+    assert "a pilot audit of 2 episodes per set (the start states of seed 0; these are seed 1's)" in (
+        tmp_path / "told" / "report.md").read_text()
     for args, message in [
         (["policy=test_wrappers:nothing", "gym=ConstantFeatures-v0"], "cannot load policy=test_wrappers:nothing: module"),
         (["policy=test_wrappers:sum_of_visible", "gym=NoSuchEnv-v0"], "cannot make the Gymnasium env 'NoSuchEnv-v0'"),
