@@ -68,7 +68,7 @@ def measure(config: RolloutConfig) -> str:
     _, total_reward = jax.block_until_ready(compiled(rng))
     run_s = time.perf_counter() - start
     env_steps = config.num_envs * config.steps
-    return (f"{env.gymnasium_id or env.name} on {jax.devices()[0].platform} ({env.physics_name} physics): "
+    return (f"{env.display_name} on {jax.devices()[0].platform} ({env.physics_name} physics): "
             f"{config.num_envs} envs x {config.steps} steps, compile {compile_s:.1f} s, run {run_s:.2f} s, "
             f"{env_steps / run_s:,.0f} env steps/s, mean reward {float(total_reward) / env_steps:.3f}")
 

@@ -129,7 +129,7 @@ def main(argv: list[str]) -> None:
     loop_steps = int(result.loop_steps)
     stepped = loop_steps * slots
     record = {
-        "env": env.gymnasium_id or env.name, "physics": env.physics_name, "n_episodes": bench.n_episodes, "sets": trainer.num_sets,
+        "env": env.display_name, "physics": env.physics_name, "n_episodes": bench.n_episodes, "sets": trainer.num_sets,
         "batch_episodes": episodes, "slots": slots, "max_steps": bench.max_steps, "terminate": bench.terminate,
         "policy": label, "steps_per_check": bench.steps_per_check,
         "compile_s": round(compile_s, 2), "first_run_s": round(first_s, 3), "run_s": round(run_s, 3),
@@ -139,7 +139,7 @@ def main(argv: list[str]) -> None:
         "min_score": float(result.min_score), "clean_score": float(result.clean_score),
     }
     print(
-        f"{env.gymnasium_id or env.name} ({env.physics_name} physics), {label}: {trainer.num_sets}+1 sets x {bench.n_episodes} episodes = {episodes} "
+        f"{record['env']} ({env.physics_name} physics), {label}: {trainer.num_sets}+1 sets x {bench.n_episodes} episodes = {episodes} "
         f"episodes on {slots} slots; {loop_steps} loop steps, {stepped:,} env steps stepped for "
         f"{record['env_steps_in_episodes']:,} in episodes (a check every {bench.steps_per_check} steps); "
         f"compile {compile_s:.1f} s, run {run_s:.2f} s (its first {first_s:.2f} s), "

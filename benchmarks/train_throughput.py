@@ -162,7 +162,7 @@ def main(argv: list[str]) -> None:
     env_steps = bench.iterations * bench.num_envs * bench.seeds
     grad_steps = int(learned.sum()) * trainer.spec.updates_per_iteration
     record = {
-        "env": env.gymnasium_id or env.name, "physics": env.physics_name, "num_envs": bench.num_envs, "seeds": bench.seeds, "utd": bench.utd,
+        "env": env.display_name, "physics": env.physics_name, "num_envs": bench.num_envs, "seeds": bench.seeds, "utd": bench.utd,
         "batch_size": bench.batch_size, "hidden_sizes": [config.hidden_size] * config.hidden_layers,
         "buffer_size": trainer.spec.buffer_capacity, "iterations": bench.iterations, "before_learning": bench.before_learning,
         "k": bench.k, "up_to_k": bench.up_to_k, "pool_size": bench.pool_size, "sets": trainer.num_sets,

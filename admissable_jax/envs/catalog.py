@@ -120,6 +120,12 @@ class CatalogEntry:
         return self.spec.gymnasium_id
 
     @property
+    def display_name(self) -> str:
+        """How lines and records name the env: its Gymnasium id, or its own name where it has
+        none (the point mass, an env of one's own)."""
+        return self.gymnasium_id or self.name
+
+    @property
     def observation_size(self) -> int:
         return self.spec.observation_size
 
