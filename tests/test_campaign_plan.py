@@ -16,6 +16,8 @@ import scoring_round
 import train_throughput
 
 
+BENCHMARKS = os.path.join(os.path.dirname(__file__), "..", "benchmarks")
+CAMPAIGN_SCRIPT = os.path.join(BENCHMARKS, "gpu_campaign.sh")
 H100 = "speed_device=gpu:NVIDIA H100 80GB HBM3"
 HOPPER_ON_THE_GPU = ["env=hopper", "modes=adversarial,uniform,none", "physics=warp", "seeds=5", "num_envs=125",
                      "score_every=5000", "checkpoint_every=20", "min_steps=200000", "max_steps=1000000"]
@@ -170,9 +172,8 @@ def test_the_speed_steps_benchmarks_let_mjx_run_the_mujoco_warp_package():
     a failed stage) the speed table would have had no Brax row."""
     code = ("import importlib, sys; importlib.import_module(sys.argv[1]); "
             "from admissable_jax.envs import physics, warp_package; print(warp_package.runs_package())")
-    benchmarks = os.path.join(os.path.dirname(__file__), "..", "benchmarks")
     env = {**os.environ, "JAX_PLATFORMS": "cpu",
-           "PYTHONPATH": os.pathsep.join(filter(None, (benchmarks, os.environ.get("PYTHONPATH"))))}
+           "PYTHONPATH": os.pathsep.join(filter(None, (BENCHMARKS, os.environ.get("PYTHONPATH"))))}
     calls = {script: subprocess.Popen([sys.executable, "-c", code, script], env=env, stdout=subprocess.PIPE,
                                       stderr=subprocess.PIPE, text=True)
              for script in ("brax_sac", "scoring_round", "train_throughput")}
@@ -184,14 +185,13 @@ def test_a_pid_file_naming_another_process_is_no_running_worker(tmp_path):
     """A call follows a worker only while its pid file names a live worker of this script: a
     pid that ended and went to another process since (here this test's own) is not one. By
     its pid alone, the call took it for the speed step's worker and refused to go on."""
-    script = os.path.join(os.path.dirname(__file__), "..", "benchmarks", "gpu_campaign.sh")
     state = tmp_path / "campaign" / "state"
     state.mkdir(parents=True)
     (state / "speed.pid").write_text(f"{os.getpid()}\n")
     (state / "hopper.complete").touch()
     env = {**os.environ, "CAMPAIGN_SMOKE": "1", "CAMPAIGN_DIR": str(tmp_path / "campaign")}
     env.pop("OUT", None)
-    result = subprocess.run(["bash", script, "hopper"], env=env, capture_output=True, text=True, timeout=60)
+    result = subprocess.run(["bash", CAMPAIGN_SCRIPT, "hopper"], env=env, capture_output=True, text=True, timeout=60)
     assert result.returncode == 0 and result.stdout.startswith("step hopper complete\n"), (result.stdout, result.stderr)
 
 
@@ -199,13 +199,12 @@ def test_the_campaign_script_refuses_a_bad_setting_before_it_starts(tmp_path):
     """A CAMPAIGN_* setting the script cannot read is one line and exit 2 before anything
     starts: read as it was, ``CAMPAIGN_DETERMINISTIC=false`` passed for the deterministic
     mode, and a deadline of ``-5`` reached the plan."""
-    script = os.path.join(os.path.dirname(__file__), "..", "benchmarks", "gpu_campaign.sh")
     for setting, expected in [("CAMPAIGN_DETERMINISTIC=false", "give 1 or 0"),
                               ("CAMPAIGN_DEADLINE=-5", "give a number of seconds >= 0"),
                               ("CAMPAIGN_MIN_STEPS=5e4", "give a whole number >= 0")]:
         name, value = setting.split("=")
         env = {**os.environ, "CAMPAIGN_SMOKE": "1", "CAMPAIGN_DIR": str(tmp_path / "campaign"), name: value}
-        result = subprocess.run(["bash", script, "hopper"], env=env, capture_output=True, text=True, timeout=60)
+        result = subprocess.run(["bash", CAMPAIGN_SCRIPT, "hopper"], env=env, capture_output=True, text=True, timeout=60)
         assert result.returncode == 2 and result.stdout == "", (setting, result.stdout, result.stderr)
         assert result.stderr == f"{setting}: {expected} (see the header)\n"
     assert not (tmp_path / "campaign").exists()
