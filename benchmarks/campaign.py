@@ -200,7 +200,7 @@ def profile(config: ProfileConfig) -> int:
              profile_trace.summarize_part(ops, SCORING_PART, windows[SCORING_PART], int(full.loop_steps.max()), config.top,
                                           profile_trace.op_sources(programs.score_full.as_text()))]
     record = {
-        "env": programs.trainer.env.gymnasium_id or first.env, "physics": programs.trainer.env.physics_name,
+        "env": programs.trainer.env.display_name, "physics": programs.trainer.env.physics_name,
         "pairs": len(programs.pairs), "num_envs": first.num_envs, "score_episodes": first.score_episodes,
         "score_every": first.score_every, "updates_per_iteration": programs.trainer.spec.updates_per_iteration,
         "chunk_learned_share": float(metrics["learned"].mean()), "ops_from": where, "parts": parts,

@@ -66,7 +66,7 @@ def measure(bench: ScalingBenchConfig, devices: int) -> dict:
     (_, _), score_s = timed(compiled_score, state)
     env_steps = bench.iterations * bench.num_envs * bench.pairs
     return {
-        "env": trainer.env.gymnasium_id or config.env, "physics": trainer.env.physics_name, "pairs": bench.pairs,
+        "env": trainer.env.display_name, "physics": trainer.env.physics_name, "pairs": bench.pairs,
         "devices": devices, "pairs_per_device": placement.pairs_per_device, "num_envs": bench.num_envs,
         "iterations": bench.iterations, "compile_chunk_s": round(compile_s, 1), "chunk_s": round(run_s, 2),
         "aggregate_env_steps_per_s": round(env_steps / run_s, 1), "score_round_s": round(score_s, 2),
