@@ -7,9 +7,13 @@ import shutil
 import subprocess
 import sys
 
+import numpy as np
+
 import common  # benchmarks/ is on the tests' path (conftest.py)
 import figure1
 from test_plots import _run_with_minimums
+
+from admissable_jax.results import Difference, load_run
 
 FIGURE1 = figure1.__file__
 
@@ -61,6 +65,8 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys, 
             "5,000 env steps per run 2.00 s (median), a scoring round 2.50 s on average, 2.50 s over the last 4. "
             "1M env steps projected at 900 s (15.0 min): the remaining 196 scorings") in text
     assert "| hopper | 20,000 | final min_u a_u | +41.0 | 1.00 [1.00, 1.00] | not distinguishable (95% interval holds 0) |" in text
+    # The top table's second row: AUC, mean(25, 40) − mean(6.5, 7.5) = +25.5.
+    assert "| hopper | 20,000 | AUC min_u a_u | +25.5 | 1.00 [1.00, 1.00] | not distinguishable (95% interval holds 0) |" in text
     assert ("- final min_u a_u: adversarial − uniform = +41.0 [-80.9, 162.9], p = 0.149, P(adversarial > uniform) "
             "= 1.00 [1.00, 1.00]: the seeds cannot tell "
             "the modes apart (the 95% interval holds 0); about 4 seeds per mode would (80% power at the difference "
@@ -138,3 +144,45 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys, 
             f"interrupted: {tmp_path / 'stopped.md'} not written; {said}; the runs are untouched")
         assert (young / "figures-2").exists() == (where == "write_tables")
         assert not (tmp_path / "stopped.md").exists()
+
+
+def test_figure1_words_each_reading_the_clean_check_above_sb3_and_the_late_rounds_cost(tmp_path):
+    """figure1.py's own lines, without figures. Each reading in its words: finals 200, 210
+    against 10, 12 (+194.0) read adversarial higher, the same swapped uniform higher. Mode
+    none at 1M against SB3's Hopper 2,326 ± 1,130 (mean + 1 sd = 3,456), two seeds 10 apart
+    (± t(0.975, 1) · 7.07 / √2 = 63.5): 3,700 and 3,710 give [3641.5, 3768.5], clearly above;
+    3,000 and 3,010 give [2941.5, 3068.5], over SB3's mean but within its spread. The cost
+    line: 12 scorings, chunks of 5,000 env steps at 2,500 env steps/s (2 s), rounds of 1 to
+    12 s (late rounds run longest): 24 + 78 = 102 s at 60,000 env steps, 188 scorings left
+    to 1M at 2 s + the last ten rounds' mean 7.5 s: 102 + 188 · 9.5 = 1,888 s."""
+    higher = figure1._verdict(Difference("final min_u a_u", np.array([200.0, 210.0]), np.array([10.0, 12.0])))
+    assert higher.startswith("final min_u a_u: adversarial − uniform = +194.0 [")
+    assert higher.endswith(": adversarial training is higher, and 0 lies outside the 95% interval.")
+    lower = figure1._verdict(Difference("AUC min_u a_u", np.array([10.0, 12.0]), np.array([200.0, 210.0])))
+    assert lower.startswith("AUC min_u a_u: adversarial − uniform = -194.0 [")
+    assert lower.endswith(": uniform training is higher, and 0 lies outside the 95% interval.")
+    assert figure1._verdict(Difference("final min_u a_u", np.array([40.0]), np.array([8.0, 10.0]))) == (
+        "final min_u a_u: adversarial − uniform = +31.0 (one seed in a mode: no test).")
+
+    def clean_line(folder, returns):
+        runs = [load_run(_run_with_minimums(str(tmp_path / folder), "none", seed, [1, 2, 3, 4], clean,
+                                            score_every=250_000)) for seed, clean in enumerate(returns)]
+        return figure1._clean_sac_line("hopper", runs)
+    assert clean_line("above", (3700, 3710)).endswith(
+        "final clean return 3705.0 [3641.5, 3768.5] against the SB3 RL-Zoo SAC at 1M, 2,326 ± 1,130 (v3 envs): "
+        "clearly above SB3's (our 95% interval lies over its mean + 1 sd).")
+    assert clean_line("upper", (3000, 3010)).endswith(
+        "final clean return 3005.0 [2941.5, 3068.5] against the SB3 RL-Zoo SAC at 1M, 2,326 ± 1,130 (v3 envs): "
+        "within SB3's spread (our 95% interval reaches its mean ± 1 sd).")
+
+    run = _run_with_minimums(str(tmp_path / "cost"), "adversarial", 0, [1, 2], 10)
+    with open(os.path.join(run, "metrics.jsonl"), "w") as file:
+        for t in range(12):
+            file.write(json.dumps({"env_steps": 5000 * (t + 1), "env_steps_per_s": 2500.0,
+                                   "score_seconds": float(t + 1), "runs_in_program": 2}) + "\n")
+    assert figure1._cost_line([run]) == (
+        "Cost (measured, the program of 2 runs, compiling not counted): 12 scorings in 102 s; a training chunk of "
+        "5,000 env steps per run 2.00 s (median), a scoring round 6.50 s on average, 7.50 s over the last 10. "
+        "1M env steps projected at 1,888 s (31.5 min): the remaining 188 scorings at the median chunk and the "
+        "last 10 rounds' mean.")
+    assert figure1._cost_line([str(tmp_path / "above" / "none-s0")]) == "Cost: not measured (no `metrics.jsonl`)."
