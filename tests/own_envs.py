@@ -68,5 +68,12 @@ class NoSize(Reach):
     observation_size = None
 
 
+class NoFeatures(Reach):
+    """Says it observes nothing: no feature to hide."""
+
+    observation_size = 0
+    feature_names = ()
+
+
 class NotAnEnv:
     """No reset or step."""

@@ -103,6 +103,7 @@ def test_an_env_of_ones_own_trains_resumes_plots_and_is_audited(tmp_path, capsys
     ("own_envs:NotAnEnv",
      "env 'own_envs:NotAnEnv': NotAnEnv must define reset and step (subclass envs.ExternalEnv)"),
     ("own_envs:NoSize", "env 'own_envs:NoSize': NoSize.observation_size must be an int >= 1, got None"),
+    ("own_envs:NoFeatures", "env 'own_envs:NoFeatures': NoFeatures.observation_size must be an int >= 1, got 0"),
     ("own_envs:OneName", "env 'own_envs:OneName': OneName.feature_names holds 1 names; its observations have "
                           "3 entries"),
     # Found, but its observations are not as long as it says: seen when the programs are traced.
