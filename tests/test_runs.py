@@ -313,10 +313,12 @@ def test_ctrl_c_says_where_to_resume_and_exits_130(stop, on_chunk, tmp_path, mon
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # given back after the run
 
 
-def test_a_ctrl_c_while_compiling_is_answered_at_once(tmp_path, monkeypatch, capsys):
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_a_ctrl_c_while_compiling_is_answered_at_once(stop, tmp_path, monkeypatch, capsys):
     """A Ctrl-C during the compile (a minute for Hopper on a small CPU, as long on a GPU) ends
     the run at once: the loop compiles on worker threads and waits where a Ctrl-C is heard,
-    and leaves the compiles to end in the background."""
+    and leaves the compiles to end in the background. SIGTERM (a job scheduler's stop) ends
+    it the same way: the command line takes it as a Ctrl-C before training starts too."""
     compiling, released, compiled = threading.Semaphore(0), threading.Event(), []
 
     def slow_compile(lowered):
@@ -328,11 +330,15 @@ def test_a_ctrl_c_while_compiling_is_answered_at_once(tmp_path, monkeypatch, cap
         for _ in range(2):
             compiling.acquire(timeout=60)
         time.sleep(0.1)  # the loop waiting for them
-        signal.pthread_kill(threading.main_thread().ident, signal.SIGINT)
+        signal.pthread_kill(threading.main_thread().ident, stop)
+
+    def not_taken(signum, frame):  # where the command line left SIGTERM to its default (death), fail instead
+        raise AssertionError("SIGTERM was not taken as a Ctrl-C")
 
     monkeypatch.setattr(jax.stages.Lowered, "compile", slow_compile)
     ctrl_c = threading.Thread(target=ctrl_c_once_both_compile)
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    previous_term = signal.signal(signal.SIGTERM, not_taken)
     out = tmp_path / "compiling"
     try:
         ctrl_c.start()
@@ -342,6 +348,7 @@ def test_a_ctrl_c_while_compiling_is_answered_at_once(tmp_path, monkeypatch, cap
         released.set()
         ctrl_c.join()
         signal.signal(signal.SIGINT, previous)
+        signal.signal(signal.SIGTERM, previous_term)
     assert capsys.readouterr().err.strip().splitlines()[-1] == "interrupted before training started; nothing to resume from"
     assert not out.exists()
 
