@@ -1,0 +1,21 @@
+"""``tests/mutations.py`` stays runnable: each bug's text stands once in its file, beside a
+test file that exists, and the README counts them. (A change that rewrites a mutated line
+would otherwise break the script's run an hour in, at that mutation.)"""
+
+import os
+import re
+
+import mutations
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def test_every_mutation_can_be_written_and_the_readme_counts_them():
+    for name, (path, text, replacement, first_file) in mutations.MUTATIONS.items():
+        with open(os.path.join(REPO, path)) as file:
+            assert file.read().count(text) == 1, f"{name}: its text is not once in {path}"
+        assert text != replacement, name
+        assert os.path.isfile(os.path.join(REPO, "tests", first_file)), f"{name}: no tests/{first_file}"
+    with open(os.path.join(REPO, "README.md")) as file:
+        counted = re.findall(r"`python tests/mutations.py` writes (\d+) small", file.read())
+    assert counted == [str(len(mutations.MUTATIONS))]
