@@ -497,6 +497,16 @@ def test_faults_of_long_runs_cost_nothing_finished(tmp_path, monkeypatch, capsys
     said = capsys.readouterr().err
     assert f"warning: {os.path.join(paused_dir, 'scores.jsonl')}: the last line is cut off" in said
     assert said.strip().splitlines()[-1] == "error: cannot create the figures folder /dev/null/x: Not a directory"
+    # A bad line before the last is no crash's trace but a corrupt file: refused in one line
+    # naming the file and line, not read up to it.
+    corrupt = tmp_path / "corrupt"
+    shutil.copytree(paused_dir, corrupt, ignore=shutil.ignore_patterns("checkpoints"))
+    first, torn = (corrupt / "scores.jsonl").read_text().splitlines()
+    (corrupt / "scores.jsonl").write_text("\n".join([first, '{"env_steps": 1000, "min_score": }', torn]))
+    with pytest.raises(SystemExit) as refused:
+        plot_main([str(corrupt), f"out={tmp_path / 'corrupt_figs'}"])
+    assert refused.value.code == 2 and capsys.readouterr().err.strip().splitlines()[-1] == (
+        f"error: {corrupt / 'scores.jsonl'} line 2 is not valid JSON (Expecting value); the file is corrupt")
     # Ctrl-C while plot draws: one line saying where the figures drawn so far are; a folder
     # it made and drew nothing into is gone.
     import admissable_jax.plot
