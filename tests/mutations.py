@@ -658,7 +658,7 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                "if resume_from is not None and resume_from > config.planned_steps:", "test_runs.py"),
     "audit_experiment_at_the_latest_step": ("admissable_jax/audit/command.py",
                                             "step = None if config.step < 0 else config.step", "step = None",
-                                            "test_audit.py"),
+                                            "test_experiment.py"),
     "audit_counts_the_worst_as_not_told_apart": ("admissable_jax/audit/command.py",
                                                  "tied = sum(gap.tied for gap in result.gaps_to_worst(k)[1:])",
                                                  "tied = sum(gap.tied for gap in result.gaps_to_worst(k))", "test_audit.py"),
@@ -696,7 +696,8 @@ def run_tests(tree: str, paths: list[str]) -> tuple[bool, list[str], str]:
     """(whether they all passed, the failed tests' ids, the first failed test's reason, or else
     pytest's first ERROR line or its last line) for pytest on ``paths`` of ``tree``, stopping
     at the first failure."""
-    env = dict(os.environ, PYTHONPATH=tree, JAX_PLATFORMS="cpu")
+    # COLUMNS: pytest cuts its summary's lines to the terminal's width, and with them the reason.
+    env = dict(os.environ, PYTHONPATH=tree, JAX_PLATFORMS="cpu", COLUMNS="1000")
     # test_mutation_list.py checks this list against the tree, which a written mutation changes:
     # it fails for every mutation, so it is no catch.
     result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider", "--rootdir", tree,
@@ -730,6 +731,9 @@ def check(name: str) -> dict:
         passed, failed, summary = run_tests(tree, [os.path.join(tree, "tests", first_file)])
         if passed:
             passed, failed, summary = run_tests(tree, [os.path.join(tree, "tests")])
+        # pytest stopped at a first failure (-x) can leave a process of this tree running (the
+        # campaign smoke test's worker runs in a session of its own): ended before its tree goes.
+        subprocess.run(["pkill", "-f", tree], capture_output=True)
     row = {"mutation": name, "file": path, "caught": bool(failed), "by": failed[:3], "seconds": round(time.time() - start)}
     if failed:  # what the test said, where pytest's summary gives it: a flaky catch shows here
         row.update({"why": summary[:200]} if summary else {})

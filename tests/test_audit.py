@@ -387,8 +387,10 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
     assert "v(all) = 15.0, v(none) = 0.0, and the φ_i sum to v(all) − v(none) = 15.0. Beside it" in report and "| 2 | 1 | 1 | 4.2 ± 0.0 | 27.8% | 0.0 |" in report
 
     # From the command line: policy=MODULE:NAME on gym=ENV_ID, the same numbers.
-    assert audit_main(["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "k=1,2", "episodes=2",
-                       f"out={tmp_path / 'cli'}"]) == 0
+    # slots=3: three Gymnasium envs stepped at once, so every batch the policy sees holds 3.
+    assert audit_main(["policy=test_audit:counted_sum_of_visible", "gym=ConstantFeatures-v0", "k=1,2", "episodes=2",
+                       "slots=3", f"out={tmp_path / 'cli'}"]) == 0
+    assert set(BATCH_SIZES) == {3}
     record = json.loads((tmp_path / "cli" / "audit.json").read_text())
     assert [entry["score"] for entry in record["sets"]["2"]] == [15.0, 10.0, 5.0]
     assert ("k=2: worst 1, 2 ([1, 2]): a_u 5.0 ± 0.0, 83.3% below clean 30.0; mean over the 3 sets 10.0; told apart "
@@ -443,6 +445,17 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
     assert capfd.readouterr().err.strip().splitlines()[-1] == ("interrupted: the audit in progress wrote nothing; audit "
                                                               "folders finished before it are kept")
     assert not (tmp_path / "stopped").exists()  # made before the rollout, and gone with it
+
+
+BATCH_SIZES: list[int] = []  # the batches counted_sum_of_visible was called with
+
+
+def counted_sum_of_visible(obs):
+    """test_wrappers' sum_of_visible, recording each batch's size (the envs stepped at once)."""
+    from test_wrappers import sum_of_visible
+
+    BATCH_SIZES.append(len(obs))
+    return sum_of_visible(obs)
 
 
 def failing_policy(obs):

@@ -97,8 +97,11 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
     for i, name in enumerate(["x", "y", "x velocity", "y velocity"]):
         by_mode = [estimate(np.array([result.shapley.values[i] for result in pairs])) for pairs in (results[:2], results[2:])]
         assert f"| {name} | {i} | {by_mode[0]} | {by_mode[1]} |" in worth
-    assert audit_main([str(tmp_path / "straight"), "k=1", "episodes=2", f"out={tmp_path / 'audits'}"]) == 0
+    # The command line, at an earlier checkpoint (step=): every pair's.
+    assert audit_main([str(tmp_path / "straight"), "k=1", "episodes=2", "step=2000", f"out={tmp_path / 'audits'}"]) == 0
     said = capsys.readouterr().out
+    for pair in ("adversarial-s0", "uniform-s1"):
+        assert "checkpoint (env step) 2000, " in open(tmp_path / "audits" / pair / "report.md").read()
     assert "uniform seed 1: k=1: worst" in said and "| 1 | adversarial | 2 |" in said
     assert said.strip().endswith(f"and {tmp_path / 'audits' / 'comparison.md'}")
     assert sorted(os.listdir(tmp_path / "audits")) == ["adversarial-s0", "adversarial-s1", "comparison.md",
