@@ -675,6 +675,21 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                               "return max(1, records * PAPER_WINDOW // PAPER_RECORDS)", "test_plots.py"),
     "window_longer_than_the_runs": ("admissable_jax/plot.py", "    return min(window, records)\n",
                                     "    return window\n", "test_plots.py"),
+    # What keeps finished work, again (a twenty-third round): a failed save's clean-up, the
+    # checkpoints a restore sets aside, another version's layout, a full disk's reason, a resume
+    # of records without checkpoints.
+    "failed_save_leaves_its_partial_write": ("admissable_jax/checkpointing.py", 'if ".orbax-checkpoint-tmp" in name:',
+                                             "if False:", "test_runs.py"),
+    "restored_checkpoint_set_aside": ("admissable_jax/checkpointing.py",
+                                      "newer = [later for later in self._manager.all_steps() if later > step]",
+                                      "newer = [later for later in self._manager.all_steps() if later >= step]",
+                                      "test_runs.py"),
+    "other_layout_read_as_corrupt": ("admissable_jax/checkpointing.py", "        if saved != len(abstract):\n",
+                                     "        if False:\n", "test_training.py"),
+    "disk_error_found_by_cause_only": ("admissable_jax/checkpointing.py", "seen = seen.__cause__ or seen.__context__",
+                                       "seen = seen.__cause__", "test_runs.py"),
+    "records_without_checkpoints_started_over": ("admissable_jax/host_loop.py", "            if reached:\n",
+                                                 "            if False:\n", "test_training.py"),
 }
 
 

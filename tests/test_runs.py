@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 
 from admissable_jax import TrainConfig, host_loop, train_fn
-from admissable_jax.checkpointing import CheckpointError
+from admissable_jax.checkpointing import CheckpointError, _reason
 from admissable_jax.cli import run_from_cli, ticking
 from admissable_jax.errors import INTERRUPTED
 from admissable_jax.host_loop import TrainingLoop, interval_pieces
@@ -454,6 +454,26 @@ def test_a_corrupt_checkpoint_offers_the_newest_intact_one(tmp_path):
         checkpoints.read(like)
     assert checkpoints.read(like, 1000)[1]["weights"].tolist() == [1000.0] * 3
     checkpoints.close()
+
+
+def test_a_full_disks_reason_is_found_however_the_error_chains_it():
+    """The one line of a failed checkpoint save names the OSError's reason, whether the error
+    orbax raises was raised from it (``__cause__``) or while handling it (``__context__``),
+    else the error's own first line."""
+    import errno
+
+    def raised(context: bool) -> BaseException:
+        try:
+            try:
+                raise OSError(errno.ENOSPC, "No space left on device")
+            except OSError as disk:
+                if context:
+                    raise RuntimeError("write failed\nin a thread")
+                raise RuntimeError("write failed") from disk
+        except RuntimeError as error:
+            return error
+    assert _reason(raised(context=False)) == _reason(raised(context=True)) == "No space left on device"
+    assert _reason(ValueError("shape mismatch\nmore")) == "shape mismatch"
 
 
 def test_faults_of_long_runs_cost_nothing_finished(tmp_path, monkeypatch, capsys):
