@@ -468,7 +468,7 @@ def test_a_full_disks_reason_is_found_however_the_error_chains_it():
                 raise OSError(errno.ENOSPC, "No space left on device")
             except OSError as disk:
                 if context:
-                    raise RuntimeError("write failed\nin a thread")
+                    raise RuntimeError("write failed")
                 raise RuntimeError("write failed") from disk
         except RuntimeError as error:
             return error
