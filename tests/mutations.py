@@ -690,6 +690,21 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                        "seen = seen.__cause__", "test_runs.py"),
     "records_without_checkpoints_started_over": ("admissable_jax/host_loop.py", "            if reached:\n",
                                                  "            if False:\n", "test_training.py"),
+    # The Gymnasium wrappers, again (a twenty-fourth round): bad scores, SB3's (action, state)
+    # tuple, the seeds that make a wrapped env's u reproducible, ε's range.
+    "wrapper_update_takes_non_finite_scores": ("admissable_jax/wrappers.py", "        if not np.isfinite(scores).all():\n",
+                                               "        if False:\n", "test_wrappers.py"),
+    "score_policy_takes_sb3_tuple_whole": ("admissable_jax/wrappers.py",
+                                           "actions = np.asarray(actions[0] if isinstance(actions, tuple) else actions)",
+                                           "actions = np.asarray(actions)", "test_wrappers.py"),
+    "wrapper_reset_seed_ignored": ("admissable_jax/wrappers.py",
+                                   "        if seed is not None:\n            self._rng = np.random.default_rng([seed, 0x6D61736B])",
+                                   "        if False:\n            self._rng = np.random.default_rng([seed, 0x6D61736B])",
+                                   "test_wrappers.py"),
+    "adversarial_wrapper_seed_ignored": ("admissable_jax/wrappers.py", "        self._rng = np.random.default_rng(seed)\n",
+                                         "        self._rng = np.random.default_rng()\n", "test_wrappers.py"),
+    "wrapper_epsilon_zero_taken": ("admissable_jax/wrappers.py", "        if not 0 < epsilon < np.inf:\n",
+                                   "        if not 0 <= epsilon < np.inf:\n", "test_wrappers.py"),
 }
 
 

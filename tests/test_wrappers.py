@@ -108,6 +108,16 @@ def test_adversary_draws_from_the_papers_p_miss_and_updates_in_vector_envs():
         AdversarialMissingness(ConstantFeatures(), lower_bound=float("nan"))
     with pytest.raises(ValueError, match="epsilon must be > 0 and finite, got inf"):
         AdversarialMissingness(ConstantFeatures(), epsilon=float("inf"))
+    with pytest.raises(ValueError, match="epsilon must be > 0 and finite, got 0.0"):  # a zero score's weight 1/0
+        AdversarialMissingness(ConstantFeatures(), epsilon=0.0)
+    with pytest.raises(ValueError, match="update needs finite scores"):  # a NaN a_u would make every p_miss NaN
+        env.update([25.0, float("nan"), 15.0])
+    # The constructor's seed fixes the sets drawn at resets without one: the same seed, the same u's.
+    def drawn(seed: int) -> list[int]:
+        adversary = AdversarialMissingness(ConstantFeatures(), seed=seed)
+        adversary.update([25.0, 20.0, 15.0])
+        return [adversary.reset()[1]["hidden"][0] for _ in range(20)]
+    assert drawn(3) == drawn(3) != drawn(4)
 
     envs = gymnasium.vector.SyncVectorEnv(
         [lambda seed=seed: AdversarialMissingness(ConstantFeatures(), seed=seed) for seed in range(2)])
