@@ -6,8 +6,7 @@ import os
 import re
 
 import mutations
-
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+from mutations import REPO
 
 
 def test_every_mutation_can_be_written_and_the_readme_counts_them():
