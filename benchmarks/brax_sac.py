@@ -16,8 +16,8 @@ benchmarks/results/brax_sac.jsonl.
 ``update_only=true`` times the SAC updates alone instead, in one process: Brax's
 ``sgd_step`` (entropy coefficient, critics, actor, targets, built from Brax's own losses and
 networks at their defaults) and our ``SAC.update`` on the 2·d masked input and on the d raw
-features, each a scan of 200 updates on one fixed minibatch, with XLA's FLOP count of one
-update:
+features, each a scan of ``updates`` (200) updates on one fixed minibatch, with XLA's FLOP
+count of one update:
 
     python benchmarks/brax_sac.py env=hopper update_only=true
 """
@@ -90,8 +90,18 @@ class BraxBenchConfig:
     steps_per_epoch: int = dataclasses.field(default=50, metadata={"help": "training iterations per timed epoch"})
     num_eval_envs: int = dataclasses.field(default=8, metadata={"help": "Brax's evaluation envs (outside the timing)"})
     update_only: bool = dataclasses.field(default=False, metadata={"help": "time Brax's SAC update alone against ours"})
+    updates: int = dataclasses.field(default=200, metadata={"help": "update_only: updates per timed scan"})
+    rounds: int = dataclasses.field(default=4, metadata={"help": "update_only: timed rounds, each update's best kept"})
     physics: str = dataclasses.field(default="auto", metadata={"help": "auto | jax | warp (the env's physics backend)"})
     episode_length: int = dataclasses.field(default=1000, metadata={"help": "Brax's episode length (truncation and evaluation; v5: 1000, shorter only for smoke runs)"})
+
+
+def _validate(bench: BraxBenchConfig) -> None:
+    for key in ("num_envs", "batch_size", "steps_per_epoch", "num_eval_envs", "episode_length", "updates", "rounds"):
+        if getattr(bench, key) < 1:
+            raise ValueError(f"{key} must be >= 1, got {getattr(bench, key)}")
+    if bench.utd <= 0:
+        raise ValueError(f"utd must be > 0, got {bench.utd}")
 
 
 def _brax_update(obs_size: int, action_size: int):
@@ -129,17 +139,17 @@ def _brax_update(obs_size: int, action_size: int):
     return state, update
 
 
-def compare_updates(bench: BraxBenchConfig, updates: int = 200, rounds: int = 4) -> None:
+def compare_updates(bench: BraxBenchConfig) -> None:
     """Brax's SAC update and ours (on the 2·d masked input, and on the d raw features as
     Brax sees them), alone, on random minibatches of the same size. The three are timed in
-    turn, ``rounds`` times, and each keeps its best round, so drifts of the machine's speed
-    hit all three alike."""
+    turn, ``bench.rounds`` times, and each keeps its best round, so drifts of the machine's
+    speed hit all three alike."""
     from brax.training.types import Transition
 
     from admissable_jax.agent import SAC, SACBatch, SACHyperparams
 
     env = make_env(bench.env)
-    d, a, b = env.observation_size, env.action_size, bench.batch_size
+    d, a, b, updates, rounds = env.observation_size, env.action_size, bench.batch_size, bench.updates, bench.rounds
     keys = jax.random.split(jax.random.key(3), 4)
     obs, next_obs = jax.random.normal(keys[0], (b, 2 * d)), jax.random.normal(keys[1], (b, 2 * d))
     action = jax.random.uniform(keys[2], (b, a), minval=-1, maxval=1)
@@ -172,7 +182,7 @@ def compare_updates(bench: BraxBenchConfig, updates: int = 200, rounds: int = 4)
 
 
 def main(argv: list[str]) -> None:
-    bench = parse_args(BraxBenchConfig, argv, "benchmarks/brax_sac.py", __doc__.splitlines()[0])
+    bench = parse_args(BraxBenchConfig, argv, "benchmarks/brax_sac.py", __doc__.splitlines()[0], _validate)
     if len(jax.local_devices()) != 1:
         raise SystemExit("run on one device (Brax would pmap over all of them; ours uses one)")
     if bench.update_only:

@@ -181,6 +181,36 @@ def test_the_speed_steps_benchmarks_let_mjx_run_the_mujoco_warp_package():
     assert {script: out.strip() for script, (out, _) in runs.items()} == dict.fromkeys(calls, "True"), runs
 
 
+def test_brax_sac_trains_at_matched_settings_and_times_its_update_against_ours(tmp_path):
+    """The speed step's Brax rows (goal: >= 1.5x Brax SAC's env steps/s at matched settings),
+    each run as the campaign starts it, on the point mass at a tiny size: Brax's own SAC on our
+    env, its env steps/s from its second epoch (the first includes compilation), with
+    ``num_envs x utd`` gradient steps per iteration; and the SAC updates alone, where ours on
+    Brax's d raw features costs Brax's FLOPs (the networks matched) and the 2·d masked input a
+    little more."""
+    env = {**os.environ, "JAX_PLATFORMS": "cpu", "BENCHMARK_RESULTS_DIR": str(tmp_path)}
+    script, sizes = os.path.join(BENCHMARKS, "brax_sac.py"), ["env=point_mass", "batch_size=32"]
+    calls = [subprocess.Popen([sys.executable, script, *sizes, *extra], env=env, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True)
+             for extra in (["num_envs=4", "utd=0.5", "steps_per_epoch=4", "num_eval_envs=2", "episode_length=10"],
+                           ["update_only=true", "updates=5", "rounds=2"])]
+    runs = [(call.communicate(timeout=240), call.returncode) for call in calls]
+    assert [code for _, code in runs] == [0, 0], runs
+    with open(tmp_path / "brax_sac.jsonl") as file:
+        records = {record.get("mode", "train"): record for record in map(json.loads, file)}
+    train, update = records["train"], records["update_only"]
+    assert (train["trainer"], train["physics"], train["grad_updates_per_iteration"]) == ("brax.training.agents.sac", "jax", 2)
+    assert 0 < train["first_epoch_sps_with_compile"] < train["env_steps_per_s"], train
+    assert train["grad_steps_per_s"] == pytest.approx(train["env_steps_per_s"] * 2 / 4, abs=0.1), train
+    assert f"{train['env_steps_per_s']:,.1f} env steps/s (second epoch" in runs[0][0][0]
+    assert update["inputs"] == {"brax": 4, "ours": 8, "ours_raw_input": 4}, update
+    assert update["ours_raw_input"]["update_gflop"] == pytest.approx(update["brax"]["update_gflop"], rel=0.02), update
+    assert update["ours"]["update_gflop"] > update["ours_raw_input"]["update_gflop"], update
+    assert update["ours_over_brax"] == pytest.approx(
+        update["ours"]["updates_per_s"] / update["brax"]["updates_per_s"], rel=0.01), update
+    assert "best of 2 rounds of 5 updates each" in runs[1][0][0]
+
+
 def test_a_pid_file_naming_another_process_is_no_running_worker(tmp_path):
     """A call follows a worker only while its pid file names a live worker of this script: a
     pid that ended and went to another process since (here this test's own) is not one. By
