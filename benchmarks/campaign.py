@@ -332,7 +332,11 @@ def _longest(config: PlanConfig, retrained: int) -> int | None:
         scorings += 1
     projection = project(record, scorings, config.checkpoint_every, retrained)
     steps = scorings * config.score_every
-    if steps < config.min_steps or projection.total_s > config.deadline:
+    if projection.total_s > config.deadline:
+        print(f"no run of {shape} fits in {config.deadline:,.0f} s: {steps:,} env steps, the shortest, take "
+              f"{projection.describe(record)}: refused")
+        return None
+    if steps < config.min_steps:
         print(f"the longest run of {shape} that fits in {config.deadline:,.0f} s is {steps:,} env steps "
               f"({projection.describe(record)}), below min_steps={config.min_steps:,}: refused")
         return None

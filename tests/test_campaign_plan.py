@@ -57,6 +57,32 @@ def test_the_next_lease_is_planned_from_the_committed_h100_record(capsys, monkey
     assert status == 0 and capsys.readouterr().out.strip().splitlines()[-1] == "modes=adversarial,uniform,none total_steps=200000"
 
 
+def test_the_speed_steps_projections_and_a_lease_too_short_for_one_interval(capsys):
+    """The speed step ends with what one lease can run, from the same H100 record: Hopper
+    and Walker2d at 1M env steps with their 15 pairs and their 10 (neither fits 690 s), and
+    the longest Ant run of the 10. A lease too short for a single scoring interval plans
+    no run at all, whatever min_steps allows, and says why."""
+    assert campaign.main(["projections", *HOPPER_ON_THE_GPU[2:], "total_steps=1000000", "deadline=690",
+                          "min_steps=50000", H100]) == 0
+    shown = capsys.readouterr().out.strip().splitlines()
+    assert [line.split(" (warp")[0] for line in shown if line.startswith("projected wall time for")] == [
+        "projected wall time for Hopper-v5, 15 pairs x 125 envs", "projected wall time for Hopper-v5, 10 pairs x 125 "
+        "envs, timed with 15 (an upper bound)", "projected wall time for Walker2d-v5, 15 pairs x 125 envs",
+        "projected wall time for Walker2d-v5, 10 pairs x 125 envs, timed with 15 (an upper bound)"]
+    assert sum(line.endswith("device time left 690 s: does not fit, refused") for line in shown) == 4
+    assert shown[-2].startswith("longest run of Ant-v5, 10 pairs x 125 envs (warp on gpu:NVIDIA H100 80GB HBM3) in "
+                                "690 s: 105,000 env steps: compile 43 s") and shown[-1] == "modes=adversarial,uniform total_steps=105000"
+    assert campaign.main(["projections", *HOPPER_ON_THE_GPU[2:], "total_steps=1000000", "deadline=690", H100]) == 0
+    assert capsys.readouterr().out.strip().splitlines()[-1].endswith(  # the campaign's min_steps: 200k for Ant
+        "that fits in 690 s is 105,000 env steps (compile 43 s + first run 38 s + 21 scorings x (chunk 2.6 s + "
+        "full-length scoring 24.9 s) + 2 checkpoint save(s) x 15.9 s = 690 s (11.5 min)), below min_steps=200,000: refused")
+    status = campaign.main(["plan", *HOPPER_ON_THE_GPU, "total_steps=0", "deadline=100", "min_steps=5000", H100])
+    refusal = capsys.readouterr().out.strip()
+    assert status == campaign.REFUSED and refusal.startswith("no run of Hopper-v5, 15 pairs x 125 envs (warp on gpu:")
+    assert refusal.endswith("fits in 100 s: 5,000 env steps, the shortest, take compile 50 s + first run 58 s + 1 scorings "
+                            "x (chunk 2.2 s + full-length scoring 7.5 s) + 1 checkpoint save(s) x 2.3 s = 120 s (2.0 min): refused")
+
+
 def test_a_plan_times_its_pairs_with_the_fewest_pairs_timed_but_never_fewer(tmp_path, capsys, monkeypatch):
     """A plan reads the record of its own number of pairs, else of the fewest more (an upper
     bound: more pairs cost more), never of fewer, which would time the run too short."""

@@ -183,13 +183,13 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     assert {"./state/measure-hopper.done", "./results/repeatability.jsonl"} <= set(_packed(directory, "speed"))
 
     # Too little device time: the 3 pairs are refused, then the 2 (planned from the 3 pairs'
-    # record, an upper bound), then the longest run that fits is below min_steps; nothing starts.
+    # record, an upper bound), then the longest run: not even one interval fits; nothing starts.
     refused = _campaign("hopper", directory, CAMPAIGN_DEADLINE="1", CAMPAIGN_MIN_STEPS="60", CAMPAIGN_FIRST_SEED="5")
     assert refused.returncode == REFUSED, refused.stdout + refused.stderr
     assert " first_seed=5 deadline=1 min_steps=60 " in refused.stdout  # seeds 5.. (CAMPAIGN_FIRST_SEED) planned
     assert refused.stdout.count("does not fit, refused") == 2
     assert "hopper cannot reach 80 env steps in 1 s: the longest run that fits instead" in refused.stdout
-    assert "below min_steps=60: refused" in refused.stdout
+    assert "fits in 1 s: 40 env steps, the shortest, take compile" in refused.stdout
     assert "refused: hopper: fewer than 60 env steps fit in 1 s" in refused.stdout
     assert not os.path.exists(os.path.join(directory, "hopper"))
 
@@ -301,9 +301,11 @@ def test_video_of_the_trained_hopper_beside_its_worst_set(jax_run, tmp_path, cap
     assert not [warning for warning in warned if "os.fork()" in str(warning.message)]
     worst = np.flatnonzero(candidate_sets(11)[jax_run.scores[-1]["argmin"]])
     assert made.hidden == tuple(worst) and made.step == 80
-    # A pool's row indexes its own sets, not U: hidden=worst hides the set the row names.
-    pooled = [{"env_steps": 80, "argmin": 1, "argmin_set": "{3,7}", "sets": ["{0,1}", "{3,7}"]}]
-    assert video.resolve_hidden("worst", "hopper", pooled, 80) == (3, 7)
+    # A pool's row indexes its own sets, not U: hidden=worst hides the set the row names, that
+    # of the checkpoint's own scoring (step= an older checkpoint: not the last row's).
+    pooled = [{"env_steps": 80, "argmin": 1, "argmin_set": "{3,7}", "sets": ["{0,1}", "{3,7}"]},
+              {"env_steps": 120, "argmin": 0, "argmin_set": "{5}", "sets": ["{5}", "{3,7}"]}]
+    assert [video.resolve_hidden("worst", "hopper", pooled, step) for step in (80, 120)] == [(3, 7), (5,)]
     # 20 frames: the start, one per step until this barely trained Hopper falls (both sides
     # within 19 steps), then the end held (for up to a second).
     assert made.frames == 20 and 0 < made.hidden_length <= 19 and 0 < made.clean_length <= 19

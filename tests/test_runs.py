@@ -161,6 +161,29 @@ def test_a_wandb_logger_that_cannot_start_is_one_line(tmp_path, monkeypatch):
     assert not (tmp_path / "w").exists()  # the folder it made is gone again, lock and all
 
 
+def test_a_resumed_run_logs_on_into_its_wandb_run(tmp_path, monkeypatch):
+    """resume=true goes on in the W&B run the first start made: its id, kept in the run
+    directory, asked for again with resume="allow"; another run directory gets a W&B run of
+    its own. wandb.init is replaced here, so nothing goes online."""
+    import wandb
+
+    from admissable_jax.loggers import WandbLogger
+
+    started = []
+
+    class Run:
+        define_metric = log = finish = lambda self, *args, **kwargs: None
+
+    monkeypatch.setattr(wandb, "init", lambda **kwargs: started.append(kwargs) or Run())
+    first, other = tmp_path / "run", tmp_path / "other"
+    for run_dir in (first, first, other):
+        run_dir.mkdir(exist_ok=True)
+        WandbLogger(str(run_dir), {"env": "point_mass"}).close()
+    kept = (first / "wandb_run_id").read_text().strip()
+    assert [kwargs["id"] for kwargs in started[:2]] == [kept, kept] and started[2]["id"] != kept
+    assert [(kwargs["resume"], kwargs["name"]) for kwargs in started] == [("allow", "run"), ("allow", "run"), ("allow", "other")]
+
+
 def test_the_package_lists_its_commands(capsys):
     from admissable_jax.__main__ import COMMANDS, main
 
