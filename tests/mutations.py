@@ -742,6 +742,28 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                              'for name, width in (("ours", 2 * d), ("ours_raw_input", d)):',
                                              'for name, width in (("ours", d), ("ours_raw_input", d)):',
                                              "test_campaign_plan.py"),
+    # A twenty-sixth round, again in modules with few bugs: fast-forward's records, the score
+    # estimators' checks, when an episode is over, and the run lock.
+    "records_read_past_a_missing_fingerprint": ("admissable_jax/fast_forward.py",
+                                                "while step in scores and FINGERPRINT in metrics.get(step, {}):",
+                                                "while step in scores and step in metrics:", "test_training.py"),
+    "fast_forward_drops_the_pool": ("admissable_jax/fast_forward.py", "        if pooled_sets is None:\n",
+                                    "        if True:\n", "test_training.py"),
+    "horizon_estimate_without_a_critic_taken": ("admissable_jax/scoring/estimators.py",
+                                                'if score_estimator != "rollout" and critic_fn is None:', "if False:",
+                                                "test_audit.py"),
+    "hidden_sets_values_unchecked": ("admissable_jax/scoring/estimators.py", "    if not np.isin(values, (0, 1)).all():\n",
+                                     "    if False:\n", "test_audit.py"),
+    "episode_over_only_when_terminated": ("admissable_jax/envs/state.py",
+                                          "return jnp.logical_or(self.terminated, self.truncated)",
+                                          "return self.terminated", "test_mechanism.py"),
+    "half_written_lock_taken_for_a_live_one": ("admissable_jax/locks.py",
+                                               'if holder is not None and _is_alive(holder, owner["host"]):',
+                                               'if holder is None or _is_alive(holder, owner["host"]):', "test_runs.py"),
+    "lock_released_without_holding_it": ("admissable_jax/locks.py", "if self.held and os.path.exists(self.path):",
+                                         "if os.path.exists(self.path):", "test_runs.py"),
+    "dead_owners_lock_taken_for_live": ("admissable_jax/locks.py", "    except ProcessLookupError:\n        return False",
+                                        "    except ProcessLookupError:\n        return True", "test_runs.py"),
 }
 
 
