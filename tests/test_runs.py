@@ -73,12 +73,20 @@ def test_a_run_directory_has_one_owner_and_a_stale_lock_is_taken_over(tmp_path, 
     # A lock from another host is never taken over (its owner cannot be asked from here),
     # though this host has no such process.
     (out / LOCK_NAME).write_text(json.dumps({"pid": owner.pid, "host": "another-host"}))
+    refused = RunLock(str(out))
     with pytest.raises(RunDirectoryLocked, match=f"in use by process {owner.pid} on another-host"):
-        RunLock(str(out)).acquire()
+        refused.acquire()
+    refused.release()  # a clean-up's release of a lock it never took leaves the owner's
+    assert json.loads((out / LOCK_NAME).read_text())["host"] == "another-host"
     # A lock holding this very process's pid is stale too: no run of this process holds it
     # (in a container, a run killed in the one before often had the pid this one has now).
     (out / LOCK_NAME).write_text(json.dumps({"pid": os.getpid(), "host": os.uname().nodename}))
     taken = RunLock(str(out))
+    taken.acquire()
+    assert taken.held and json.loads((out / LOCK_NAME).read_text())["pid"] == os.getpid()
+    taken.release()
+    # So is a lock file a process killed while writing it left half written (not JSON).
+    (out / LOCK_NAME).write_text('{"pid": 12')
     taken.acquire()
     assert taken.held and json.loads((out / LOCK_NAME).read_text())["pid"] == os.getpid()
     taken.release()
