@@ -764,6 +764,13 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                          "if os.path.exists(self.path):", "test_runs.py"),
     "dead_owners_lock_taken_for_live": ("admissable_jax/locks.py", "    except ProcessLookupError:\n        return False",
                                         "    except ProcessLookupError:\n        return True", "test_runs.py"),
+    # A twenty-seventh: what a run is told it needs, and what the rollout check says it ran.
+    "memory_temporaries_added_up": ("admissable_jax/memory.py",
+                                    "return self.devices_sharing * (self.state_bytes + max(self.chunk_temp_bytes, self.score_temp_bytes))",
+                                    "return self.devices_sharing * (self.state_bytes + self.chunk_temp_bytes + self.score_temp_bytes)",
+                                    "test_runs.py"),
+    "rollout_rate_of_one_env": ("admissable_jax/rollout.py", "env_steps = config.num_envs * config.steps",
+                                "env_steps = config.steps", "test_runs.py"),
 }
 
 
