@@ -768,7 +768,7 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "memory_temporaries_added_up": ("admissable_jax/memory.py",
                                     "return self.devices_sharing * (self.state_bytes + max(self.chunk_temp_bytes, self.score_temp_bytes))",
                                     "return self.devices_sharing * (self.state_bytes + self.chunk_temp_bytes + self.score_temp_bytes)",
-                                    "test_runs.py"),
+                                    "test_experiment.py"),
     "rollout_rate_of_one_env": ("admissable_jax/rollout.py", "env_steps = config.num_envs * config.steps",
                                 "env_steps = config.steps", "test_runs.py"),
 }

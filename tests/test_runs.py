@@ -225,6 +225,8 @@ def test_rollout_times_a_batched_random_policy_in_one_line(capsys):
     line = capsys.readouterr().out.strip()
     assert re.fullmatch(r"point_mass on cpu \(jax physics\): 4 envs x 10 steps, compile \d+\.\d s, run \d+\.\d\d s, "
                         r"[\d,]+ env steps/s, mean reward -?\d+\.\d{3}", line), line
+    _, total_reward = jax.jit(random_rollout, static_argnums=(0, 1, 2))(make_env("point_mass"), 4, 10, jax.random.key(0))
+    assert line.endswith(f"mean reward {float(total_reward) / 40:.3f}")  # per env step: 4 envs x 10 steps
     states, _ = jax.jit(random_rollout, static_argnums=(0, 1, 2))(make_env("point_mass", episode_length=20), 3, 30,
                                                                     jax.random.key(0))
     np.testing.assert_array_equal(states.step_count, [10, 10, 10])
