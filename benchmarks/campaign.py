@@ -376,16 +376,19 @@ def plan(config: PlanConfig) -> int:
 
 
 def projections(config: PlanConfig) -> int:
-    """The campaign's runs projected for one lease of ``deadline`` device seconds: Hopper and
-    Walker2d with all 15 pairs and with the 10 adversarial/uniform ones at ``total_steps``,
-    and the longest Ant run of the 10 (the speed step ends with these). An env without a
+    """The campaign's runs projected for one lease of ``deadline`` device seconds, each
+    planned as its step will plan it (gpu_campaign.sh): Hopper and Walker2d with all 15
+    pairs at ``total_steps``, else the 10 adversarial/uniform ones, else the longest run of
+    the 15; the longest Ant run of the 10. The speed step ends with these. An env without a
     speed record is named and skipped."""
-    runs = [(env, modes, config.total_steps) for env in ("hopper", "walker2d") for modes in (ALL_MODES, PAIRED_MODES)]
-    for env, modes, total_steps in runs + [("ant", PAIRED_MODES, 0)]:
+    fallback = "" if config.records else PAIRED_MODES  # a continuation keeps its pairs
+    runs = [dataclasses.replace(config, env=env, modes=ALL_MODES, fallback_modes=fallback, or_longest=True)
+            for env in ("hopper", "walker2d")]
+    for run in runs + [dataclasses.replace(config, env="ant", modes=PAIRED_MODES, fallback_modes="", total_steps=0)]:
         try:
-            plan(dataclasses.replace(config, env=env, modes=modes, total_steps=total_steps))
+            plan(run)
         except ValueError as error:
-            print(f"{env} ({modes}): not projected: {error}")
+            print(f"{run.env} ({run.modes}): not projected: {error}")
     return 0
 
 

@@ -58,9 +58,10 @@ def test_the_next_lease_is_planned_from_the_committed_h100_record(capsys, monkey
 
 
 def test_the_speed_steps_projections_and_a_lease_too_short_for_one_interval(capsys):
-    """The speed step ends with what one lease can run, from the same H100 record: Hopper
-    and Walker2d at 1M env steps with their 15 pairs and their 10 (neither fits 690 s), and
-    the longest Ant run of the 10. A lease too short for a single scoring interval plans
+    """The speed step ends with what one lease can run, from the same H100 record, each run
+    planned as its step will plan it: Hopper and Walker2d at 1M env steps with their 15 pairs,
+    then their 10 (neither fits 690 s), then the longest run of the 15; the longest Ant run of
+    the 10 (refused below the campaign's min_steps). A lease too short for a single scoring interval plans
     no run at all, whatever min_steps allows, and says why."""
     assert campaign.main(["projections", *HOPPER_ON_THE_GPU[2:], "total_steps=1000000", "deadline=690",
                           "min_steps=50000", H100]) == 0
@@ -70,6 +71,9 @@ def test_the_speed_steps_projections_and_a_lease_too_short_for_one_interval(caps
         "envs, timed with 15 (an upper bound)", "projected wall time for Walker2d-v5, 15 pairs x 125 envs",
         "projected wall time for Walker2d-v5, 10 pairs x 125 envs, timed with 15 (an upper bound)"]
     assert sum(line.endswith("device time left 690 s: does not fit, refused") for line in shown) == 4
+    assert [line for line in shown if line.startswith("modes=")] == [
+        "modes=adversarial,uniform,none total_steps=290000", "modes=adversarial,uniform,none total_steps=250000",
+        "modes=adversarial,uniform total_steps=105000"]
     assert shown[-2].startswith("longest run of Ant-v5, 10 pairs x 125 envs (warp on gpu:NVIDIA H100 80GB HBM3) in "
                                 "690 s: 105,000 env steps: compile 43 s") and shown[-1] == "modes=adversarial,uniform total_steps=105000"
     assert campaign.main(["projections", *HOPPER_ON_THE_GPU[2:], "total_steps=1000000", "deadline=690", H100]) == 0
