@@ -733,8 +733,9 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                         "test_hopper_pipelines.py"),
     "longest_run_past_the_deadline": ("benchmarks/campaign.py", "    if projection.total_s > config.deadline:\n        print(",
                                       "    if False:\n        print(", "test_campaign_plan.py"),
-    "ant_projected_at_full_length": ("benchmarks/campaign.py", 'runs + [("ant", PAIRED_MODES, 0)]',
-                                     'runs + [("ant", PAIRED_MODES, config.total_steps)]', "test_campaign_plan.py"),
+    "ant_projected_at_full_length": ("benchmarks/campaign.py", 'modes=PAIRED_MODES, fallback_modes="", total_steps=0)',
+                                     'modes=PAIRED_MODES, fallback_modes="", total_steps=config.total_steps)',
+                                     "test_campaign_plan.py"),
     "brax_speed_of_the_compiling_epoch": ("benchmarks/brax_sac.py", 'env_sps = float(timed[1]["training/sps"])',
                                           'env_sps = float(timed[0]["training/sps"])', "test_campaign_plan.py"),
     "brax_utd_ignored": ("benchmarks/brax_sac.py", "grad_updates = max(1, round(bench.num_envs * bench.utd))",
@@ -765,13 +766,16 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                          "if os.path.exists(self.path):", "test_runs.py"),
     "dead_owners_lock_taken_for_live": ("admissable_jax/locks.py", "    except ProcessLookupError:\n        return False",
                                         "    except ProcessLookupError:\n        return True", "test_runs.py"),
-    # A twenty-seventh: what a run is told it needs, and what the rollout check says it ran.
+    # A twenty-seventh: what a run is told it needs, what the rollout check says it ran, and the
+    # speed step's projections naming the runs the next steps start.
     "memory_temporaries_added_up": ("admissable_jax/memory.py",
                                     "return self.devices_sharing * (self.state_bytes + max(self.chunk_temp_bytes, self.score_temp_bytes))",
                                     "return self.devices_sharing * (self.state_bytes + self.chunk_temp_bytes + self.score_temp_bytes)",
                                     "test_experiment.py"),
     "rollout_rate_of_one_env": ("admissable_jax/rollout.py", "env_steps = config.num_envs * config.steps",
                                 "env_steps = config.steps", "test_runs.py"),
+    "projections_without_the_longest_run": ("benchmarks/campaign.py", "fallback_modes=fallback, or_longest=True)",
+                                            "fallback_modes=fallback, or_longest=False)", "test_campaign_plan.py"),
 }
 
 
