@@ -776,6 +776,18 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                 "env_steps = config.steps", "test_runs.py"),
     "projections_without_the_longest_run": ("benchmarks/campaign.py", "fallback_modes=fallback, or_longest=True)",
                                             "fallback_modes=fallback, or_longest=False)", "test_campaign_plan.py"),
+    # A twenty-eighth: FIGURE1.md (the campaign's step 5) again: the clean-SAC check's other
+    # side and its scoring, and the folders it refuses to compare.
+    "figure1_below_sb3_at_its_mean": ("benchmarks/figure1.py", "elif high < reference - spread:",
+                                      "elif high < reference:", "test_figure1.py"),
+    "figure1_clean_sac_from_the_first_scoring": ("benchmarks/figure1.py",
+                                                 "finals = np.array([run.clean_score[length - 1] for run in runs])",
+                                                 "finals = np.array([run.clean_score[0] for run in runs])",
+                                                 "test_figure1.py"),
+    "figure1_other_envs_taken": ("benchmarks/figure1.py", "    if others:\n        raise ValueError",
+                                 "    if False:\n        raise ValueError", "test_figure1.py"),
+    "figure1_mixed_settings_compared": ("benchmarks/figure1.py", "    if differing:\n        raise ValueError",
+                                        "    if False:\n        raise ValueError", "test_figure1.py"),
 }
 
 
