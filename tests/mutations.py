@@ -777,7 +777,7 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "projections_without_the_longest_run": ("benchmarks/campaign.py", "fallback_modes=fallback, or_longest=True)",
                                             "fallback_modes=fallback, or_longest=False)", "test_campaign_plan.py"),
     # A twenty-eighth: FIGURE1.md (the campaign's step 5) again: the clean-SAC check's other
-    # side and its scoring, and the folders it refuses to compare.
+    # side and its scoring, the folders it refuses to compare, and the seeds it suggests.
     "figure1_below_sb3_at_its_mean": ("benchmarks/figure1.py", "elif high < reference - spread:",
                                       "elif high < reference:", "test_figure1.py"),
     "figure1_clean_sac_from_the_first_scoring": ("benchmarks/figure1.py",
@@ -788,6 +788,11 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                  "    if False:\n        raise ValueError", "test_figure1.py"),
     "figure1_mixed_settings_compared": ("benchmarks/figure1.py", "    if differing:\n        raise ValueError",
                                         "    if False:\n        raise ValueError", "test_figure1.py"),
+    "seeds_suggested_where_the_modes_differ": ("admissable_jax/results.py",
+                                               "if interval is None or not interval[0] <= 0 <= interval[1]:",
+                                               "if interval is None:", "test_figure1.py"),
+    "seeds_needed_never_over_1000": ("admissable_jax/results.py", 'return f"about {seeds:,}" if seeds <= 1000 else',
+                                     'return f"about {seeds:,}" if True else', "test_plots.py"),
 }
 
 
