@@ -792,7 +792,7 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                                "if interval is None or not interval[0] <= 0 <= interval[1]:",
                                                "if interval is None:", "test_figure1.py"),
     "seeds_needed_never_over_1000": ("admissable_jax/results.py", 'return f"about {seeds:,}" if seeds <= 1000 else',
-                                     'return f"about {seeds:,}" if True else', "test_plots.py"),
+                                     'return f"about {seeds:,}" if True else', "test_experiment.py"),
 }
 
 
