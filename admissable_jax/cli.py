@@ -71,6 +71,14 @@ def help_text(config_cls: type, program: str, summary: str, config_file: ConfigF
 RUN_LOCATION = ("out", "resume", "resume_step", "fast_forward")
 
 
+def check_at_least_one(config: Any, names: tuple[str, ...]) -> None:
+    """ValueError in one line for the first of ``config``'s counts ``names`` below 1 (a
+    ``validate`` of :func:`parse_args` calls it for its own counts)."""
+    for name in names:
+        if getattr(config, name) < 1:
+            raise ValueError(f"{name} must be >= 1, got {getattr(config, name)}")
+
+
 def parse_args(
     config_cls: type[ConfigT],
     argv: list[str],

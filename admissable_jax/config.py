@@ -14,7 +14,7 @@ import jax
 
 from admissable_jax.adversary import MODES
 from admissable_jax.agent import SACHyperparams
-from admissable_jax.cli import RUN_LOCATION, ConfigFile, setting
+from admissable_jax.cli import RUN_LOCATION, ConfigFile, check_at_least_one, setting
 from admissable_jax.envs import canonical_env_name, env_physics, observation_size, short_env_name
 from admissable_jax.loggers import parse_logger_names
 from admissable_jax.method import check_exact_size, num_candidate_sets
@@ -287,9 +287,7 @@ def validate(config: TrainConfig) -> None:
         raise ValueError(f"missingness must be one of {', '.join(MODES)}, got {config.missingness!r}")
     positive = ("k", "score_every", "score_episodes", "total_steps", "episode_length",
                 "batch_size", "hidden_size", "hidden_layers", "buffer_size", "checkpoint_every", "keep_checkpoints")
-    for name in positive:
-        if getattr(config, name) < 1:
-            raise ValueError(f"{name} must be >= 1, got {getattr(config, name)}")
+    check_at_least_one(config, positive)
     for name in ("num_envs", "score_envs"):
         if getattr(config, name) < 0:
             raise ValueError(f"{name} must be >= 0, got {getattr(config, name)}")

@@ -40,7 +40,7 @@ warp_package.use_package()
 from brax.envs import base as brax_base  # noqa: E402
 from brax.training.agents.sac import train as brax_sac_train  # noqa: E402
 
-from admissable_jax.cli import parse_args  # noqa: E402
+from admissable_jax.cli import check_at_least_one, parse_args  # noqa: E402
 from admissable_jax.envs import MjxEnv, make_env  # noqa: E402
 from common import append_record, compiled_updates, peak_host_memory_mb, run_benchmark, update_flops  # noqa: E402
 
@@ -97,9 +97,8 @@ class BraxBenchConfig:
 
 
 def _validate(bench: BraxBenchConfig) -> None:
-    for key in ("num_envs", "batch_size", "steps_per_epoch", "num_eval_envs", "episode_length", "updates", "rounds"):
-        if getattr(bench, key) < 1:
-            raise ValueError(f"{key} must be >= 1, got {getattr(bench, key)}")
+    check_at_least_one(bench, ("num_envs", "batch_size", "steps_per_epoch", "num_eval_envs", "episode_length",
+                               "updates", "rounds"))
     if bench.utd <= 0:
         raise ValueError(f"utd must be > 0, got {bench.utd}")
 

@@ -40,7 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from admissable_jax.checkpointing import Checkpoints
-from admissable_jax.cli import parse_args
+from admissable_jax.cli import check_at_least_one, parse_args
 from admissable_jax.config import TrainConfig, default_score_envs
 from admissable_jax.envs import make_env, observation_size
 from admissable_jax.host_loop import init_arguments
@@ -67,9 +67,7 @@ class ScoringBenchConfig:
 
 
 def _validate(bench: ScoringBenchConfig) -> None:
-    for key in ("n_episodes", "max_steps", "steps_per_check"):
-        if getattr(bench, key) < 1:
-            raise ValueError(f"{key} must be >= 1, got {getattr(bench, key)}")
+    check_at_least_one(bench, ("n_episodes", "max_steps", "steps_per_check"))
     if bench.slots < -1:
         raise ValueError(f"slots must be -1 (the backend's default), 0 (all episodes) or >= 1, got {bench.slots}")
 
