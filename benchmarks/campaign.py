@@ -256,12 +256,17 @@ class Projection:
     total_s: float
 
     def describe(self, record: dict) -> str:
-        retrained = (f"{self.retrained} recorded intervals re-trained x chunk {record['chunk_s']:.1f} s + "
+        retrained = (f"{_count(self.retrained, 'recorded interval')} re-trained x chunk {record['chunk_s']:.1f} s + "
                      if self.retrained else "")
         return (f"compile {record['compile_s']:.0f} s + first run {first_run_s(record):.0f} s + {retrained}"
-                f"{self.scorings - self.retrained} scorings x (chunk {record['chunk_s']:.1f} s + "
-                f"full-length scoring {record['score_full_s']:.1f} s) + {self.saves} checkpoint save(s) x "
+                f"{_count(self.scorings - self.retrained, 'scoring')} x (chunk {record['chunk_s']:.1f} s + "
+                f"full-length scoring {record['score_full_s']:.1f} s) + {_count(self.saves, 'checkpoint save')} x "
                 f"{record['checkpoint_save_s']:.1f} s = {self.total_s:,.0f} s ({self.total_s / 60:.1f} min)")
+
+
+def _count(number: int, noun: str) -> str:
+    """'1 scoring', '156 scorings'."""
+    return f"{number:,} {noun}{'s' * (number != 1)}"
 
 
 def first_run_s(record: dict) -> float:

@@ -36,7 +36,7 @@ def test_the_next_lease_is_planned_from_the_committed_h100_record(capsys, monkey
     assert shown.count("does not fit, refused") == 2
     assert "hopper cannot reach 1000000 env steps in 1650 s: the longest run that fits instead" in shown
     assert ("compile 50 s + first run 58 s + 156 scorings x (chunk 2.2 s + full-length scoring 7.5 s) + 8 checkpoint "
-            "save(s) x 2.3 s = 1,649 s") in shown
+            "saves x 2.3 s = 1,649 s") in shown
     assert shown.strip().splitlines()[-1] == "modes=adversarial,uniform,none total_steps=780000"
 
     # On a device with no record of its own (an H200 lease), the refusal names the device
@@ -79,12 +79,12 @@ def test_the_speed_steps_projections_and_a_lease_too_short_for_one_interval(caps
     assert campaign.main(["projections", *HOPPER_ON_THE_GPU[2:], "total_steps=1000000", "deadline=690", H100]) == 0
     assert capsys.readouterr().out.strip().splitlines()[-1].endswith(  # the campaign's min_steps: 200k for Ant
         "that fits in 690 s is 105,000 env steps (compile 43 s + first run 38 s + 21 scorings x (chunk 2.6 s + "
-        "full-length scoring 24.9 s) + 2 checkpoint save(s) x 15.9 s = 690 s (11.5 min)), below min_steps=200,000: refused")
+        "full-length scoring 24.9 s) + 2 checkpoint saves x 15.9 s = 690 s (11.5 min)), below min_steps=200,000: refused")
     status = campaign.main(["plan", *HOPPER_ON_THE_GPU, "total_steps=0", "deadline=100", "min_steps=5000", H100])
     refusal = capsys.readouterr().out.strip()
     assert status == campaign.REFUSED and refusal.startswith("no run of Hopper-v5, 15 pairs x 125 envs (warp on gpu:")
-    assert refusal.endswith("fits in 100 s: 5,000 env steps, the shortest, take compile 50 s + first run 58 s + 1 scorings "
-                            "x (chunk 2.2 s + full-length scoring 7.5 s) + 1 checkpoint save(s) x 2.3 s = 120 s (2.0 min): refused")
+    assert refusal.endswith("fits in 100 s: 5,000 env steps, the shortest, take compile 50 s + first run 58 s + 1 scoring "
+                            "x (chunk 2.2 s + full-length scoring 7.5 s) + 1 checkpoint save x 2.3 s = 120 s (2.0 min): refused")
 
 
 def test_a_plan_times_its_pairs_with_the_fewest_pairs_timed_but_never_fewer(tmp_path, capsys, monkeypatch):
@@ -119,7 +119,7 @@ def test_a_continuation_is_planned_past_the_records_it_rebuilds(tmp_path, capsys
     assert status == 0, shown
     # 50 + 58 + 68 x 2.235 + 52 x (2.235 + 7.529) + 6 x 2.33 = 781 s of 790.
     assert ("compile 50 s + first run 58 s + 68 recorded intervals re-trained x chunk 2.2 s + 52 scorings x "
-            "(chunk 2.2 s + full-length scoring 7.5 s) + 6 checkpoint save(s) x 2.3 s = 781 s") in shown
+            "(chunk 2.2 s + full-length scoring 7.5 s) + 6 checkpoint saves x 2.3 s = 781 s") in shown
     assert shown.strip().splitlines()[-1] == "modes=adversarial,uniform,none total_steps=600000"
 
     status = campaign.main(["plan", *HOPPER_ON_THE_GPU, "total_steps=0", "max_steps=340000", "deadline=790",
