@@ -199,17 +199,24 @@ def per_feature(rows: list[dict], num_features: int) -> tuple[np.ndarray, np.nda
 
 
 def find_runs(paths: list[str]) -> list[str]:
-    """Every directory at or under ``paths`` that holds a run's ``config.yaml`` and
-    ``scores.jsonl``. FileNotFoundError for a path that is no directory; ValueError where
+    """Every directory at or under ``paths`` that holds a run's ``config.yaml`` and a
+    ``scores.jsonl`` of at least one row. A run that has not scored since it started, or
+    since a restart set its rows aside (``RunDirectory.set_aside_rows_after``), is left out
+    with a warning, as one not yet scored at all is: a folder of runs can be read while one
+    of them starts over. FileNotFoundError for a path that is no directory; ValueError where
     none holds a run, naming an archive beside them to unpack first (``benchmarks/results``
     keeps a campaign's runs packed, ``runs.tar.xz``, beside their figures)."""
-    found = []
+    found, unscored = [], []
     for path in paths:
         if not os.path.isdir(path):
             raise FileNotFoundError(f"no such directory: {path}")
         for root, _, files in os.walk(path):
             if "scores.jsonl" in files and "config.yaml" in files:
-                found.append(root)
+                (found if _holds_a_row(os.path.join(root, "scores.jsonl")) else unscored).append(root)
+    for root in unscored:
+        print(f"warning: {root} has no scoring rows yet: left out", file=sys.stderr)
+    if not found and unscored:
+        raise ValueError(f"no run under {', '.join(paths)} has scored yet ({len(unscored)} without scoring rows)")
     if not found:
         beside = {folder for path in paths for folder in (path, os.path.normpath(os.path.join(path, os.pardir)))}
         archives = sorted(archive for folder in beside for archive in glob.glob(os.path.join(folder, "*.tar*")))
@@ -217,6 +224,12 @@ def find_runs(paths: list[str]) -> list[str]:
                   f"and give DIR" if archives else "")
         raise ValueError(f"no run directories (config.yaml + scores.jsonl) under {', '.join(paths)}{unpack}")
     return sorted(found)
+
+
+def _holds_a_row(path: str) -> bool:
+    """Whether the JSONL file ``path`` holds one whole line (a torn first line is none)."""
+    with open(path) as file:
+        return file.readline().endswith("\n")
 
 
 def moving_average(values: np.ndarray, window: int) -> np.ndarray:

@@ -793,6 +793,36 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                                "if interval is None:", "test_figure1.py"),
     "seeds_needed_never_over_1000": ("admissable_jax/results.py", 'return f"about {seeds:,}" if seeds <= 1000 else',
                                      'return f"about {seeds:,}" if True else', "test_experiment.py"),
+    # A twenty-ninth: where the table held few: the audit's Shapley shares, the speed step's
+    # env-over-bare ratio, the final-scores figure, a checkout's untracked files, a refused
+    # folder's own files, the env options' checks and physics=auto off a GPU.
+    "shapley_share_of_v_all": ("admissable_jax/audit/report.py",
+                               "share = 100 * attribution.values[i] / worth if worth",
+                               "share = 100 * attribution.values[i] / attribution.full if worth", "test_audit.py"),
+    "bare_physics_of_one_step": ("benchmarks/physics_throughput.py", "states.data, None, length=steps)",
+                                 "states.data, None, length=1)", "test_hopper_pipelines.py"),
+    "env_over_bare_inverted": ("benchmarks/physics_throughput.py", '"env_over_bare": round(env_s / bare_s, 3),',
+                               '"env_over_bare": round(bare_s / env_s, 3),', "test_hopper_pipelines.py"),
+    "final_bars_of_the_highest_sets": ("admissable_jax/plot.py",
+                                       'np.argsort(np.nanmin(means[:, shown], axis=0), kind="stable")',
+                                       'np.argsort(-np.nanmin(means[:, shown], axis=0), kind="stable")', "test_plots.py"),
+    "final_clean_line_of_the_first_record": ("admissable_jax/plot.py",
+                                             'clean = aligned(curve_runs, "clean_score")[1][:, -1]',
+                                             'clean = aligned(curve_runs, "clean_score")[1][:, 0]', "test_plots.py"),
+    "p_miss_uniform_if_one_seed_was": ("admissable_jax/plot.py",
+                                       "all(seed_run.uniform_draws for seed_run in mode_runs)",
+                                       "any(seed_run.uniform_draws for seed_run in mode_runs)", "test_plots.py"),
+    "untracked_files_count_as_changes": ("admissable_jax/provenance.py", '"--untracked-files=no"',
+                                         '"--untracked-files=normal"', "test_runs.py"),
+    "refused_folder_removed_with_its_files": ("admissable_jax/errors.py",
+                                              "(os.path.isfile(entry) and os.path.basename(entry) in own_files)",
+                                              "os.path.isfile(entry)", "test_runs.py"),
+    "env_option_flags_unchecked": ("admissable_jax/envs/options.py",
+                                   'for name in ("terminate_when_unhealthy", "deterministic"):', "for name in ():",
+                                   "test_envs.py"),
+    "auto_physics_warp_without_a_gpu": ("admissable_jax/envs/options.py",
+                                        'return "warp" if _on_nvidia_gpu() and warp_installed() else "jax"',
+                                        'return "warp" if warp_installed() else "jax"', "test_external_env.py"),
 }
 
 

@@ -144,8 +144,9 @@ def test_beam_search_finds_the_known_worst_pair():
 
 
 def max_of_visible(masked_obs: np.ndarray) -> np.ndarray:
-    """On ConstantFeatures (observes 1, 2, 3), acts with the largest value it sees: earns 5 · that."""
-    return masked_obs[:, :3].max(axis=1, keepdims=True)
+    """On ConstantFeatures (observes 1, 2, 3), acts with 1 + the largest value it sees: earns 5 · that
+    (5 blind: v(none) is not 0, so a share of v(all) − v(none) differs from one of v(all))."""
+    return 1 + masked_obs[:, :3].max(axis=1, keepdims=True)
 
 
 def brute_force_shapley(value, d: int) -> np.ndarray:
@@ -377,14 +378,15 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
         audit_gymnasium("ConstantFeatures-v0", sum_of_visible, ks=(3,))
 
     # What each feature is worth to a policy that acts on the largest value it sees: the max
-    # game's Shapley values, beside the loss of hiding each alone (0, 0, 5: only 3 is missed).
+    # game's Shapley values (a blind 1 added to every action moves none), beside the loss of
+    # hiding each alone (0, 0, 5: only 3 is missed).
     worth = audit_gymnasium("ConstantFeatures-v0", max_of_visible, ks=(1,), n_episodes=2, num_envs=3, shapley="exact")
     np.testing.assert_allclose(worth.shapley.values, [5 / 3, 25 / 6, 55 / 6])
-    assert worth.shapley.leave_one_out == [0.0, 0.0, 5.0] and [entry.score for entry in worth.sets[1]] == [15, 15, 10]
+    assert worth.shapley.leave_one_out == [0.0, 0.0, 5.0] and [entry.score for entry in worth.sets[1]] == [20, 20, 15]
     written = write_audit(worth, str(tmp_path / "worth"))
     assert os.path.basename(written[-1]) == "shapley.png"
     report = (tmp_path / "worth" / "report.md").read_text()
-    assert "v(all) = 15.0, v(none) = 0.0, and the φ_i sum to v(all) − v(none) = 15.0. Beside it" in report and "| 2 | 1 | 1 | 4.2 ± 0.0 | 27.8% | 0.0 |" in report
+    assert "v(all) = 20.0, v(none) = 5.0, and the φ_i sum to v(all) − v(none) = 15.0. Beside it" in report and "| 2 | 1 | 1 | 4.2 ± 0.0 | 27.8% | 0.0 |" in report
 
     # From the command line: policy=MODULE:NAME on gym=ENV_ID, the same numbers.
     # slots=3: three Gymnasium envs stepped at once, so every batch the policy sees holds 3.

@@ -410,7 +410,9 @@ def test_make_env_names_and_spaces(tmp_path, monkeypatch, capfd):
         options.episode_length = 8
     for bad, message in ((dict(episode_length=0), "episode_length"), (dict(episode_length=1001), "v5 limit"),
                          (dict(physics="cuda"), "physics must be one of"), (dict(max_batch=0), "max_batch"),
-                         (dict(solver_iterations=0), "solver_iterations")):
+                         (dict(solver_iterations=0), "solver_iterations"),
+                         (dict(deterministic="false"), "deterministic must be a bool, got 'false'"),
+                         (dict(terminate_when_unhealthy=0), "terminate_when_unhealthy must be a bool, got 0")):
         with pytest.raises(ValueError, match=message):
             make_env("hopper", **bad)
     # A CUDA-graph mode on the CPU: refused in one line when the env is made, not at its first step.

@@ -128,6 +128,11 @@ def test_a_run_records_the_physics_that_steps_its_env(monkeypatch):
         assert [TrainConfig(env=env, physics=physics).resolved().physics for physics in ("auto", "warp")] == ["jax"] * 2
     with pytest.raises(ValueError, match="physics must be one of auto, jax, warp, got 'cuda'"):
         TrainConfig(env="point_mass", physics="cuda").resolved()
+    # warp-lang installed on a machine without an NVIDIA GPU: auto is MJX's JAX (Warp's CPU
+    # kernels step at ~70 ms a batch), and warp only where asked for.
+    monkeypatch.setattr(options, "_on_nvidia_gpu", lambda: False)
+    assert [TrainConfig(env="hopper", physics=physics).resolved().physics for physics in ("auto", "warp")] == [
+        "jax", "warp"]
 
 
 def test_the_benchmarks_distracted_reach_hides_its_signal_among_noise():

@@ -167,6 +167,10 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
         (True, "NONE", "mujoco-warp package", 4)], costs
     for row in costs:  # env steps per second: every env's steps, from the ms a batched step takes
         assert row["env_steps_per_s"] == pytest.approx(row["num_envs"] * 1000 / row["env_ms_per_step"], rel=1e-3), row
+        # The speed step's first goal, our env step over the bare physics of as many steps:
+        # near 1 here (0.93 to 1.35 in every CPU record), as Warp's step outweighs the env's work.
+        assert row["env_over_bare"] == pytest.approx(row["env_ms_per_step"] / row["bare_ms_per_step"], rel=1e-2), row
+        assert 0.5 < row["env_over_bare"] < 3, row
     # The speed step ends with steps 2-4 projected from what it measured (here Hopper only):
     # the 3 pairs at full length fit, so the run is theirs.
     assert "projected wall time for Hopper-v5, 3 pairs x 4 envs (warp" in speed.stdout
@@ -224,7 +228,7 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     continued = _campaign("hopper", elsewhere, CAMPAIGN_RECORDS=halfway)
     assert continued.returncode == 0, continued.stdout + continued.stderr
     assert f"continuing the hopper runs of {halfway}" in continued.stdout
-    assert "+ 1 recorded intervals re-trained x chunk" in continued.stdout
+    assert "+ 1 recorded interval re-trained x chunk" in continued.stdout
     assert "fast-forward: re-training env steps 0 to 40 from the start" in continued.stdout
     _repeats_the_straight_run(_packed(elsewhere, "hopper"), warp_experiment)
 

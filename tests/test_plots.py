@@ -71,8 +71,17 @@ def test_plot_runs_writes_every_figure(tmp_path, capsys):
     )
     # A p_miss that never left uniform is said in words (a short figure), not drawn as a
     # flat colour block; the adversary's is a heatmap with a row per feature.
-    height = lambda name: imread(os.path.join(tmp_path, "figures", f"{name}.png")).shape[0]
+    height = lambda name, folder="figures": imread(os.path.join(tmp_path, folder, f"{name}.png")).shape[0]
     assert height("p_miss_uniform") < 450 < height("p_miss_adversarial")
+    # In words only where every seed's stayed uniform: an adversarial seed whose a_u all sat at
+    # l (p_miss ∝ 1/ε alike) beside one whose adversary moved is still a heatmap.
+    stuck = _fake_run(str(tmp_path / "mixed"), "adversarial", 7)
+    rows = [json.loads(line) for line in open(os.path.join(stuck, "scores.jsonl"))]
+    with open(os.path.join(stuck, "scores.jsonl"), "w") as file:
+        file.writelines(json.dumps({**row, "p_miss": [1 / 11] * 11}) + "\n" for row in rows)
+    shutil.copytree(tmp_path / "runs" / "adversarial-s0", tmp_path / "mixed" / "adversarial-s0")
+    plot_runs(find_runs([str(tmp_path / "mixed")]), str(tmp_path / "mixed_figures"), window=4, formats=("png",))
+    assert height("p_miss_adversarial", "mixed_figures") > 450
     with pytest.raises(FileNotFoundError):
         find_runs([str(tmp_path / "missing")])
     # Runs of several envs from the command line: a figures subfolder per env, one summary;
@@ -83,7 +92,16 @@ def test_plot_runs_writes_every_figure(tmp_path, capsys):
     error = capsys.readouterr().err.strip()
     assert refused.value.code == 2 and error.startswith("error: formats: 'docx': give formats matplotlib writes") \
         and "svg" in error and "\n" not in error and not (tmp_path / "never").exists()
+    # A run that starts over (resume set its rows aside: an empty scores.jsonl) is left out, said
+    # in one line, and the rest are drawn; a folder of such runs alone is refused in one line.
+    restarted = _fake_run(str(tmp_path / "runs" / "restarted"), "uniform", 9)
+    open(os.path.join(restarted, "scores.jsonl"), "w").close()
     assert main([str(tmp_path / "runs"), f"out={tmp_path / 'both'}", "formats=png,SVG"]) == 0
+    assert f"warning: {restarted} has no scoring rows yet: left out\n" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as refused:
+        main([str(tmp_path / "runs" / "restarted"), f"out={tmp_path / 'never'}"])
+    assert refused.value.code == 2 and capsys.readouterr().err.endswith(
+        f"error: no run under {tmp_path / 'runs' / 'restarted'} has scored yet (1 without scoring rows)\n")
     assert sorted(os.listdir(tmp_path / "both")) == [
         "curves.csv", "figure1.png", "figure1.svg", "hopper", "scores.csv", "summary.md", "walker2d"]
     _check_tables(tmp_path / "both", runs + find_runs([str(tmp_path / "runs" / "walker")]))
