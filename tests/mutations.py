@@ -823,6 +823,13 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "auto_physics_warp_without_a_gpu": ("admissable_jax/envs/options.py",
                                         'return "warp" if _on_nvidia_gpu() and warp_installed() else "jax"',
                                         'return "warp" if warp_installed() else "jax"', "test_external_env.py"),
+    # A thirtieth: an env option that no test built an env with, and plot's unscored runs.
+    "solver_iterations_set_as_line_search": ("admissable_jax/envs/base.py",
+                                             "self.mj_model.opt.iterations = self.options.solver_iterations",
+                                             "self.mj_model.opt.ls_iterations = self.options.solver_iterations",
+                                             "test_envs.py"),
+    "torn_first_line_read_as_a_scored_run": ("admissable_jax/results.py", 'return file.readline().endswith("\\n")',
+                                             "return bool(file.readline())", "test_plots.py"),
 }
 
 

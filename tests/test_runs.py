@@ -127,6 +127,9 @@ def test_a_runs_commit_is_marked_where_its_source_differs(tmp_path):
     spec.loader.exec_module(provenance)
     commit = git("rev-parse", "--short", "HEAD")
     assert provenance.source_commit() == commit
+    (tmp_path / "checkout" / "runs").mkdir()  # a file git does not track (a run's output) changes no source
+    (tmp_path / "checkout" / "runs" / "scores.jsonl").write_text("{}\n")
+    assert provenance.source_commit() == commit
     (tmp_path / "checkout" / "results.txt").write_text("2")
     assert provenance.source_commit() == f"{commit}+changes"
     assert provenance.source_commit(exclude=("results.txt",)) == commit
