@@ -408,6 +408,11 @@ def test_make_env_names_and_spaces(tmp_path, monkeypatch, capfd):
     assert shorter.max_episode_steps == 3 and shorter.options == dataclasses.replace(options, episode_length=3)
     with pytest.raises(dataclasses.FrozenInstanceError):
         options.episode_length = 8
+    # The solver options reach the model the physics steps: the XML's own unless overridden.
+    xml_opt = make_env("hopper", physics="jax").physics.model.opt
+    faster = make_env("hopper", physics="jax", solver_iterations=2, ls_iterations=3).physics.model.opt
+    assert (int(faster.iterations), int(faster.ls_iterations)) == (2, 3) != (int(xml_opt.iterations),
+                                                                             int(xml_opt.ls_iterations))
     for bad, message in ((dict(episode_length=0), "episode_length"), (dict(episode_length=1001), "v5 limit"),
                          (dict(physics="cuda"), "physics must be one of"), (dict(max_batch=0), "max_batch"),
                          (dict(solver_iterations=0), "solver_iterations"),

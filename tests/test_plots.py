@@ -94,10 +94,15 @@ def test_plot_runs_writes_every_figure(tmp_path, capsys):
         and "svg" in error and "\n" not in error and not (tmp_path / "never").exists()
     # A run that starts over (resume set its rows aside: an empty scores.jsonl) is left out, said
     # in one line, and the rest are drawn; a folder of such runs alone is refused in one line.
+    # So is one whose only row was cut off mid-write (a crash at its first scoring).
     restarted = _fake_run(str(tmp_path / "runs" / "restarted"), "uniform", 9)
     open(os.path.join(restarted, "scores.jsonl"), "w").close()
+    torn = _fake_run(str(tmp_path / "runs" / "torn"), "uniform", 8)
+    with open(os.path.join(torn, "scores.jsonl"), "r+") as file:
+        file.truncate(len(file.readline()) // 2)
     assert main([str(tmp_path / "runs"), f"out={tmp_path / 'both'}", "formats=png,SVG"]) == 0
-    assert f"warning: {restarted} has no scoring rows yet: left out\n" in capsys.readouterr().err
+    warnings = capsys.readouterr().err
+    assert all(f"warning: {run} has no scoring rows yet: left out\n" in warnings for run in (restarted, torn))
     with pytest.raises(SystemExit) as refused:
         main([str(tmp_path / "runs" / "restarted"), f"out={tmp_path / 'never'}"])
     assert refused.value.code == 2 and capsys.readouterr().err.endswith(
