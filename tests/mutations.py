@@ -830,6 +830,20 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                              "test_envs.py"),
     "torn_first_line_read_as_a_scored_run": ("admissable_jax/results.py", 'return file.readline().endswith("\\n")',
                                              "return bool(file.readline())", "test_plots.py"),
+    # A thirty-first: W&B's x axis, a tie the audit reads, an env of one's own with wider
+    # actions, and Welch's degrees of freedom in the samples a gap needs.
+    "wandb_curves_against_its_own_step": ("admissable_jax/loggers.py",
+                                          'self._run.define_metric("*", step_metric="env_steps")',
+                                          'self._run.define_metric("*")', "test_training.py"),
+    "audit_identical_returns_told_apart": ("admissable_jax/audit/sets.py", "return self.gap - self.ci95 <= 0",
+                                           "return self.gap - self.ci95 < 0", "test_audit.py"),
+    "external_action_bound_ignored": ("admissable_jax/envs/external.py",
+                                      "self.action_high = jnp.full((self.action_size,), self.action_bound, jnp.float32)",
+                                      "self.action_high = jnp.full((self.action_size,), 1.0, jnp.float32)",
+                                      "test_external_env.py"),
+    "separation_without_welchs_freedom": ("admissable_jax/scoring/worst_set.py",
+                                          "welch_share = 1.0 if paired else sum(variances)",
+                                          "welch_share = 1.0 if True else sum(variances)", "test_audit.py"),
 }
 
 

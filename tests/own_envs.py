@@ -75,5 +75,11 @@ class NoFeatures(Reach):
     feature_names = ()
 
 
+class WideReach(Reach):
+    """Takes actions in [-2, 2]."""
+
+    action_bound = 2.0
+
+
 class NotAnEnv:
     """No reset or step."""

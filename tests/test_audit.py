@@ -243,6 +243,17 @@ def test_gaps_to_the_worst_paired_and_by_welch(tmp_path):
              for n, mode in ((4, "adversarial"), (6, "uniform"))]
     assert "(N = 4–6 episodes per set, each audit's chosen by its pilot (`tell_apart`), `rollout`)" in compare_modes(pairs)
 
+    # A set whose returns equal the worst's episode by episode (two hidden features the policy
+    # ignores): a gap of 0 ± 0 tells nothing apart, and no N would.
+    twin = SetScore((3,), ("f3",), sets[0].score, 0.0, 0.0, list(returns[(0,)]))
+    result = AuditResult("toy", "rollout", 4, 30.0, 0.0, [30.0] * 4, {1: [*sets, twin]}, ["f0", "f1", "f2", "f3"], {})
+    gaps = result.gaps_to_worst(1)
+    assert (gaps[1].entry.hidden, gaps[1].gap, gaps[1].ci95, gaps[1].tied) == ((3,), 0.0, 0.0, True)
+    assert result.episodes_to_separate(1) is None
+    write_audit(result, str(tmp_path / "twin"))
+    assert ("each set compared alone): 1 of the other 3 sets ({f3}). The runner-up's returns equal the worst's "
+            "episode by episode.") in (tmp_path / "twin" / "report.md").read_text()
+
 
 def test_the_drop_below_clean_reads_alike_whatever_the_returns_sign():
     """A set's drop: how far its a_u lies below the clean return, in percent of the clean

@@ -148,6 +148,9 @@ def test_the_benchmarks_distracted_reach_hides_its_signal_among_noise():
     again = env.step(after, jnp.ones(1))
     assert np.all(np.asarray(after.obs[3:]) != np.asarray(again.obs[3:]))  # the noise is drawn afresh
     assert 0.5 < float(np.std(np.asarray(again.obs[3:]))) < 2.0
+    # action_bound sets the box the trainer's tanh is scaled to and random actions are drawn from.
+    wide = make_env("own_envs:WideReach")
+    np.testing.assert_array_equal([wide.action_low, wide.action_high], [[-2.0], [2.0]])
 
 
 def test_the_point_mass_steps_as_its_docstring_says():
