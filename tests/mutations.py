@@ -844,6 +844,19 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "separation_without_welchs_freedom": ("admissable_jax/scoring/worst_set.py",
                                           "welch_share = 1.0 if paired else sum(variances)",
                                           "welch_share = 1.0 if True else sum(variances)", "test_audit.py"),
+    # A thirty-second: refusals that no test asked for: a ζ that num_envs does not divide, a
+    # Python policy's audit with a critic's estimate, an audit of nothing, a horizon of 0.
+    "score_every_not_a_multiple_of_num_envs": ("admissable_jax/config.py",
+                                               "        if config.score_every % config.num_envs:\n",
+                                               "        if False:\n", "test_training.py"),
+    "python_policy_audited_with_a_critic": ("admissable_jax/audit/command.py",
+                                            'if config.score_estimator != "rollout" or config.search != "exact":',
+                                            'if config.search != "exact":', "test_audit.py"),
+    "audit_of_no_run_taken": ("admissable_jax/audit/command.py", "    elif not config.run_dir:\n",
+                              "    elif False:\n", "test_audit.py"),
+    "audit_horizon_of_zero_taken": ("admissable_jax/audit/command.py",
+                                    "if config.score_estimator not in SCORE_ESTIMATORS or config.score_horizon < 1:",
+                                    "if config.score_estimator not in SCORE_ESTIMATORS:", "test_audit.py"),
 }
 
 
