@@ -434,6 +434,11 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
         (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "seed=-1"],
          "seed must be >= 0 and step an env step or -1 (the latest), got seed=-1, step=-1"),
         (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "step=-2"], "seed must be >= 0 and step"),
+        (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "score_estimator=critic"],
+         "a Python policy is audited by rollouts of every set (it has no critic to estimate with)"),
+        (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "score_horizon=0"],
+         "score_estimator must be one of rollout, critic, horizon and score_horizon >= 1"),
+        ([], "give the run directory: python -m admissable_jax.audit RUN_DIR [k=1,2] [episodes=50]"),
         # checked on the env itself before anything is written (HalfCheetah's settotalmass
         # deprecation, Gymnasium's file, kept out of the output and the working directory)
         (["policy=test_wrappers:sum_of_visible", "gym=HalfCheetah-v5", "k=17"], "ks must be set sizes 1 <= k < d = 17"),

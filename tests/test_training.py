@@ -602,6 +602,7 @@ def test_a_checkpoint_of_an_older_state_layout_is_named_and_its_networks_still_r
         (["learning_starts=100"], "learning_starts (100) must be >= batch_size (256)"),
         (["episode_length=1001"], "episode_length must be <= 1000 (the v5 limit)"),
         (["fast_forward=true"], "fast_forward=true continues a run from its records: pass resume=true too"),
+        (["score_every=1000", "num_envs=3"], "score_every (1000) must be a multiple of num_envs (3)"),
     ],
 )
 def test_cli_rejects_bad_input_with_one_line(args, message, tmp_path, capsys, monkeypatch):
