@@ -857,6 +857,18 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "audit_horizon_of_zero_taken": ("admissable_jax/audit/command.py",
                                     "if config.score_estimator not in SCORE_ESTIMATORS or config.score_horizon < 1:",
                                     "if config.score_estimator not in SCORE_ESTIMATORS:", "test_audit.py"),
+    # A thirty-third: more refusals: the video's frames and file type, the audit's search and
+    # beam width, the wrappers' scoring of no episodes.
+    "video_of_no_frames_taken": ("admissable_jax/video.py", "    if config.frames < 1:", "    if config.frames < 0:",
+                                 "test_hopper_pipelines.py"),
+    "video_out_of_any_type_taken": ("admissable_jax/video.py", '    if config.out and not config.out.endswith(".mp4"):',
+                                    "    if False:", "test_hopper_pipelines.py"),
+    "audit_beam_of_width_zero_taken": ("admissable_jax/audit/sets.py", "    if beam_width < 1:", "    if beam_width < 0:",
+                                       "test_audit.py"),
+    "audit_unknown_search_taken": ("admissable_jax/audit/sets.py", "    if search not in SEARCHES:", "    if False:",
+                                   "test_audit.py"),
+    "score_policy_of_no_episodes_taken": ("admissable_jax/wrappers.py", "    if n_episodes < 1 or num_envs < 1:",
+                                          "    if num_envs < 1:", "test_wrappers.py"),
 }
 
 
