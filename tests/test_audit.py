@@ -439,6 +439,8 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
         (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "score_horizon=0"],
          "score_estimator must be one of rollout, critic, horizon and score_horizon >= 1"),
         ([], "give the run directory: python -m admissable_jax.audit RUN_DIR [k=1,2] [episodes=50]"),
+        (["some_run", "search=guess"], "search must be one of exact, beam, got 'guess'"),
+        (["some_run", "search=beam", "beam_width=0"], "beam_width must be >= 1, got 0"),
         # checked on the env itself before anything is written (HalfCheetah's settotalmass
         # deprecation, Gymnasium's file, kept out of the output and the working directory)
         (["policy=test_wrappers:sum_of_visible", "gym=HalfCheetah-v5", "k=17"], "ks must be set sizes 1 <= k < d = 17"),

@@ -332,6 +332,11 @@ def test_video_of_the_trained_hopper_beside_its_worst_set(jax_run, tmp_path, cap
     for hidden in ("elbow", "11"):  # Hopper's features are 0 to 10
         assert video.main([jax_run.run_dir, f"hidden={hidden}", f"out={tmp_path}/bad.mp4"]) == 2
         assert f"'{hidden}' is neither a feature index below 11 nor a feature name of hopper" in capsys.readouterr().err
+    for args, message in ((["frames=0"], "frames must be at least 1, got 0"),
+                          ([f"out={tmp_path}/hopper.gif"], f"out must be an .mp4 file, got '{tmp_path}/hopper.gif'")):
+        with pytest.raises(SystemExit) as refused:
+            video.main([jax_run.run_dir, *args])
+        assert refused.value.code == 2 and capsys.readouterr().err.strip() == f"error: {message}"
     assert video.main([jax_run.run_dir, "out=/dev/null/x.mp4"]) == 2
     assert capsys.readouterr().err.strip() == "error: cannot create the video folder /dev/null: File exists"
 

@@ -55,6 +55,9 @@ def test_score_policy_gives_the_papers_a_u_for_a_numpy_policy(capsys):
     adversary = AdversarialMissingness(ConstantFeatures(), k=2, up_to_k=True, seed=0)
     np.testing.assert_array_equal(adversary.candidate_sets, up_to_two.hidden_sets)
     assert adversary.update(up_to_two.scores).shape == (6,)
+    for counts in (dict(n_episodes=0), dict(num_envs=0)):  # refused before any env is made
+        with pytest.raises(ValueError, match="^n_episodes and num_envs must be >= 1$"):
+            score_policy("ConstantFeatures-v0", sum_of_visible, **counts)
 
 
 def test_masked_observation_and_its_space():
