@@ -869,6 +869,15 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                    "test_audit.py"),
     "score_policy_of_no_episodes_taken": ("admissable_jax/wrappers.py", "    if n_episodes < 1 or num_envs < 1:",
                                           "    if num_envs < 1:", "test_wrappers.py"),
+    # A thirty-fourth, each written with its test (not run against the suite before it): the
+    # video's worst set at a step no scoring holds, a k of another type, an unknown graph mode.
+    "video_worst_of_a_step_never_scored": ("admissable_jax/video.py", "        if not rows:\n", "        if False:\n",
+                                           "test_hopper_pipelines.py"),
+    "k_of_any_number_type_taken": ("admissable_jax/method.py", "    if not isinstance(k, int) or isinstance(k, bool):",
+                                   "    if isinstance(k, bool):", "test_missingness.py"),
+    "graph_mode_of_any_name_taken": ("admissable_jax/envs/options.py",
+                                     "        if self.graph_mode is not None and self.graph_mode not in WARP_GRAPH_MODES:",
+                                     "        if False:", "test_envs.py"),
 }
 
 

@@ -417,7 +417,8 @@ def test_make_env_names_and_spaces(tmp_path, monkeypatch, capfd):
                          (dict(physics="cuda"), "physics must be one of"), (dict(max_batch=0), "max_batch"),
                          (dict(solver_iterations=0), "solver_iterations"),
                          (dict(deterministic="false"), "deterministic must be a bool, got 'false'"),
-                         (dict(terminate_when_unhealthy=0), "terminate_when_unhealthy must be a bool, got 0")):
+                         (dict(terminate_when_unhealthy=0), "terminate_when_unhealthy must be a bool, got 0"),
+                         (dict(graph_mode="FAST"), "graph_mode must be None or one of WARP, WARP_STAGED, NONE, got 'FAST'")):
         with pytest.raises(ValueError, match=message):
             make_env("hopper", **bad)
     # A CUDA-graph mode on the CPU: refused in one line when the env is made, not at its first step.

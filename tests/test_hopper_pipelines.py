@@ -311,6 +311,8 @@ def test_video_of_the_trained_hopper_beside_its_worst_set(jax_run, tmp_path, cap
     pooled = [{"env_steps": 80, "argmin": 1, "argmin_set": "{3,7}", "sets": ["{0,1}", "{3,7}"]},
               {"env_steps": 120, "argmin": 0, "argmin_set": "{5}", "sets": ["{5}", "{3,7}"]}]
     assert [video.resolve_hidden("worst", "hopper", pooled, step) for step in (80, 120)] == [(3, 7), (5,)]
+    with pytest.raises(ValueError, match="^hidden=worst needs the scoring at env step 100, which scores.jsonl does not hold"):
+        video.resolve_hidden("worst", "hopper", pooled, 100)  # a checkpoint between scorings (ζ changed on resume)
     # 20 frames: the start, one per step until this barely trained Hopper falls (both sides
     # within 19 steps), then the end held (for up to a second).
     assert made.frames == 20 and 0 < made.hidden_length <= 19 and 0 < made.clean_length <= 19

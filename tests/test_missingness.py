@@ -40,6 +40,8 @@ def test_candidate_sets():
         candidate_sets(11, k=0)
     with pytest.raises(TypeError):
         candidate_sets(11, k=True)
+    with pytest.raises(TypeError, match="^k must be an int, got float$"):  # a YAML "2.0" read as a float
+        candidate_sets(11, k=2.0)
     with pytest.raises(ValueError, match="exceed"):
         candidate_sets(105, k=4)
     assert check_exact_size(85, 3) == 98_770  # listed; with the smaller sets it is only numbered
