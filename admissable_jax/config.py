@@ -281,11 +281,9 @@ def validate(config: TrainConfig) -> None:
         raise ValueError(f"pool_size must be >= 0 (0 = score all sets), got {config.pool_size}")
     if not 0 <= config.pool_explore <= 1:
         raise ValueError(f"pool_explore must be in [0, 1], got {config.pool_explore}")
-    if config.score_horizon < 1:
-        raise ValueError(f"score_horizon must be >= 1, got {config.score_horizon}")
     if config.missingness not in MODES:
         raise ValueError(f"missingness must be one of {', '.join(MODES)}, got {config.missingness!r}")
-    positive = ("k", "score_every", "score_episodes", "total_steps", "episode_length",
+    positive = ("k", "score_every", "score_episodes", "score_horizon", "total_steps", "episode_length",
                 "batch_size", "hidden_size", "hidden_layers", "buffer_size", "checkpoint_every", "keep_checkpoints")
     check_at_least_one(config, positive)
     for name in ("num_envs", "score_envs"):

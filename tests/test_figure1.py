@@ -11,7 +11,7 @@ import numpy as np
 
 import common  # benchmarks/ is on the tests' path (conftest.py)
 import figure1
-from test_plots import _run_with_minimums
+from test_plots import _edit_rows, _run_with_minimums
 
 from admissable_jax.results import Difference, load_run
 
@@ -168,12 +168,9 @@ def test_figure1_words_each_reading_the_clean_check_above_sb3_and_the_late_round
         """The check of mode none's seeds, each clean return climbing to ``returns`` at 1M: the last scoring's counts."""
         runs = []
         for seed, clean in enumerate(returns):
-            path = _run_with_minimums(str(tmp_path / folder), "none", seed, [1, 2, 3, 4], clean, score_every=250_000)
-            with open(os.path.join(path, "scores.jsonl")) as file:
-                rows = [json.loads(line) for line in file]
-            with open(os.path.join(path, "scores.jsonl"), "w") as file:
-                file.writelines(json.dumps({**row, "clean_score": clean * (t + 1) / len(rows)}) + "\n"
-                                for t, row in enumerate(rows))
+            minimums = [1, 2, 3, 4]  # a scoring each
+            path = _run_with_minimums(str(tmp_path / folder), "none", seed, minimums, clean, score_every=250_000)
+            _edit_rows(path, lambda t, row: {**row, "clean_score": clean * (t + 1) / len(minimums)})
             runs.append(load_run(path))
         return figure1._clean_sac_line("hopper", runs)
     assert clean_line("above", (3700, 3710)).endswith(

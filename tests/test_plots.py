@@ -45,6 +45,15 @@ def _fake_run(root, mode, seed, records=12, sets=11, env="hopper", **settings):
     return path
 
 
+def _edit_rows(run_dir, change):
+    """Rewrite ``run_dir``'s scores.jsonl, each row as ``change(t, row)`` gives it (t: its index)."""
+    path = os.path.join(run_dir, "scores.jsonl")
+    with open(path) as file:
+        rows = [json.loads(line) for line in file]
+    with open(path, "w") as file:
+        file.writelines(json.dumps(change(t, row)) + "\n" for t, row in enumerate(rows))
+
+
 def test_smoothing_and_interval():
     np.testing.assert_allclose(moving_average(np.array([1.0, 3.0, 5.0, 7.0]), 2), [1.0, 2.0, 4.0, 6.0])
     np.testing.assert_allclose(moving_average(np.array([[2.0, 4.0, 6.0]]), 10), [[2.0, 3.0, 4.0]])
@@ -76,9 +85,7 @@ def test_plot_runs_writes_every_figure(tmp_path, capsys):
     # In words only where every seed's stayed uniform: an adversarial seed whose a_u all sat at
     # l (p_miss ∝ 1/ε alike) beside one whose adversary moved is still a heatmap.
     stuck = _fake_run(str(tmp_path / "mixed"), "adversarial", 7)
-    rows = [json.loads(line) for line in open(os.path.join(stuck, "scores.jsonl"))]
-    with open(os.path.join(stuck, "scores.jsonl"), "w") as file:
-        file.writelines(json.dumps({**row, "p_miss": [1 / 11] * 11}) + "\n" for row in rows)
+    _edit_rows(stuck, lambda t, row: {**row, "p_miss": [1 / 11] * 11})
     shutil.copytree(tmp_path / "runs" / "adversarial-s0", tmp_path / "mixed" / "adversarial-s0")
     plot_runs(find_runs([str(tmp_path / "mixed")]), str(tmp_path / "mixed_figures"), window=4, formats=("png",))
     assert height("p_miss_adversarial", "mixed_figures") > 450
