@@ -878,6 +878,40 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "graph_mode_of_any_name_taken": ("admissable_jax/envs/options.py",
                                      "        if self.graph_mode is not None and self.graph_mode not in WARP_GRAPH_MODES:",
                                      "        if False:", "test_envs.py"),
+    # A thirty-fifth: refusals whose message no test quoted (a script listed them): each a bad
+    # input that, without its check, ran on or failed with a traceback or another's message.
+    "lower_bounds_of_infinity_taken": ("admissable_jax/config.py",
+                                       "    if not all(math.isfinite(bound) for bound in bounds):", "    if False:",
+                                       "test_experiment.py"),
+    "plot_of_several_envs_in_one_figure": ("admissable_jax/plot.py", "    if len(envs) > 1:", "    if False:",
+                                           "test_plots.py"),
+    "plot_of_a_missing_folder_taken": ("admissable_jax/results.py", "        if not os.path.isdir(path):",
+                                       "        if False:", "test_plots.py"),
+    "wrapper_mode_of_any_name_taken": ("admissable_jax/wrappers.py", "        if mode not in MODES[:2]:", "        if False:",
+                                       "test_wrappers.py"),
+    "wrapper_of_a_dict_space_taken": ("admissable_jax/wrappers.py",
+                                      "        if not isinstance(space, gymnasium.spaces.Box) or len(space.shape) != 1:",
+                                      "        if False:", "test_wrappers.py"),
+    "policy_of_another_width_reshaped": ("admissable_jax/policies.py",
+                                         "        if obs.shape[-1] != self.observation_size:", "        if False:",
+                                         "test_audit.py"),
+    "audit_steps_of_any_text_told_raw": ("admissable_jax/audit/command.py",
+                                         "        raise ValueError(f\"steps must be 'all' or a comma list of env steps, "
+                                         "got {config.steps!r}\") from None", "        raise", "test_audit.py"),
+    "audit_experiment_without_pairs_taken": ("admissable_jax/audit/command.py", "    if not pairs:\n", "    if False:\n",
+                                             "test_audit.py"),
+    "score_slots_above_max_batch_taken": ("admissable_jax/scoring/rollout_scores.py",
+                                          "    if num_slots is not None and num_slots > max_batch:", "    if False:",
+                                          "test_training.py"),
+    "observation_names_of_any_json_taken": ("admissable_jax/run_directory.py",
+                                            "    if not isinstance(names, list) or not all(isinstance(name, str) "
+                                            "for name in names):", "    if False:", "test_runs.py"),
+    "train_fn_of_a_dict_taken": ("admissable_jax/train.py", "    if not isinstance(config, TrainConfig):\n"
+                                 "        raise TypeError(f\"train_fn expects", "    if False:\n"
+                                 "        raise TypeError(f\"train_fn expects", "test_training.py"),
+    "unknown_public_name_is_none": ("admissable_jax/__init__.py",
+                                    "    raise AttributeError(f\"module 'admissable_jax' has no attribute {name!r}\")",
+                                    "    return None", "test_wrappers.py"),
 }
 
 
