@@ -66,6 +66,8 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
     expected = jax.vmap(straight[2].trainer.policy, (None, 0))(straight[2].actor_params, mask_observation(obs, np.array([0, 1, 0, 0])))
     assert policy.step == 3000 and policy.config.missingness == "uniform"
     np.testing.assert_allclose(policy(obs, hidden=[1]), expected, rtol=1e-5, atol=1e-6)
+    with pytest.raises(ValueError, match=r"^expected observations of 4 features, got shape \(5, 8\)$"):
+        policy(np.concatenate([obs, obs], axis=1))  # an 8-wide row is no two 4-wide ones
     # The whole experiment audited: every pair into its own folder, then the modes compared per k.
     results, written = audit_experiment(AuditConfig(run_dir=str(tmp_path / "straight"), k="1,2", episodes=3,
                                                     shapley="exact"))
@@ -73,6 +75,11 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
         ("adversarial", 0), ("adversarial", 1), ("uniform", 0), ("uniform", 1)]
     assert written[-1] == str(tmp_path / "straight" / "audit-step3000" / "comparison.md")
     assert os.path.isfile(tmp_path / "straight" / "uniform-s1" / "audit-step3000" / "report.md")
+    pairless = tmp_path / "pairless"  # an experiment whose pairs' folders were moved away
+    pairless.mkdir()
+    shutil.copy(tmp_path / "straight" / "experiment.yaml", pairless)
+    with pytest.raises(FileNotFoundError, match=f"^{pairless} holds an experiment.yaml but no pair directories$"):
+        audit_experiment(AuditConfig(run_dir=str(pairless), k="1"))
     alone, _ = audit_run(AuditConfig(run_dir=str(tmp_path / "straight" / "uniform-s1"), k="1,2", episodes=3,
                                      out=str(tmp_path / "alone")))  # its own env and policy function
     for k in (1, 2):
@@ -221,6 +228,7 @@ def test_experiment_refuses_what_does_not_fit_before_allocating(tmp_path, monkey
         (["env=ant", "k=105"], "k must satisfy 1 <= k < d = 105"),
         (["lower_bounds=0,x"], "lower_bounds must be a comma-separated list of numbers, got '0,x'"),
         (["lower_bounds=0,50,0.0"], "lower_bounds repeats a value"),
+        (["lower_bounds=0,inf"], "lower_bounds must be finite numbers, got '0,inf'"),
         (["modes=uniform", "lower_bounds=0,50"], "lower_bounds sweeps the adversarial mode's l, and modes='uniform' "
                                                  "has no adversarial"),
     ],

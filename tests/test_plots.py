@@ -89,11 +89,13 @@ def test_plot_runs_writes_every_figure(tmp_path, capsys):
     shutil.copytree(tmp_path / "runs" / "adversarial-s0", tmp_path / "mixed" / "adversarial-s0")
     plot_runs(find_runs([str(tmp_path / "mixed")]), str(tmp_path / "mixed_figures"), window=4, formats=("png",))
     assert height("p_miss_adversarial", "mixed_figures") > 450
-    with pytest.raises(FileNotFoundError):
+    with pytest.raises(FileNotFoundError, match=f"no such directory: {tmp_path / 'missing'}$"):
         find_runs([str(tmp_path / "missing")])
     # Runs of several envs from the command line: a figures subfolder per env, one summary;
     # the figures in the formats asked for, a format matplotlib cannot write refused first.
-    _fake_run(str(tmp_path / "runs" / "walker"), "uniform", 0, sets=17, env="walker2d")
+    walker = _fake_run(str(tmp_path / "runs" / "walker"), "uniform", 0, sets=17, env="walker2d")
+    with pytest.raises(ValueError, match=r"^runs of several envs \(hopper, walker2d\): plot one env at a time$"):
+        plot_runs([*runs, walker], str(tmp_path / "never"))  # the library's figures: one env's runs
     with pytest.raises(SystemExit) as refused:
         main([str(tmp_path / "runs"), f"out={tmp_path / 'never'}", "formats=png,docx"])
     error = capsys.readouterr().err.strip()

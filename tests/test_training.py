@@ -14,6 +14,7 @@ import itertools
 import json
 import logging
 import os
+import re
 import shutil
 import struct
 import subprocess
@@ -34,7 +35,7 @@ from admissable_jax.envs import observation_names
 from admissable_jax.host_loop import TrainingDiverged, TrainingLoop
 from admissable_jax.method import inverse_score_p_miss
 from admissable_jax.policies import load_policy
-from admissable_jax.run_directory import metrics_row
+from admissable_jax.run_directory import metrics_row, recorded_observation_names
 from admissable_jax.run_spec import RunSpec
 from admissable_jax.training import Trainer
 
@@ -80,13 +81,21 @@ def test_sac_learns_point_mass(point_mass_run):
     assert all(np.isfinite(m["critic_loss"]) for m in metrics[1:])
 
 
-def test_run_directory_contents(point_mass_run):
+def test_run_directory_contents(point_mass_run, tmp_path):
     run_dir = point_mass_run.run_dir
     assert sorted(os.listdir(run_dir)) == ["checkpoints", "config.yaml", "invocations.jsonl", "metrics.jsonl",
                                            "observation_names.json", "scores.jsonl", "tensorboard", "wandb",
                                            "wandb_run_id"]
     with open(os.path.join(run_dir, "observation_names.json")) as file:
         assert json.load(file) == observation_names("point_mass")
+    assert recorded_observation_names(run_dir) == observation_names("point_mass")  # what plots and audits label with
+    names_file = tmp_path / "observation_names.json"
+    for text, message in (('{"x": 0}', "must hold a JSON list of feature names"), ("[", "cannot be read (Expecting")):
+        names_file.write_text(text)  # edited by hand, or cut off: one line naming the file, not a label of "x"
+        with pytest.raises(ValueError, match=f"^{re.escape(f'{names_file} {message}')}"):
+            recorded_observation_names(str(tmp_path))
+    with pytest.raises(TypeError, match="^train_fn expects a TrainConfig, got dict$"):
+        train_fn({"env": "point_mass"})  # a config's fields as a dict: TrainConfig(**fields) is the config
     # What produced the run: this command, from step 0, on this machine's device and packages.
     (invocation,) = [json.loads(line) for line in open(os.path.join(run_dir, "invocations.jsonl"))]
     assert invocation["from_env_steps"] == 0 and invocation["physics"] == "jax" and invocation["runs_in_program"] == 1
@@ -372,6 +381,13 @@ def test_score_missingness_equals_a_plain_loop_and_finds_the_used_feature(caplog
         np.testing.assert_array_equal(checked.lengths, reference.lengths)
         np.testing.assert_allclose(checked.returns, reference.returns, rtol=1e-6)
         assert int(checked.loop_steps) == int(reference.loop_steps)
+    too_many = env.options.max_batch + 1  # more envs in one program than the env was built for (Warp's buffers)
+    for slots, every, message in ((too_many, 1, f"num_slots={too_many} exceeds the env's max_batch="
+                                                f"{too_many - 1}; build the env with a larger max_batch"),
+                                  (None, 0, "steps_per_check must be >= 1, got 0")):
+        with pytest.raises(ValueError, match=f"^{re.escape(message)}($|\n)"):  # (JAX may add a note)
+            score_missingness(env, _feature_zero_controller, 2.0, rng, hidden_sets, n_episodes, num_slots=slots,
+                              steps_per_check=every)
 
     # Vmapped rollouts whose episodes end at different times (a policy that pushes harder
     # leaves the arena sooner) step together until the last ends: each member's results are its own.

@@ -81,6 +81,11 @@ def test_masked_observation_and_its_space():
     assert drawn[0] == drawn[2]
     with pytest.raises(ValueError, match=r"hidden features must be in \[0, 3\)"):
         MissingnessObservation(ConstantFeatures(), hidden=[3])
+    # A feature of a dict or image observation has no single index to hide: refused, not a traceback.
+    pictures = type("Pictures", (ConstantFeatures,), {"observation_space": gymnasium.spaces.Box(0, 255, (2, 2), np.uint8)})
+    with pytest.raises(ValueError, match=r"^MissingnessObservation needs a flat Box observation space, got Box\(0, 255, "
+                                         r"\(2, 2\), uint8\)$"):
+        MissingnessObservation(pictures(), hidden=[0])
 
 
 def test_adversary_draws_from_the_papers_p_miss_and_updates_in_vector_envs():
@@ -105,6 +110,8 @@ def test_adversary_draws_from_the_papers_p_miss_and_updates_in_vector_envs():
     np.testing.assert_allclose(clipped, [0.0, 0.5, 0.5], atol=1e-6)
     uniform = AdversarialMissingness(ConstantFeatures(), mode="uniform")
     np.testing.assert_allclose(uniform.update([25.0, 20.0, 15.0]), 1 / 3)
+    with pytest.raises(ValueError, match="^mode must be 'adversarial' or 'uniform', got 'Adversarial'$"):
+        AdversarialMissingness(ConstantFeatures(), mode="Adversarial")  # would have trained as uniform
     with pytest.raises(ValueError, match="one score per candidate set"):
         env.update([1.0, 2.0])
     with pytest.raises(ValueError, match="lower_bound must be a finite number, got nan"):  # every p_miss NaN
@@ -132,8 +139,12 @@ def test_adversary_draws_from_the_papers_p_miss_and_updates_in_vector_envs():
 
 
 def test_wrappers_import_no_jax():
-    code = "import sys, admissable_jax.wrappers; assert 'jax' not in sys.modules, 'jax imported'"
-    subprocess.run([sys.executable, "-c", code], check=True)
+    """Nor does a misspelt public name, which is an AttributeError as in any module."""
+    code = ("import sys, admissable_jax, admissable_jax.wrappers\n"
+            "try:\n    admissable_jax.train_fm\nexcept AttributeError as error:\n    print(error)\n"
+            "assert 'jax' not in sys.modules, 'jax imported'")
+    shown = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True)
+    assert shown.stdout == "module 'admissable_jax' has no attribute 'train_fm'\n"
 
 
 def test_what_steps_no_mujoco_env_imports_no_mjx():
