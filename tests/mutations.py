@@ -912,6 +912,22 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "unknown_public_name_is_none": ("admissable_jax/__init__.py",
                                     "    raise AttributeError(f\"module 'admissable_jax' has no attribute {name!r}\")",
                                     "    return None", "test_wrappers.py"),
+    # A thirty-sixth, the same kind: a logger whose package is missing, an audited "policy" that is
+    # no function, a video of an env Gymnasium cannot render, and the campaign's plan continuing
+    # records it cannot (other modes, or none fingerprinted): each would fail later, on a GPU.
+    "wandb_logger_without_its_package_taken": ("admissable_jax/loggers.py",
+                                               '    if "wandb" in parsed and importlib.util.find_spec("wandb") is None:',
+                                               "    if False:", "test_training.py"),
+    "audit_of_a_policy_that_is_no_function": ("admissable_jax/audit/command.py", "    if not callable(policy):",
+                                              "    if False:", "test_audit.py"),
+    "video_of_an_env_gymnasium_cannot_render": ("admissable_jax/video.py",
+                                                "    if policy.trainer.env.gymnasium_id is None:", "    if False:",
+                                                "test_audit.py"),
+    "campaign_records_with_fallback_modes": ("benchmarks/campaign.py",
+                                             "    if config.records and config.fallback_modes:", "    if False:",
+                                             "test_campaign_plan.py"),
+    "campaign_continues_records_of_no_fingerprint": ("benchmarks/campaign.py", "    if not scorings:",
+                                                     "    if False:", "test_campaign_plan.py"),
 }
 
 
