@@ -423,6 +423,8 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
         (["policy=test_wrappers:sum_of_visible", "gym=NoSuchEnv-v0"], "cannot make the Gymnasium env 'NoSuchEnv-v0'"),
         (["policy=test_wrappers:sum_of_visible"], "a Python policy is audited with policy=MODULE:NAME and gym=ENV_ID"),
         (["policy=test_wrappers", "gym=ConstantFeatures-v0"], "policy must be MODULE:NAME"),
+        (["policy=test_audit:N", "gym=ConstantFeatures-v0"],  # a name that is no function (a typo's neighbour)
+         "policy=test_audit:N is not callable (its type: int): give a function masked_obs_batch -> actions"),
         (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "shapley=3"],
          "shapley must be 0 (none), exact, or at least 4 feature orders, got '3'"),
         (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "k=a"],
@@ -673,6 +675,10 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
         error = capsys.readouterr().err.strip().splitlines()
         assert status == 2 and len(error) == 1 and error[0].startswith(f"error: {message}"), error
     assert not (tmp_path / "big").exists() and not (tmp_path / "at300").exists()  # refused before the folder is made
+    from admissable_jax import video  # (its refusal for a run whose env Gymnasium has not: this run's is at hand)
+
+    assert video.main([short_run.run_dir, f"out={tmp_path / 'mass.mp4'}"]) == 2
+    assert capsys.readouterr().err.strip() == "error: point_mass has no Gymnasium env to render"
     capsys.readouterr()  # (what the audits above said)
     with pytest.raises(SystemExit) as refused:  # a bad key stops the parser itself
         audit_main([short_run.run_dir, "k=0"])

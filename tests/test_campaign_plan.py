@@ -131,6 +131,16 @@ def test_a_continuation_is_planned_past_the_records_it_rebuilds(tmp_path, capsys
                                          "adversarial-s0, .*, uniform-s4 "):
         campaign.main(["plan", *HOPPER_ON_THE_GPU, "modes=adversarial,uniform", "total_steps=0", "deadline=790",
                        records, H100])
+    # Fallback modes would be other pairs than the records hold: refused at the plan, not on the GPU.
+    with pytest.raises(ValueError, match="^records= continues the pairs its runs hold: fallback_modes cannot change them$"):
+        campaign.main(["plan", *HOPPER_ON_THE_GPU, "fallback_modes=adversarial,uniform", "total_steps=1000000",
+                       "deadline=790", records, H100])
+    # One pair whose rows carry no state fingerprint (a run from before they were written):
+    # the experiment cannot be continued from its records, and the plan says so.
+    open(tmp_path / "hopper" / "none-s4" / "metrics.jsonl", "w").close()
+    with pytest.raises(ValueError, match=f"^nothing to continue in {tmp_path / 'hopper'}: a run there records no "
+                                         "scoring with a state fingerprint$"):
+        campaign.main(["plan", *HOPPER_ON_THE_GPU, "total_steps=0", "deadline=790", records, H100])
 
 
 def test_training_throughput_counts_every_seeds_env_steps(tmp_path, monkeypatch, capsys):

@@ -171,9 +171,17 @@ def _wandb_history(run_dir: str) -> tuple[list[dict], list]:
     return rows, metrics
 
 
-def test_loggers_mirror_the_jsonl_rows(point_mass_run):
+def test_loggers_mirror_the_jsonl_rows(point_mass_run, tmp_path, capsys, monkeypatch):
     """logger=tensorboard,wandb: each row's numbers as scalars at its env step, every a_u,
-    p_miss as a histogram, in TensorBoard's event files and in W&B's offline run."""
+    p_miss as a histogram, in TensorBoard's event files and in W&B's offline run. Where the
+    wandb package is missing, logger=wandb is refused before the run starts."""
+    from admissable_jax.train import main
+
+    with monkeypatch.context() as patched:
+        patched.setitem(sys.modules, "wandb", None)  # what importlib finds where it is not installed
+        assert main(["logger=tensorboard,wandb", f"out={tmp_path / 'never'}", "progress=false"]) == 2
+    assert capsys.readouterr().err == "error: logger=wandb needs the wandb package: pip install -e '.[wandb]'\n"
+    assert not (tmp_path / "never").exists()
     values = collections.defaultdict(dict)
     for event in _tensorboard_events(os.path.join(point_mass_run.run_dir, "tensorboard")):
         for value in event.summary.value:

@@ -137,7 +137,8 @@ def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     except (ImportError, AttributeError) as error:
         raise ValueError(f"cannot load policy={config.policy}: {error}") from None
     if not callable(policy):
-        raise ValueError(f"policy={config.policy} is a {type(policy).__name__}, not a callable masked_obs_batch -> actions")
+        raise ValueError(f"policy={config.policy} is not callable (its type: {type(policy).__name__}): give a function "
+                         "masked_obs_batch -> actions")
     ks = _ks(config.k)
     gymnasium_features(config.gym, ks)  # before anything is written
     out = config.out or f"audit-{config.gym}-{name}"
