@@ -928,6 +928,14 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                              "test_campaign_plan.py"),
     "campaign_continues_records_of_no_fingerprint": ("benchmarks/campaign.py", "    if not scorings:",
                                                      "    if False:", "test_campaign_plan.py"),
+    # A thirty-seventh: a run folder without checkpoints audited as an experiment's pair (a raw
+    # "No such file" for the experiment.yaml it never had), an experiment resumed where none was.
+    "run_without_checkpoints_read_as_a_pair": ("admissable_jax/policies.py",
+                                               "    elif os.path.isfile(experiment_yaml):\n", "    elif True:\n",
+                                               "test_audit.py"),
+    "experiment_resumed_without_its_yaml": ("admissable_jax/experiment.py",
+                                            "    if not os.path.exists(experiment_yaml):", "    if False:",
+                                            "test_experiment.py"),
 }
 
 
