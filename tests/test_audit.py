@@ -13,6 +13,7 @@ import json
 import math
 import os
 import re
+import shutil
 
 import jax
 import jax.numpy as jnp
@@ -675,6 +676,12 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
         error = capsys.readouterr().err.strip().splitlines()
         assert status == 2 and len(error) == 1 and error[0].startswith(f"error: {message}"), error
     assert not (tmp_path / "big").exists() and not (tmp_path / "at300").exists()  # refused before the folder is made
+    unsaved = tmp_path / "unsaved"  # a run folder copied without its checkpoints (or stopped before the first)
+    unsaved.mkdir()
+    shutil.copy(os.path.join(short_run.run_dir, "config.yaml"), unsaved)
+    assert audit_main([str(unsaved), "k=1"]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"error: {unsaved} has no checkpoints (no checkpoints/ and no experiment.yaml above it)")
     from admissable_jax import video  # (its refusal for a run whose env Gymnasium has not: this run's is at hand)
 
     assert video.main([short_run.run_dir, f"out={tmp_path / 'mass.mp4'}"]) == 2

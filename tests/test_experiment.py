@@ -122,6 +122,12 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
     # Resumed from the command line, which ends with what the pairs found: the summary per mode
     # and adversarial − uniform, as plot's summary.md has them.
     argv = [f"{key}={str(value).lower() if isinstance(value, bool) else value}" for key, value in EXPERIMENT.items()]
+    pair_folder = os.path.join(resumed_root, "uniform-s1")  # a pair's folder given for its experiment's
+    before, _ = sorted(os.listdir(pair_folder)), capsys.readouterr()
+    status = experiment_main([*argv, "total_steps=3000", f"out={pair_folder}", "resume=true"])
+    assert (status, capsys.readouterr().err.strip().splitlines()[-1]) == (
+        1, f"error: nothing to resume: {pair_folder}/experiment.yaml does not exist")
+    assert sorted(os.listdir(pair_folder)) == before  # and nothing was made in it
     elsewhere = str(tmp_path / "elsewhere")  # the records alone, as a lent machine's pack brings them back
     shutil.copytree(resumed_root, elsewhere, ignore=shutil.ignore_patterns("checkpoints"))
     assert experiment_main([*argv, "total_steps=3000", f"out={resumed_root}", "resume=true"]) == 0
