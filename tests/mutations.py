@@ -894,18 +894,18 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                       "        if False:", "test_wrappers.py"),
     "policy_of_another_width_reshaped": ("admissable_jax/policies.py",
                                          "        if obs.shape[-1] != self.observation_size:", "        if False:",
-                                         "test_audit.py"),
+                                         "test_experiment.py"),
     "audit_steps_of_any_text_told_raw": ("admissable_jax/audit/command.py",
                                          "        raise ValueError(f\"steps must be 'all' or a comma list of env steps, "
                                          "got {config.steps!r}\") from None", "        raise", "test_audit.py"),
     "audit_experiment_without_pairs_taken": ("admissable_jax/audit/command.py", "    if not pairs:\n", "    if False:\n",
-                                             "test_audit.py"),
+                                             "test_experiment.py"),
     "score_slots_above_max_batch_taken": ("admissable_jax/scoring/rollout_scores.py",
                                           "    if num_slots is not None and num_slots > max_batch:", "    if False:",
                                           "test_training.py"),
     "observation_names_of_any_json_taken": ("admissable_jax/run_directory.py",
                                             "    if not isinstance(names, list) or not all(isinstance(name, str) "
-                                            "for name in names):", "    if False:", "test_runs.py"),
+                                            "for name in names):", "    if False:", "test_training.py"),
     "train_fn_of_a_dict_taken": ("admissable_jax/train.py", "    if not isinstance(config, TrainConfig):\n"
                                  "        raise TypeError(f\"train_fn expects", "    if False:\n"
                                  "        raise TypeError(f\"train_fn expects", "test_training.py"),
