@@ -682,7 +682,8 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
     assert audit_main([str(unsaved), "k=1"]) == 2
     assert capsys.readouterr().err.strip() == (
         f"error: {unsaved} has no checkpoints (no checkpoints/ and no experiment.yaml above it)")
-    from admissable_jax import video  # (its refusal for a run whose env Gymnasium has not: this run's is at hand)
+    # The video refuses a run whose env Gymnasium has no twin of to render (this point-mass run is at hand).
+    from admissable_jax import video
 
     assert video.main([short_run.run_dir, f"out={tmp_path / 'mass.mp4'}"]) == 2
     assert capsys.readouterr().err.strip() == "error: point_mass has no Gymnasium env to render"

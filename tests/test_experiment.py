@@ -123,7 +123,8 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
     # and adversarial − uniform, as plot's summary.md has them.
     argv = [f"{key}={str(value).lower() if isinstance(value, bool) else value}" for key, value in EXPERIMENT.items()]
     pair_folder = os.path.join(resumed_root, "uniform-s1")  # a pair's folder given for its experiment's
-    before, _ = sorted(os.listdir(pair_folder)), capsys.readouterr()
+    before = sorted(os.listdir(pair_folder))
+    capsys.readouterr()  # (what the runs above said)
     status = experiment_main([*argv, "total_steps=3000", f"out={pair_folder}", "resume=true"])
     assert (status, capsys.readouterr().err.strip().splitlines()[-1]) == (
         1, f"error: nothing to resume: {pair_folder}/experiment.yaml does not exist")

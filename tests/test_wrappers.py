@@ -139,7 +139,8 @@ def test_adversary_draws_from_the_papers_p_miss_and_updates_in_vector_envs():
 
 
 def test_wrappers_import_no_jax():
-    """Nor does a misspelt public name, which is an AttributeError as in any module."""
+    """Importing the wrappers imports no JAX, nor does a misspelt public name, which is an
+    AttributeError as in any module."""
     code = ("import sys, admissable_jax, admissable_jax.wrappers\n"
             "try:\n    admissable_jax.train_fm\nexcept AttributeError as error:\n    print(error)\n"
             "assert 'jax' not in sys.modules, 'jax imported'")
