@@ -936,6 +936,20 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "experiment_resumed_without_its_yaml": ("admissable_jax/experiment.py",
                                             "    if not os.path.exists(experiment_yaml):", "    if False:",
                                             "test_experiment.py"),
+    # A thirty-eighth: refusals of the GPU runbook's first step, the CPU's preparation of the
+    # device packs and kernel archives (each would fail later, after minutes of building, or on the GPU).
+    "kernel_archive_of_any_name": ("benchmarks/warp_kernels.py", '    if not config.out.endswith(".tar.xz"):', "    if False:",
+                                   "test_warp_kernels.py"),
+    "kernel_leave_out_of_no_archive": ("benchmarks/warp_kernels.py", "        if not os.path.isfile(archive):",
+                                       "        if False:", "test_warp_kernels.py"),
+    "kernels_of_mjx_own_warp_made_deterministic": ("benchmarks/warp_kernels.py",
+                                                   "    if config.mjx_own_warp and config.deterministic:", "    if False:",
+                                                   "test_warp_kernels.py"),
+    "device_pack_margin_of_any_size": ("benchmarks/device_pack.py", "    if not 0 <= config.margin_mb < 10:", "    if False:",
+                                       "test_device_pack.py"),
+    "device_pack_without_its_parts": ("benchmarks/device_pack.py",
+                                      "        if not os.path.isfile(os.path.join(dev, part)):", "        if False:",
+                                      "test_device_pack.py"),
 }
 
 
