@@ -57,7 +57,7 @@ def test_the_wheels_pack_sh_lacks_are_added_once(tmp_path, monkeypatch):
     assert downloads == ["mujoco-warp==3.17.0"]
 
 
-def test_packs_are_slimmed_and_split_so_that_each_call_fits_with_the_tree(tmp_path, monkeypatch):
+def test_packs_are_slimmed_and_split_so_that_each_call_fits_with_the_tree(tmp_path, monkeypatch, capsys):
     """Small sizes for 64 MiB: a 1 MB limit, a 0.3 MB tree, 0.3 MB of wheels, 0.1 MB of kernels,
     warp-lang 0.8 MB (incompressible) and its test suite 0.3 MB, whose first part pack.sh left
     small, as it does."""
@@ -97,6 +97,14 @@ def test_packs_are_slimmed_and_split_so_that_each_call_fits_with_the_tree(tmp_pa
         device_pack.repack(str(dev), 410_000, margin)
     assert "\n" not in str(refused.value)
     assert _joined(dev) == before
+    # A .dev that pack.sh never filled, and a margin past the packs' room: one line each, before any work.
+    with pytest.raises(ValueError, match=f"^{tmp_path / 'empty' / 'a' / 'warp.part0'} is missing: run this with pack=true "):
+        device_pack.repack(str(tmp_path / "empty"), tree, margin)
+    for margin_mb in ("-1", "10"):
+        with pytest.raises(SystemExit) as refused_margin:
+            device_pack.main(["pack=false", f"margin_mb={margin_mb}"])
+        assert refused_margin.value.code == 2
+        assert capsys.readouterr().err.strip().splitlines()[-1] == f"error: margin_mb must be in [0, 10), got {float(margin_mb)}"
 
 
 def test_the_committed_tree_leaves_room_for_the_recorded_packs():

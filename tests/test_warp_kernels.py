@@ -6,6 +6,7 @@ import tarfile
 import types
 
 import numpy as np
+import pytest
 import warp as wp
 import warp_atomics  # benchmarks/ is on the tests' path (conftest.py)
 import warp_kernels
@@ -144,7 +145,7 @@ def test_modules_are_built_for_the_block_sizes_a_cuda_device_loads(tmp_path):
     assert all(os.path.getsize(path) > 0 for path in files)
 
 
-def test_an_archive_leaves_out_what_another_holds(tmp_path):
+def test_an_archive_leaves_out_what_another_holds(tmp_path, capsys):
     """warp_kernels.py's archive per MuJoCo Warp setup packs only the files that the archives
     named in leave_out do not hold (the modules no setup changes), under the same names."""
     root = tmp_path / "scratch"
@@ -159,4 +160,12 @@ def test_an_archive_leaves_out_what_another_holds(tmp_path):
     assert warp_kernels.pack(files, str(root), second, [first]) == ["warp_cache/1.19.0/wp_own_2/m.cubin"]
     with tarfile.open(second) as archive:
         assert archive.extractfile("warp_cache/1.19.0/wp_own_2/m.cubin").read() == b"warp_cache/1.19.0/wp_own_2/m.cubin"
+    # What would fail only after minutes of building (or on the GPU): refused in one line first.
+    for args, message in (([f"out={tmp_path / 'kernels.tgz'}"], f"out must name a .tar.xz archive, got '{tmp_path / 'kernels.tgz'}'"),
+                          ([f"leave_out={first},{tmp_path / 'none.tar.xz'}"], f"leave_out names no archive: {tmp_path / 'none.tar.xz'}"),
+                          (["mjx_own_warp=true"], "mjx_own_warp=true steps MJX's own copy of MuJoCo Warp, which has no "
+                                                  "deterministic mode: pass deterministic=false")):
+        with pytest.raises(SystemExit) as refused:
+            warp_kernels.main(args)
+        assert refused.value.code == 2 and capsys.readouterr().err.strip().splitlines()[-1] == f"error: {message}"
 
