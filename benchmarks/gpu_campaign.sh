@@ -172,7 +172,7 @@ if [ "$smoke" = 1 ]; then
          buffer_size=1000 score_episodes=2 score_envs=24 episode_length=10 checkpoint_every=1)
   min_steps=${CAMPAIGN_MIN_STEPS:-40}; worlds=4,8; graph_modes=default; physics_steps=10; scoring=(n_episodes=1 max_steps=10)
   train_bench=(num_envs=4 iterations=4 batch_size=32 buffer_size=1000); brax=(num_envs=4 steps_per_epoch=4 batch_size=32 num_eval_envs=2 episode_length=10)
-  repeat=(total_steps=80 learning_starts=48); cost_worlds=4; check=(batches=4 steps=5)
+  repeat=(total_steps=80 learning_starts=48); cost_worlds=4; check=(batches=4 steps=$physics_steps)
   repeat_keys="physics=warp score_every=40 num_envs=4 batch_size=32 hidden_size=32 buffer_size=1000 score_episodes=2 score_envs=24 episode_length=10"
   deadline=${CAMPAIGN_DEADLINE:-3600}; lease=3600
 else
