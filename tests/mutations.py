@@ -901,8 +901,7 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "audit_experiment_without_pairs_taken": ("admissable_jax/audit/command.py", "    if not pairs:\n", "    if False:\n",
                                              "test_experiment.py"),
     "score_slots_above_max_batch_taken": ("admissable_jax/scoring/rollout_scores.py",
-                                          "    if num_slots is not None and num_slots > max_batch:", "    if False:",
-                                          "test_training.py"),
+                                          "    if num_slots > max_batch:", "    if False:", "test_training.py"),
     "observation_names_of_any_json_taken": ("admissable_jax/run_directory.py",
                                             "    if not isinstance(names, list) or not all(isinstance(name, str) "
                                             "for name in names):", "    if False:", "test_training.py"),
@@ -950,6 +949,10 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "device_pack_without_its_parts": ("benchmarks/device_pack.py",
                                       "        if not os.path.isfile(os.path.join(dev, part)):", "        if False:",
                                       "test_device_pack.py"),
+    # Round 39: the benchmark scripts no test ran, each run by hand at a small size.
+    "score_slots_checked_before_their_clamp": ("admissable_jax/scoring/rollout_scores.py",
+                                               "    if num_slots > max_batch:", "    if (slots_asked or 0) > max_batch:",
+                                               "test_training.py"),
 }
 
 

@@ -491,10 +491,11 @@ def interrupted_policy(obs):
 
 @pytest.fixture(scope="module")
 def short_run(tmp_path_factory):
-    """A short adversarial run whose scorings are 3-step horizon estimates."""
+    """A short adversarial run whose scorings are 3-step horizon estimates (its scoring pool
+    of 16 slots more than the 10 episodes: those beyond never run)."""
     out = str(tmp_path_factory.mktemp("audit") / "pm")
     return train_fn(TrainConfig(env="point_mass", total_steps=600, score_every=200, num_envs=4, learning_starts=200,
-                                episode_length=12, score_episodes=2, batch_size=32, buffer_size=1000, hidden_size=16,
+                                episode_length=12, score_episodes=2, score_envs=16, batch_size=32, buffer_size=1000, hidden_size=16,
                                 score_estimator="horizon", score_horizon=3, checkpoint_every=1, keep_checkpoints=3,
                                 progress=False, out=out))
 
@@ -508,6 +509,40 @@ def test_training_scores_with_the_chosen_estimator(short_run):
         inverse = 1 / (np.maximum(np.asarray(row["scores"]), 0.0) + 1e-8)
         np.testing.assert_allclose(row["p_miss"], inverse / inverse.sum(), rtol=1e-4)
     assert short_run.scores[-1]["scores"] != short_run.scores[0]["scores"]
+
+
+def test_score_estimators_benchmark_compares_each_estimator_with_the_rollout(short_run, tmp_path, monkeypatch):
+    """benchmarks/score_estimators.py on a run whose scoring pool (score_envs = 16) is larger
+    than the (|U| + 1) · N = 10 episodes scored: one record per estimator, each against the
+    rollout's scores from the same start states, which are score_missingness's."""
+    import common  # benchmarks/ is on the tests' path (conftest.py)
+    import score_estimators
+    from scipy import stats
+
+    from admissable_jax.method import inverse_score_p_miss
+
+    monkeypatch.setattr(common, "RESULTS_DIR", str(tmp_path))
+    score_estimators.main([f"runs={short_run.run_dir}", "horizons=0,3", "n_episodes=2", "seed=5"])
+    with open(tmp_path / "score_estimators.jsonl") as file:
+        records = [json.loads(line) for line in file]
+    policy = load_policy(short_run.run_dir)
+    sets = jnp.asarray(candidate_sets(4, 1))
+    rollout = score_missingness(ENV, policy.trainer.policy, policy.actor_params, jax.random.key(5), sets, 2)
+    estimates = [estimate_scores(ENV, policy.trainer.policy, policy.actor_params, policy.trainer.critic_values,
+                                 policy.critic_params, jax.random.key(5), sets, 2, horizon, short_run.config.gamma)
+                 for horizon in (0, 3)]
+    assert [(record["estimator"], record["horizon"], record["physics_steps"]) for record in records] == [
+        ("critic", 0, 0), ("horizon", 3, 3)]
+    for record, estimate in zip(records, estimates):
+        assert record["checkpoint"] == policy.step and record["sets"] == 4 and record["n_episodes"] == 2
+        np.testing.assert_allclose(record["rollout_scores"], rollout.scores, rtol=1e-5)
+        np.testing.assert_allclose(record["scores"], estimate.scores, rtol=1e-5)
+        assert record["rollout_physics_steps"] == int(rollout.loop_steps)
+        assert record["spearman"] == pytest.approx(stats.spearmanr(record["scores"], record["rollout_scores"]).statistic)
+        assert record["argmin_agrees"] == (np.argmin(record["scores"]) == np.argmin(record["rollout_scores"]))
+        ours, theirs = (inverse_score_p_miss(np.asarray(scores), 0.0, 1e-8)
+                        for scores in (record["scores"], record["rollout_scores"]))
+        assert record["p_miss_tv"] == pytest.approx(0.5 * np.abs(ours - theirs).sum())
 
 
 def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path, capsys):

@@ -389,12 +389,19 @@ def test_score_missingness_equals_a_plain_loop_and_finds_the_used_feature(caplog
         np.testing.assert_array_equal(checked.lengths, reference.lengths)
         np.testing.assert_allclose(checked.returns, reference.returns, rtol=1e-6)
         assert int(checked.loop_steps) == int(reference.loop_steps)
-    too_many = env.options.max_batch + 1  # more envs in one program than the env was built for (Warp's buffers)
-    for slots, every, message in ((too_many, 1, f"num_slots={too_many} exceeds the env's max_batch="
-                                                f"{too_many - 1}; build the env with a larger max_batch"),
-                                  (None, 0, "steps_per_check must be >= 1, got 0")):
+    # Slots beyond the 15 episodes never run: more than max_batch of them are taken (training's
+    # score_envs, used for a smaller scoring), but not 15 episodes at once in an env built for 14
+    # (Warp's buffers hold max_batch worlds).
+    beyond = score_missingness(env, _feature_zero_controller, 2.0, rng, hidden_sets, n_episodes,
+                               num_slots=env.options.max_batch + 1)
+    np.testing.assert_array_equal(beyond.returns, scored.returns)
+    narrow = make_env("point_mass", episode_length=60, max_batch=14)
+    for scoring_env, slots, every, message in (
+            (narrow, 16, 1, "num_slots=16 steps 15 envs at once, more than the env's max_batch=14; build the env "
+                            "with a larger max_batch or give fewer slots"),
+            (env, None, 0, "steps_per_check must be >= 1, got 0")):
         with pytest.raises(ValueError, match=f"^{re.escape(message)}($|\n)"):  # (JAX may add a note)
-            score_missingness(env, _feature_zero_controller, 2.0, rng, hidden_sets, n_episodes, num_slots=slots,
+            score_missingness(scoring_env, _feature_zero_controller, 2.0, rng, hidden_sets, n_episodes, num_slots=slots,
                               steps_per_check=every)
 
     # Vmapped rollouts whose episodes end at different times (a policy that pushes harder

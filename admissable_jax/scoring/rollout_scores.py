@@ -79,8 +79,9 @@ def score_by_rollout(
     observation (our SAC actor's mean action, or a hand-written controller). ``max_steps``
     defaults to the env's limit (1000). ``num_slots`` is how many envs are stepped at once
     (default: all (|U| + 1) · N episodes, or the env's ``max_batch`` if that is smaller;
-    fewer trades loop steps for a smaller batch, which pays where a step's cost grows with
-    the batch, as on a CPU). ``steps_per_check``: steps between checks whether any episode
+    never more than the episodes, so ``min(num_slots, (|U| + 1) · N)`` is what must fit
+    ``max_batch``). Fewer trades loop steps for a smaller batch, which pays where a step's
+    cost grows with the batch, as on a CPU. ``steps_per_check``: steps between checks whether any episode
     still runs (module docstring). ``progress(finished)``: told the episodes finished after
     each check (module docstring). Jit-able with ``env``, ``policy_fn``, ``n_episodes``,
     ``max_steps``, ``num_slots``, ``steps_per_check`` and ``progress`` static.
@@ -94,9 +95,11 @@ def score_by_rollout(
     num_rows = num_sets + 1
     num_episodes = num_rows * n_episodes  # episode e: set row e // N, initial state e % N
     max_batch = env.options.max_batch
-    if num_slots is not None and num_slots > max_batch:
-        raise ValueError(f"num_slots={num_slots} exceeds the env's max_batch={max_batch}; build the env with a larger max_batch")
+    slots_asked = num_slots
     num_slots = min(num_episodes, max_batch) if num_slots is None else max(1, min(num_slots, num_episodes))
+    if num_slots > max_batch:  # the envs stepped at once (slots beyond the episodes never run)
+        raise ValueError(f"num_slots={slots_asked} steps {num_slots} envs at once, more than the env's "
+                         f"max_batch={max_batch}; build the env with a larger max_batch or give fewer slots")
     episode_hidden = jnp.repeat(jnp.concatenate([hidden_sets, jnp.zeros((1, num_features))]), n_episodes, axis=0)
     initial = jax.vmap(env.reset)(jax.random.split(rng, n_episodes))
     policy = jax.vmap(policy_fn, in_axes=(None, 0))
