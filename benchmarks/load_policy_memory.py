@@ -21,6 +21,9 @@ from common import append_record, peak_host_memory_mb, run_benchmark
 
 
 def main(argv: list[str]) -> None:
+    if any(arg in ("-h", "--help") for arg in argv):
+        print(__doc__.strip())
+        return
     if len(argv) != 1:
         fail("give one run directory (a train run's or an experiment pair's)")
     started = time.perf_counter()

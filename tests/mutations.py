@@ -953,6 +953,12 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "score_slots_checked_before_their_clamp": ("admissable_jax/scoring/rollout_scores.py",
                                                "    if num_slots > max_batch:", "    if (slots_asked or 0) > max_batch:",
                                                "test_training.py"),
+    "benchmark_importing_a_moved_name": ("benchmarks/sim_to_sim.py", "from admissable_jax.wrappers import score_policy\n",
+                                         "from admissable_jax.wrappers import score_policies\n",
+                                         "test_benchmark_scripts.py"),
+    "load_policy_memory_help_taken_for_a_run": ("benchmarks/load_policy_memory.py",
+                                                '    if any(arg in ("-h", "--help") for arg in argv):',
+                                                "    if False:", "test_benchmark_scripts.py"),
 }
 
 
