@@ -101,6 +101,8 @@ def _validate(bench: BraxBenchConfig) -> None:
                                "updates", "rounds"))
     if bench.utd <= 0:
         raise ValueError(f"utd must be > 0, got {bench.utd}")
+    if len(jax.local_devices()) != 1:
+        raise ValueError("run on one device (Brax would pmap over all of them; ours uses one)")
 
 
 def _brax_update(obs_size: int, action_size: int):
@@ -182,8 +184,6 @@ def compare_updates(bench: BraxBenchConfig) -> None:
 
 def main(argv: list[str]) -> None:
     bench = parse_args(BraxBenchConfig, argv, "benchmarks/brax_sac.py", __doc__.splitlines()[0], _validate)
-    if len(jax.local_devices()) != 1:
-        raise SystemExit("run on one device (Brax would pmap over all of them; ours uses one)")
     if bench.update_only:
         return compare_updates(bench)
     jax.device_put_replicated = _device_put_replicated
@@ -204,7 +204,7 @@ def main(argv: list[str]) -> None:
     total_s = time.perf_counter() - started
     timed = [metrics for _, metrics in progress if "training/sps" in metrics]
     if len(timed) < 2:
-        raise SystemExit(f"Brax reported {len(timed)} timed epochs; need 2 (raise steps_per_epoch)")
+        raise ValueError(f"Brax reported {len(timed)} timed epochs; need 2 (raise steps_per_epoch)")
     env_sps = float(timed[1]["training/sps"])
     record = {
         "env": env.env.gymnasium_id, "physics": env.env.physics_name, "trainer": "brax.training.agents.sac", "num_envs": bench.num_envs,

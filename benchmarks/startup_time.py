@@ -53,6 +53,11 @@ class StartupConfig:
                 "and once with Python's plain exit (the freeze undone), e.g. 'admissable_jax.train env=point_mass'"})
 
 
+def _validate(config: StartupConfig) -> None:
+    if config.repeats < 1:
+        raise ValueError(f"repeats must be >= 1, got {config.repeats}")
+
+
 def measure(module: str, repeats: int) -> dict:
     environment = {key: value for key, value in os.environ.items() if key != "PYTHONDONTWRITEBYTECODE"}
     imports, walls, loads_mjx, exits = [], [], set(), {way: [] for way in EXITS}
@@ -95,9 +100,7 @@ def measure_run(command: str) -> dict:
 
 
 def main(argv: list[str]) -> int:
-    config = parse_args(StartupConfig, argv, "benchmarks/startup_time.py", __doc__.splitlines()[0])
-    if config.repeats < 1:
-        raise SystemExit("error: repeats must be >= 1")
+    config = parse_args(StartupConfig, argv, "benchmarks/startup_time.py", __doc__.splitlines()[0], _validate)
     if config.run:
         record = measure_run(config.run)
         append_record("startup_time", record)

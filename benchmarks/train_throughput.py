@@ -37,7 +37,7 @@ import jax.numpy as jnp
 
 from admissable_jax import method
 from admissable_jax.agent import SACBatch
-from admissable_jax.cli import parse_args
+from admissable_jax.cli import check_at_least_one, parse_args
 from admissable_jax.config import TrainConfig
 from admissable_jax.rollout import random_rollout
 from admissable_jax.host_loop import make_trainer, take_pair
@@ -62,6 +62,12 @@ class TrainBenchConfig:
     up_to_k: bool = dataclasses.field(default=False, metadata={"help": "U also holds the sets of fewer than k features"})
     pool_size: int = dataclasses.field(default=0, metadata={"help": "the adversary's candidate pool (0: exact U)"})
     set_rows: str = dataclasses.field(default="auto", metadata={"help": "auto (listed up to MAX_CANDIDATE_SETS sets, else computed) | computed"})
+
+
+def _validate(bench: TrainBenchConfig) -> None:
+    check_at_least_one(bench, ("num_envs", "iterations", "seeds"))  # (TrainConfig checks the others)
+    if bench.set_rows not in ("auto", "computed"):
+        raise ValueError(f"set_rows must be auto or computed, got {bench.set_rows!r}")
 
 
 def matmul_gflops(size: int = 4096, repeats: int = 10) -> float:
@@ -134,11 +140,9 @@ def iteration_breakdown(trainer: Trainer, state, iterations: int, rounds: int = 
 
 
 def main(argv: list[str]) -> None:
-    bench = parse_args(TrainBenchConfig, argv, "benchmarks/train_throughput.py", __doc__.splitlines()[0])
+    bench = parse_args(TrainBenchConfig, argv, "benchmarks/train_throughput.py", __doc__.splitlines()[0], _validate)
     learning_starts = 2**30 if bench.before_learning else max(bench.batch_size, bench.num_envs)
     warmup_iterations = 1 if bench.before_learning else learning_starts // bench.num_envs + 1
-    if bench.set_rows not in ("auto", "computed"):
-        raise SystemExit(f"error: set_rows must be auto or computed, got {bench.set_rows!r}")
     config = TrainConfig(
         env=bench.env, num_envs=bench.num_envs, utd=bench.utd, batch_size=bench.batch_size,
         learning_starts=learning_starts, score_every=bench.num_envs, buffer_size=bench.buffer_size, progress=False,

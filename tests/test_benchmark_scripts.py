@@ -1,6 +1,8 @@
-"""Every benchmark script imports and explains itself (``--help``). Most scripts are run by
-hand, on a GPU lease or at a size no test affords; a name they import from the package that
-moved, or a key table that no longer builds, fails here instead of on the lease."""
+"""Every benchmark script imports, explains itself (``--help``) and refuses bad keys in one
+line with exit status 2. Most scripts are run by hand, on a GPU lease or at a size no test
+affords; a name they import from the package that moved, a key table that no longer builds,
+or a bad key that would start the work (and fail in it, or record nonsense) fails here
+instead."""
 
 from __future__ import annotations
 
@@ -12,15 +14,43 @@ import sys
 BENCHMARKS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "benchmarks")
 IMPORTED_ONLY = {"common.py", "profile_trace.py", "toy_envs.py"}  # modules the scripts import, not commands
 HELP_ARGS = {"campaign.py": ["measure", "--help"]}  # its keys follow a verb
+PROGRAMS = "hopper, walker2d, ant, point_mass"
 
-# One process for all scripts (each imports JAX, some Brax or SciPy): the script run as
-# ``__main__`` with ``--help``, its exit status (or the traceback that stopped it) and what it
-# printed.
+# (script, its arguments, the one line it refuses them with, after "error: "): what each
+# script checks before it starts (the others' refusals are quoted in the tests that run them).
+REFUSALS = [
+    ("physics_throughput.py", ["batches=8,0"], "batches and steps must be >= 1"),
+    ("repeatability.py", ["total_steps=100", "learning_starts=100"],
+     "learning_starts must be in (0, total_steps = 100), got 100"),
+    ("score_estimators.py", [], "give runs=RUN_DIR[,RUN_DIR...]"),
+    ("score_estimators.py", ["runs=r", "horizons=0,-3"], "n_episodes must be >= 2 and horizons >= 0"),
+    ("scoring_round.py", ["slots=-2"], "slots must be -1 (the backend's default), 0 (all episodes) or >= 1, got -2"),
+    ("shapley_orders.py", ["audit={tmp}/audit.json"],
+     "{tmp}/audit.json holds no exact Shapley attribution with its coalition values (audit shapley=exact)"),
+    ("sim_to_sim.py", [], "run= is required (a run directory)"),
+    ("startup_time.py", ["repeats=0"], "repeats must be >= 1, got 0"),
+    ("step_compile.py", ["steps=0"], "batch and steps must be >= 1"),
+    ("train_throughput.py", ["set_rows=listed"], "set_rows must be auto or computed, got 'listed'"),
+    ("train_throughput.py", ["num_envs=0"], "num_envs must be >= 1, got 0"),
+    ("train_throughput.py", ["iterations=0"], "iterations must be >= 1, got 0"),
+    ("warp_atomics.py", ["steps=-1"], "num_envs must be >= 1 and steps >= 0, got 4 and -1"),
+    ("warp_kernels.py", ["arch=70"], "arch must be a CUDA architecture Warp supports (>= 75), got 70"),
+    ("warp_kernels.py", ["batch=0"], "batch must be >= 1"),
+    ("warp_launches.py", ["solver_iterations=4,x"], "solver_iterations must be ints >= 0 (got '4,x'), num_envs and steps >= 1"),
+    ("xla_cpu_compile.py", ["programs=hopper,cheetah"], f"programs must be a comma list of {PROGRAMS} and repeats >= 1"),
+    ("xla_cpu_compile.py", ["flag_sets=--a||--b"], "flag_sets must be XLA_FLAGS settings separated by |, none empty"),
+    ("compact_pngs.py", [], "give the PNG files, notebooks or folders to compact: python benchmarks/compact_pngs.py PATH [PATH ...]"),
+    ("load_policy_memory.py", [], "give one run directory (a train run's or an experiment pair's)"),
+]
+
+# One process for all runs (each script imports JAX, some Brax or SciPy): each script run as
+# ``__main__`` with its arguments, its exit status (or the traceback that stopped it) and what
+# it printed.
 CHILD = """
 import contextlib, io, json, runpy, sys, traceback
 sys.path.insert(0, sys.argv[1])
-results = {}
-for script, args in json.loads(sys.argv[2]).items():
+results = []
+for script, args in json.loads(sys.argv[2]):
     sys.argv = [script, *args]
     printed, status = io.StringIO(), 0
     with contextlib.redirect_stdout(printed), contextlib.redirect_stderr(printed):
@@ -30,21 +60,25 @@ for script, args in json.loads(sys.argv[2]).items():
             status = stop.code or 0
         except Exception:  # an import that fails: the script is named with its traceback
             status = traceback.format_exc()
-    results[script] = [status, printed.getvalue()]
+    results.append([status, printed.getvalue()])
 print(json.dumps(results))
 """
 
 
-def test_every_benchmark_script_imports_and_explains_itself():
+def test_every_benchmark_script_imports_explains_itself_and_refuses_bad_keys(tmp_path):
     scripts = sorted(name for name in os.listdir(BENCHMARKS) if name.endswith(".py") and name not in IMPORTED_ONLY)
     assert {"sim_to_sim.py", "score_estimators.py", "step_compile.py", "brax_sac.py"} <= set(scripts)
-    child = subprocess.run([sys.executable, "-c", CHILD, BENCHMARKS,
-                            json.dumps({name: HELP_ARGS.get(name, ["--help"]) for name in scripts})],
-                           capture_output=True, text=True, timeout=300)
+    (tmp_path / "audit.json").write_text(json.dumps({"shapley": {"method": "sampled"}}))
+    refusals = [(script, [arg.format(tmp=tmp_path) for arg in args], message.format(tmp=tmp_path))
+                for script, args, message in REFUSALS]
+    runs = [(name, HELP_ARGS.get(name, ["--help"])) for name in scripts] + [(script, args) for script, args, _ in refusals]
+    child = subprocess.run([sys.executable, "-c", CHILD, BENCHMARKS, json.dumps(runs)], capture_output=True, text=True,
+                           timeout=300, cwd=tmp_path, env={**os.environ, "BENCHMARK_RESULTS_DIR": str(tmp_path / "results")})
     assert child.returncode == 0, child.stderr[-3000:]
     results = json.loads(child.stdout.strip().splitlines()[-1])
-    for name in scripts:
-        status, printed = results[name]
+    for name, (status, printed) in zip(scripts, results):
         assert status == 0, (name, printed[-2000:])
-        # A usage line (or the docstring's own example) naming the script.
-        assert f"benchmarks/{name}" in printed, (name, printed[:500])
+        assert f"benchmarks/{name}" in printed, (name, printed[:500])  # its usage line, or its docstring's example
+    for (script, args, message), (status, printed) in zip(refusals, results[len(scripts):]):
+        assert (status, printed) == (2, f"error: {message}\n"), (script, args)
+    assert not (tmp_path / "results").exists()  # nothing recorded
