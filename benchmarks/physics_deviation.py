@@ -18,7 +18,7 @@ import time
 import jax
 import numpy as np
 
-from admissable_jax.cli import parse_args
+from admissable_jax.cli import check_at_least_one, parse_args
 from admissable_jax.envs import make_env
 from admissable_jax.envs.parity import gymnasium_transitions, step_from_states
 from admissable_jax.rollout import random_rollout
@@ -36,8 +36,12 @@ class DeviationConfig:
     physics: str = dataclasses.field(default="auto", metadata={"help": "auto | jax | warp (the env's physics backend)"})
 
 
+def _validate(bench: DeviationConfig) -> None:
+    check_at_least_one(bench, ("transitions", "num_envs", "steps"))
+
+
 def main(argv: list[str]) -> None:
-    bench = parse_args(DeviationConfig, argv, "benchmarks/physics_deviation.py", __doc__.splitlines()[0])
+    bench = parse_args(DeviationConfig, argv, "benchmarks/physics_deviation.py", __doc__.splitlines()[0], _validate)
     env = make_env(bench.env, solver_iterations=bench.solver_iterations or None, ls_iterations=bench.ls_iterations or None,
                    physics=bench.physics, max_batch=max(bench.transitions, bench.num_envs))
     gym = gymnasium_transitions(env.gymnasium_id, bench.transitions)

@@ -35,7 +35,7 @@ import time
 
 from common import append_record, run_benchmark
 
-from admissable_jax.cli import parse_args
+from admissable_jax.cli import check_at_least_one, parse_args
 
 DIVERGED = re.compile(r"fast-forward diverged at env step ([0-9,]+)")
 FROM_THE_START = "fast-forward: re-training env steps 0 to "  # a rebuild that re-trained every interval
@@ -53,6 +53,7 @@ class RepeatabilityConfig:
 
 
 def _validate(config: RepeatabilityConfig) -> None:
+    check_at_least_one(config, ("seeds",))  # (the experiments check the rest, once started)
     if not 0 < config.learning_starts < config.total_steps:
         raise ValueError(f"learning_starts must be in (0, total_steps = {config.total_steps}), got {config.learning_starts}")
 

@@ -17,7 +17,7 @@ import time
 
 import jax
 
-from admissable_jax.cli import parse_args
+from admissable_jax.cli import check_at_least_one, parse_args
 from admissable_jax.scoring import beam_search_worst_sets
 from common import append_record, run_benchmark, timed
 
@@ -30,8 +30,12 @@ class SetSearchConfig:
     repeats: int = dataclasses.field(default=3, metadata={"help": "timed runs per width (the best is kept)"})
 
 
+def _validate(bench: SetSearchConfig) -> None:
+    check_at_least_one(bench, ("d", "k", "repeats"))  # (the search checks k <= d and each width)
+
+
 def main(argv: list[str]) -> None:
-    bench = parse_args(SetSearchConfig, argv, "benchmarks/set_search.py", __doc__.splitlines()[0])
+    bench = parse_args(SetSearchConfig, argv, "benchmarks/set_search.py", __doc__.splitlines()[0], _validate)
     weights = jax.random.normal(jax.random.key(0), (bench.d,))
     for width in (int(text) for text in bench.widths.split(",")):
         search = jax.jit(lambda w: beam_search_worst_sets(lambda rows: rows @ w, bench.d, bench.k, width))

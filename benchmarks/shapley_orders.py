@@ -28,7 +28,7 @@ import sys
 
 import numpy as np
 
-from admissable_jax.cli import parse_args
+from admissable_jax.cli import check_at_least_one, parse_args
 from admissable_jax.scoring.attribution import plan_shapley, shapley_attribution
 from common import append_record, run_benchmark
 
@@ -55,8 +55,12 @@ def exact_values(path: str) -> tuple[np.ndarray, np.ndarray, dict]:
     return rows, values, {**attribution, "env": record["env"], "names": record["feature_names"]}
 
 
+def _validate(config: ShapleyOrdersConfig) -> None:
+    check_at_least_one(config, ("repeats",))
+
+
 def main(argv: list[str]) -> int:
-    config = parse_args(ShapleyOrdersConfig, argv, "benchmarks/shapley_orders.py", __doc__.splitlines()[0])
+    config = parse_args(ShapleyOrdersConfig, argv, "benchmarks/shapley_orders.py", __doc__.splitlines()[0], _validate)
     try:
         rows, values, exact = exact_values(config.audit)
     except (OSError, ValueError) as error:

@@ -22,7 +22,7 @@ import sys
 import jax
 import numpy as np
 
-from admissable_jax.cli import parse_args
+from admissable_jax.cli import check_at_least_one, parse_args
 from admissable_jax.config import TrainConfig
 from admissable_jax.host_loop import make_trainer, pairs_init
 from admissable_jax.placement import PairPlacement
@@ -40,6 +40,10 @@ class ScalingBenchConfig:
     episode_length: int = dataclasses.field(default=100, metadata={"help": "episode step limit (scoring round length)"})
     buffer_size: int = dataclasses.field(default=100_000, metadata={"help": "replay capacity per pair"})
     physics: str = dataclasses.field(default="auto", metadata={"help": "auto | jax | warp"})
+
+
+def _validate(bench: ScalingBenchConfig) -> None:
+    check_at_least_one(bench, ("pairs", "num_envs", "iterations"))  # (TrainConfig checks the others)
 
 
 def measure(bench: ScalingBenchConfig, devices: int) -> dict:
@@ -76,7 +80,7 @@ def measure(bench: ScalingBenchConfig, devices: int) -> dict:
 
 
 def main(argv: list[str]) -> None:
-    bench = parse_args(ScalingBenchConfig, argv, "benchmarks/sharding_scaling.py", __doc__.splitlines()[0])
+    bench = parse_args(ScalingBenchConfig, argv, "benchmarks/sharding_scaling.py", __doc__.splitlines()[0], _validate)
     counts = [int(count) for count in bench.devices.split(",")]
     if len(counts) > 1:  # one process per device count
         on_cpu = os.environ.get("JAX_PLATFORMS", "") == "cpu" or not _has_accelerator()

@@ -25,7 +25,7 @@ import sys
 import tempfile
 import time
 
-from admissable_jax.cli import parse_args
+from admissable_jax.cli import check_at_least_one, parse_args
 from common import append_record, run_benchmark
 
 
@@ -36,6 +36,12 @@ class StopLatencyConfig:
     after: float = dataclasses.field(default=10.0, metadata={"help": "seconds into training to send SIGTERM"})
     second: float = dataclasses.field(default=-1.0, metadata={
         "help": "seconds after the first SIGTERM to send a second (stop now); < 0: none"})
+
+
+def _validate(config: StopLatencyConfig) -> None:
+    check_at_least_one(config, ("seeds",))
+    if config.after < 0:
+        raise ValueError(f"after must be >= 0 seconds, got {config.after}")
 
 
 def measure(config: StopLatencyConfig) -> dict:
@@ -72,7 +78,7 @@ def measure(config: StopLatencyConfig) -> dict:
 
 def main(argv: list[str]) -> int:
     record = measure(parse_args(StopLatencyConfig, argv, program="benchmarks/stop_latency.py",
-                                summary="How soon a running experiment answers SIGTERM."))
+                                summary="How soon a running experiment answers SIGTERM.", validate=_validate))
     second = f" ({record['exited_after_second_s']} s after the second)" if "second_after_s" in record else ""
     print(f"SIGTERM handled after {record['handled_s']} s; exited after {record['exited_s']} s{second} "
           f"(status {record['exit_status']}): {record['last_line']}")
