@@ -27,6 +27,7 @@ REFUSALS = [
     ("repeatability.py", ["seeds=0"], "seeds must be >= 1, got 0"),
     ("score_estimators.py", [], "give runs=RUN_DIR[,RUN_DIR...]"),
     ("score_estimators.py", ["runs=r", "horizons=0,-3"], "n_episodes must be >= 2 and horizons >= 0"),
+    ("score_estimators.py", ["runs=r", "n_episodes=1"], "n_episodes must be >= 2 and horizons >= 0"),
     ("scoring_round.py", ["slots=-2"], "slots must be -1 (the backend's default), 0 (all episodes) or >= 1, got -2"),
     ("set_search.py", ["repeats=0"], "repeats must be >= 1, got 0"),
     ("set_search.py", ["d=-1"], "d must be >= 1, got -1"),
