@@ -30,7 +30,7 @@ import sys
 import tempfile
 import time
 
-from admissable_jax.cli import parse_args
+from admissable_jax.cli import check_at_least_one, parse_args
 from common import append_record, run_benchmark
 
 MODULES = ("admissable_jax", "admissable_jax.config", "admissable_jax.train", "admissable_jax.experiment",
@@ -54,8 +54,7 @@ class StartupConfig:
 
 
 def _validate(config: StartupConfig) -> None:
-    if config.repeats < 1:
-        raise ValueError(f"repeats must be >= 1, got {config.repeats}")
+    check_at_least_one(config, ("repeats",))
 
 
 def measure(module: str, repeats: int) -> dict:

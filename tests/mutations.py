@@ -975,8 +975,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                     'check_at_least_one(bench, ("pairs", "iterations"))', "test_benchmark_scripts.py"),
     "stop_latency_of_no_seeds": ("benchmarks/stop_latency.py", '    check_at_least_one(config, ("seeds",))\n', "",
                                  "test_benchmark_scripts.py"),
-    "startup_time_of_no_repeats": ("benchmarks/startup_time.py", "    if config.repeats < 1:", "    if False:",
-                                   "test_benchmark_scripts.py"),
+    "startup_time_of_no_repeats": ("benchmarks/startup_time.py", '    check_at_least_one(config, ("repeats",))\n',
+                                   "    pass\n", "test_benchmark_scripts.py"),
     "score_estimators_of_one_episode": ("benchmarks/score_estimators.py", "if config.n_episodes < 2 or any(",
                                         "if any(", "test_benchmark_scripts.py"),
 }
