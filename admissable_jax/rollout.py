@@ -32,6 +32,8 @@ def _validate(config: RolloutConfig) -> None:
     resolve_physics(config.physics)
     if config.num_envs < 1 or config.steps < 1:
         raise ValueError("num_envs and steps must be >= 1")
+    if config.seed < 0:  # as train's
+        raise ValueError(f"seed must be >= 0, got {config.seed}")
 
 
 def random_rollout(env: MjxEnv, num_envs: int, steps: int, rng: jax.Array):

@@ -56,6 +56,8 @@ def check_video_config(config: VideoConfig) -> None:
         raise ValueError("give the run directory: python -m admissable_jax.video RUN_DIR [hidden=...] [out=FILE.mp4]")
     if config.frames < 1:
         raise ValueError(f"frames must be at least 1, got {config.frames}")
+    if config.seed < 0:  # (Gymnasium's reset takes none below 0)
+        raise ValueError(f"seed must be >= 0, got {config.seed}")
     if config.out and not config.out.endswith(".mp4"):
         raise ValueError(f"out must be an .mp4 file, got {config.out!r}")
 

@@ -977,6 +977,10 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                  "test_benchmark_scripts.py"),
     "startup_time_of_no_repeats": ("benchmarks/startup_time.py", '    check_at_least_one(config, ("repeats",))\n',
                                    "    pass\n", "test_benchmark_scripts.py"),
+    "video_of_a_negative_seed": ("admissable_jax/video.py", "    if config.seed < 0:  # (Gymnasium's reset", "    if False:  #",
+                                 "test_hopper_pipelines.py"),
+    "rollout_of_a_negative_seed": ("admissable_jax/rollout.py", "    if config.seed < 0:  # as train's", "    if False:",
+                                   "test_runs.py"),
     "score_estimators_of_one_episode": ("benchmarks/score_estimators.py", "if config.n_episodes < 2 or any(",
                                         "if any(", "test_benchmark_scripts.py"),
 }

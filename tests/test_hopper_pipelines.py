@@ -336,7 +336,7 @@ def test_video_of_the_trained_hopper_beside_its_worst_set(jax_run, tmp_path, cap
     for hidden in ("elbow", "11"):  # Hopper's features are 0 to 10
         assert video.main([jax_run.run_dir, f"hidden={hidden}", f"out={tmp_path}/bad.mp4"]) == 2
         assert f"'{hidden}' is neither a feature index below 11 nor a feature name of hopper" in capsys.readouterr().err
-    for args, message in ((["frames=0"], "frames must be at least 1, got 0"),
+    for args, message in ((["frames=0"], "frames must be at least 1, got 0"), (["seed=-1"], "seed must be >= 0, got -1"),
                           ([f"out={tmp_path}/hopper.gif"], f"out must be an .mp4 file, got '{tmp_path}/hopper.gif'")):
         with pytest.raises(SystemExit) as refused:
             video.main([jax_run.run_dir, *args])

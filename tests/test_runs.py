@@ -233,9 +233,10 @@ def test_rollout_times_a_batched_random_policy_in_one_line(capsys):
     states, _ = jax.jit(random_rollout, static_argnums=(0, 1, 2))(make_env("point_mass", episode_length=20), 3, 30,
                                                                     jax.random.key(0))
     np.testing.assert_array_equal(states.step_count, [10, 10, 10])
-    with pytest.raises(SystemExit) as refused:
-        main(["steps=0"])
-    assert refused.value.code == 2 and capsys.readouterr().err.strip() == "error: num_envs and steps must be >= 1"
+    for args, message in ((["steps=0"], "num_envs and steps must be >= 1"), (["seed=-2"], "seed must be >= 0, got -2")):
+        with pytest.raises(SystemExit) as refused:
+            main(args)
+        assert refused.value.code == 2 and capsys.readouterr().err.strip() == f"error: {message}"
 
 
 @pytest.mark.parametrize("setting, message", [
