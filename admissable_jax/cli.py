@@ -118,10 +118,10 @@ def parse_args(
                 schema = OmegaConf.merge(schema, OmegaConf.create(from_file))
             except OmegaConfBaseException as error:
                 fail(f"in config={files[0]}: {_one_line(error)}")
-    # "key=" means the empty string (OmegaConf would read None, which no key accepts).
-    argv = [f"{arg}''" if arg.endswith("=") else arg for arg in argv]
+    # "key=" (or blanks after "=") means the empty string (OmegaConf would read None, which no key accepts).
+    argv = [arg if arg.split("=", 1)[1].strip() else f"{arg.split('=', 1)[0]}=''" for arg in argv]
     try:
-        overrides = _whole_numbers_as_ints(OmegaConf.to_container(OmegaConf.from_dotlist(argv)), int_keys)
+        overrides = _whole_numbers_as_ints(OmegaConf.to_container(_read_items(argv)), int_keys)
         merged = OmegaConf.merge(schema, OmegaConf.create(overrides))
         config = OmegaConf.to_object(merged)
     except OmegaConfBaseException as error:
@@ -132,6 +132,23 @@ def parse_args(
         except (ValueError, TypeError) as error:
             fail(str(error))
     return config
+
+
+def _read_items(argv: list[str]) -> Any:
+    """OmegaConf's reading of ``key=value`` items, each value read as YAML; one line and exit
+    2 naming an item whose value YAML cannot read (``hidden=[1``, ``modes=,``, ``out=@home``),
+    where YAML's own error would end the command in a traceback."""
+    import yaml
+
+    items = OmegaConf.create()
+    for arg in argv:
+        try:
+            items.merge_with_dotlist([arg])
+        except yaml.YAMLError as error:
+            key, value = arg.split("=", 1)
+            fail(f"cannot read {arg!r}{yaml_problem(error, with_line=False)} (to pass it as text, quote it: "
+                 f"{key}=\"'{value}'\")")
+    return items
 
 
 def _whole_numbers_as_ints(items: dict[str, Any], int_keys: set[str]) -> dict[str, Any]:
@@ -174,9 +191,10 @@ def _read_config_file(path: str, config_file: ConfigFile) -> dict[str, Any]:
     return {key: value for key, value in loaded.items() if key in config_file.taken}
 
 
-def yaml_problem(error: Exception) -> str:
-    """A YAML parse error in one line: `` (line L): <problem>``."""
-    where = getattr(error, "problem_mark", None)
+def yaml_problem(error: Exception, with_line: bool = True) -> str:
+    """A YAML parse error in one line: `` (line L): <problem>`` (``: <problem>`` without the
+    line, for a one-line text)."""
+    where = getattr(error, "problem_mark", None) if with_line else None
     line = f" (line {where.line + 1})" if where is not None else ""
     return f"{line}: {getattr(error, 'problem', None) or str(error).splitlines()[0]}"
 

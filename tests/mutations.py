@@ -981,6 +981,11 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                  "test_hopper_pipelines.py"),
     "rollout_of_a_negative_seed": ("admissable_jax/rollout.py", "    if config.seed < 0:  # as train's", "    if False:",
                                    "test_runs.py"),
+    "cli_value_yaml_cannot_read_left_to_yaml": ("admissable_jax/cli.py", "        except yaml.YAMLError as error:\n"
+                                                "            key, value", "        except ImportError as error:\n"
+                                                "            key, value", "test_runs.py"),
+    "cli_blank_value_read_as_none": ("admissable_jax/cli.py", 'argv = [arg if arg.split("=", 1)[1].strip() else',
+                                     'argv = [arg if arg.split("=", 1)[1] else', "test_runs.py"),
     "score_estimators_of_one_episode": ("benchmarks/score_estimators.py", "if config.n_episodes < 2 or any(",
                                         "if any(", "test_benchmark_scripts.py"),
 }

@@ -149,6 +149,25 @@ def test_cli_edge_cases_are_one_line(tmp_path):
     empty_modes = _cli("admissable_jax.experiment", "env=point_mass", "modes=", f"out={tmp_path}/e", "progress=false")
     assert empty_modes.returncode == 2
     assert empty_modes.stderr.strip() == "error: modes must be a comma-separated list of adversarial, uniform, none, got ''"
+    # Values are read as YAML: one it cannot read is named (not YAML's traceback), with the
+    # quoting that passes it as text; blanks after "=" are the empty string, as "key=" is.
+    for module, item, message in [
+        ("admissable_jax.experiment", "modes=,", "cannot read 'modes=,': did not find expected node content (to pass it "
+                                                 "as text, quote it: modes=\"','\")"),
+        ("admissable_jax.train", "hidden_size=[1", "cannot read 'hidden_size=[1': did not find expected ',' or ']' (to "
+                                                   "pass it as text, quote it: hidden_size=\"'[1'\")"),
+        ("admissable_jax.video", "out=@home", "cannot read 'out=@home': found character that cannot start any token "
+                                              "(to pass it as text, quote it: out=\"'@home'\")"),
+        ("admissable_jax.train", "env= ", "unknown env ''; valid names: hopper, walker2d, ant, halfcheetah, point_mass, "
+                                          "Hopper-v5, Walker2d-v5, Ant-v5, HalfCheetah-v5, or package.module:Class for an "
+                                          "env of your own"),
+        ("admissable_jax.train", "env='[1'", "unknown env '[1'; valid names: hopper, walker2d, ant, halfcheetah, "
+                                             "point_mass, Hopper-v5, Walker2d-v5, Ant-v5, HalfCheetah-v5, or "
+                                             "package.module:Class for an env of your own"),
+    ]:
+        refused = _cli(module, item, f"out={tmp_path}/never", "progress=false")
+        assert (refused.returncode, refused.stderr) == (2, f"error: {message}\n"), item
+    assert not (tmp_path / "never").exists()
     missing = tmp_path / "never-started"
     resumed = _cli("admissable_jax.train", "env=point_mass", "resume=true", f"out={missing}", "progress=false")
     assert resumed.returncode == 1 and "nothing to resume" in resumed.stderr
