@@ -637,7 +637,7 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                       "return value", "test_training.py"),
     "empty_value_read_as_none": ("admissable_jax/cli.py",
                                  """argv = [arg if arg.split("=", 1)[1].strip() else f"{arg.split('=', 1)[0]}=''" """
-                                 "for arg in argv]", "argv = list(argv)", "test_training.py"),
+                                 "for arg in argv]", "argv = list(argv)", "test_runs.py"),
     "sigterm_kills_without_cleanup": ("admissable_jax/cli.py", "(signal.SIGTERM,))", "())", "test_runs.py"),
     "config_file_sets_the_run_location": ("admissable_jax/cli.py", "if key in config_file.taken}",
                                           "if key in config_file.taken | config_file.skipped}", "test_training.py"),
