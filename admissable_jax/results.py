@@ -51,6 +51,7 @@ NOT_SETTINGS = frozenset({"env", "missingness", "seed", "out", "resume", "resume
 # exploration share): runs of the other modes that differ only in these are seeds of one
 # curve, the baseline of every adversarial curve that shares their other settings.
 ADVERSARY_SETTINGS = frozenset({"lower_bound", "epsilon", "pool_explore"})
+SCORING_KEYS = ("env_steps", "scores", "p_miss", "min_score", "clean_score")  # what a scores.jsonl row holds
 
 
 @dataclasses.dataclass
@@ -113,7 +114,18 @@ def load_run(path: str) -> Run:
         rows = read_jsonl(scores_path, torn="drop")
     if not rows:
         raise ValueError(f"{path} has no scoring rows yet")
-    column = lambda key: np.asarray([row[key] for row in rows], dtype=float)
+    for number, row in enumerate(rows, 1):  # (numbered as read_jsonl numbers them: blank lines left out)
+        missing = [key for key in SCORING_KEYS if key not in row] if isinstance(row, dict) else None
+        if missing is None or missing:
+            what = f"no {missing[0]!r}" if missing else f"a JSON {type(row).__name__}, not an object"
+            raise ValueError(f"{scores_path} line {number} is not a scoring row ({what}); the file is corrupt")
+
+    def column(key: str) -> np.ndarray:
+        try:
+            return np.asarray([row[key] for row in rows], dtype=float)
+        except (TypeError, ValueError):  # ragged lists, or not numbers
+            raise ValueError(f"{scores_path}: the rows' {key!r} are not numbers of one shape; the file is corrupt") from None
+
     scores, p_miss = column("scores"), column("p_miss")
     uniform_draws = bool(np.allclose(p_miss, 1.0 / p_miss.shape[-1]))
     pooled = "sets" in rows[0]

@@ -986,6 +986,10 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                                 "            key, value", "test_runs.py"),
     "cli_blank_value_read_as_none": ("admissable_jax/cli.py", 'argv = [arg if arg.split("=", 1)[1].strip() else',
                                      'argv = [arg if arg.split("=", 1)[1] else', "test_runs.py"),
+    "scoring_rows_of_any_keys": ("admissable_jax/results.py", "        if missing is None or missing:", "        if False:",
+                                 "test_runs.py"),
+    "scoring_columns_of_any_shape": ("admissable_jax/results.py", "        except (TypeError, ValueError):  # ragged",
+                                     "        except ImportError:  # ragged", "test_runs.py"),
     "score_estimators_of_one_episode": ("benchmarks/score_estimators.py", "if config.n_episodes < 2 or any(",
                                         "if any(", "test_benchmark_scripts.py"),
 }

@@ -583,6 +583,18 @@ def test_faults_of_long_runs_cost_nothing_finished(tmp_path, monkeypatch, capsys
         plot_main([str(corrupt), f"out={tmp_path / 'corrupt_figs'}"])
     assert refused.value.code == 2 and capsys.readouterr().err.strip().splitlines()[-1] == (
         f"error: {corrupt / 'scores.jsonl'} line 2 is not valid JSON (Expecting value); the file is corrupt")
+    # So is valid JSON that is no scoring row (an edit by hand, another tool's line): named,
+    # not a KeyError's "'scores'" or NumPy's words.
+    row = json.loads(first)
+    for line, what in [(json.dumps({"env_steps": 1000}), "line 2 is not a scoring row (no 'scores')"),
+                       ("[1, 2]", "line 2 is not a scoring row (a JSON list, not an object)"),
+                       (json.dumps({**row, "scores": row["scores"][:-1]}), ": the rows' 'scores' are not numbers of one "
+                                                                             "shape")]:
+        (corrupt / "scores.jsonl").write_text("\n".join([first, line]) + "\n")
+        with pytest.raises(SystemExit) as refused:
+            plot_main([str(corrupt), f"out={tmp_path / 'corrupt_figs'}"])
+        assert refused.value.code == 2 and capsys.readouterr().err.strip().splitlines()[-1] == (
+            f"error: {corrupt / 'scores.jsonl'}{' ' * what.startswith('line')}{what}; the file is corrupt")
     # Ctrl-C while plot draws: one line saying where the figures drawn so far are; a folder
     # it made and drew nothing into is gone.
     import admissable_jax.plot
