@@ -37,7 +37,8 @@ from admissable_jax.config import TrainConfig, number_text
 from admissable_jax.envs import observation_names
 from admissable_jax.method import candidate_sets, hidden_row, parse_set
 from admissable_jax.provenance import INVOCATIONS
-from admissable_jax.run_directory import TornLine, load_config_yaml, read_jsonl, recorded_observation_names
+from admissable_jax.run_directory import (SCORING_KEYS, TornLine, load_config_yaml, read_jsonl,
+                                          recorded_observation_names)
 from admissable_jax.scoring.worst_set import samples_to_separate
 
 # Config keys that change neither what a run learns nor how it is scored: runs that differ
@@ -51,7 +52,6 @@ NOT_SETTINGS = frozenset({"env", "missingness", "seed", "out", "resume", "resume
 # exploration share): runs of the other modes that differ only in these are seeds of one
 # curve, the baseline of every adversarial curve that shares their other settings.
 ADVERSARY_SETTINGS = frozenset({"lower_bound", "epsilon", "pool_explore"})
-SCORING_KEYS = ("env_steps", "scores", "p_miss", "min_score", "clean_score")  # what a scores.jsonl row holds
 
 
 @dataclasses.dataclass
@@ -108,17 +108,12 @@ def load_run(path: str) -> Run:
     config = load_config_yaml(os.path.join(path, "config.yaml"))
     scores_path = os.path.join(path, "scores.jsonl")
     try:
-        rows = read_jsonl(scores_path)
+        rows = read_jsonl(scores_path, required=SCORING_KEYS)
     except TornLine as torn:
         print(f"warning: {torn}; reading the rows before it", file=sys.stderr)
-        rows = read_jsonl(scores_path, torn="drop")
+        rows = read_jsonl(scores_path, torn="drop", required=SCORING_KEYS)
     if not rows:
         raise ValueError(f"{path} has no scoring rows yet")
-    for number, row in enumerate(rows, 1):  # (numbered as read_jsonl numbers them: blank lines left out)
-        missing = [key for key in SCORING_KEYS if key not in row] if isinstance(row, dict) else None
-        if missing is None or missing:
-            what = f"no {missing[0]!r}" if missing else f"a JSON {type(row).__name__}, not an object"
-            raise ValueError(f"{scores_path} line {number} is not a scoring row ({what}); the file is corrupt")
 
     def column(key: str) -> np.ndarray:
         try:

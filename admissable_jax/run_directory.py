@@ -58,34 +58,45 @@ def recorded_observation_names(run_dir: str) -> list[str] | None:
     return names
 
 
+RECORD_KEYS = ("env_steps",)  # what every scores.jsonl and metrics.jsonl row holds
+SCORING_KEYS = ("env_steps", "scores", "p_miss", "min_score", "clean_score")  # ... and every scores.jsonl row (score_row)
+
+
 class TornLine(ValueError):
     """A JSONL file's last line is cut off (a crash mid-append)."""
 
 
-def read_jsonl(path: str, torn: str = "raise") -> list[dict[str, Any]]:
-    """The rows of a JSONL file. A last line that does not parse is what a crash in
-    mid-append leaves: ``torn="drop"`` leaves it out (the caller says so), ``"raise"``
-    raises :class:`TornLine` naming the file. A bad line before the last is corruption: a
-    ValueError naming the file and line."""
+def read_jsonl(path: str, torn: str = "raise", required: tuple[str, ...] = ()) -> list[dict[str, Any]]:
+    """The rows of a JSONL file, each a JSON object holding the keys ``required``. A last
+    line that does not parse is what a crash in mid-append leaves: ``torn="drop"`` leaves it
+    out (the caller says so), ``"raise"`` raises :class:`TornLine` naming the file. A bad
+    line before the last, or a row that is no object or lacks a key (an edit by hand,
+    another tool's line), is corruption: a ValueError naming the file and line."""
     with open(path) as file:
         lines = [line for line in file.read().split("\n") if line.strip()]
     rows = []
     for number, line in enumerate(lines, 1):
         try:
-            rows.append(json.loads(line))
+            row = json.loads(line)
         except json.JSONDecodeError as error:
             if number < len(lines):
                 raise ValueError(f"{path} line {number} is not valid JSON ({error.msg}); the file is corrupt") from None
             if torn == "drop":
                 return rows
             raise TornLine(f"{path}: the last line is cut off (a crash mid-write?): {error.msg}") from None
+        missing = [key for key in required if key not in row] if isinstance(row, dict) else None
+        if missing is None or missing:
+            what = f"holds no {missing[0]!r}" if missing else f"is a JSON {type(row).__name__}, not an object"
+            raise ValueError(f"{path} line {number} {what}; the file is corrupt")
+        rows.append(row)
     return rows
 
 
 def read_run_file(run_path: str, name: str) -> list[dict[str, Any]]:
-    """The rows of the run's JSONL file ``name`` (none where it has no such file yet)."""
+    """The rows of the run's JSONL file ``name`` (scores.jsonl, metrics.jsonl: each row at
+    its ``env_steps``; none where it has no such file yet)."""
     path = os.path.join(run_path, name)
-    return read_jsonl(path) if os.path.exists(path) else []
+    return read_jsonl(path, required=RECORD_KEYS) if os.path.exists(path) else []
 
 
 def load_config_yaml(path: str):
@@ -251,9 +262,9 @@ class RunDirectory:
             if not os.path.exists(path):
                 continue
             try:
-                rows = read_jsonl(path)
+                rows = read_jsonl(path, required=RECORD_KEYS)
             except TornLine:
-                rows = read_jsonl(path, torn="drop")
+                rows = read_jsonl(path, torn="drop", required=RECORD_KEYS)
                 notes.append(f"dropped the cut-off last line of {path} (a crash mid-write)")
             later = [row for row in rows if row["env_steps"] > step]
             if later:

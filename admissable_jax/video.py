@@ -30,7 +30,7 @@ from admissable_jax.cli import exit_with, parse_args, run_from_cli, setting  # n
 from admissable_jax.envs import observation_names, settotalmass_warning_dropped  # noqa: E402
 from admissable_jax.errors import RunFailed, make_directory  # noqa: E402
 from admissable_jax.method import describe_set, parse_set  # noqa: E402
-from admissable_jax.run_directory import read_jsonl  # noqa: E402
+from admissable_jax.run_directory import SCORING_KEYS, read_jsonl  # noqa: E402
 
 PANEL_WIDTH, PANEL_HEIGHT, LABEL_HEIGHT = 480, 352, 32  # multiples of 16, as H.264 wants
 
@@ -130,8 +130,8 @@ def render_video(config: VideoConfig) -> Video:
     train = policy.config
     if policy.trainer.env.gymnasium_id is None:
         raise ValueError(f"{train.env} has no Gymnasium env to render")
-    hidden = resolve_hidden(config.hidden, train.env, read_jsonl(os.path.join(config.run_dir, "scores.jsonl")),
-                            policy.step)
+    scorings = read_jsonl(os.path.join(config.run_dir, "scores.jsonl"), required=SCORING_KEYS)
+    hidden = resolve_hidden(config.hidden, train.env, scorings, policy.step)
     names = tuple(observation_names(train.env)[i] for i in hidden)
     out = config.out or os.path.join(config.run_dir, "videos", f"step{policy.step}-hidden{'-'.join(map(str, hidden)) or 'none'}.mp4")
     make_directory(os.path.dirname(os.path.abspath(out)), "video folder")

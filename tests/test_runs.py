@@ -31,6 +31,7 @@ from admissable_jax.errors import INTERRUPTED
 from admissable_jax.host_loop import TrainingLoop, interval_pieces
 from admissable_jax.locks import LOCK_NAME, RunDirectoryLocked, RunLock
 from admissable_jax.memory import MemoryBudgetExceeded
+from admissable_jax.run_directory import read_run_file
 
 RUN = TrainConfig(
     env="point_mass", total_steps=2000, score_every=500, num_envs=4, learning_starts=500, episode_length=50,
@@ -586,8 +587,8 @@ def test_faults_of_long_runs_cost_nothing_finished(tmp_path, monkeypatch, capsys
     # So is valid JSON that is no scoring row (an edit by hand, another tool's line): named,
     # not a KeyError's "'scores'" or NumPy's words.
     row = json.loads(first)
-    for line, what in [(json.dumps({"env_steps": 1000}), "line 2 is not a scoring row (no 'scores')"),
-                       ("[1, 2]", "line 2 is not a scoring row (a JSON list, not an object)"),
+    for line, what in [(json.dumps({"env_steps": 1000}), "line 2 holds no 'scores'"),
+                       ("[1, 2]", "line 2 is a JSON list, not an object"),
                        (json.dumps({**row, "scores": row["scores"][:-1]}), ": the rows' 'scores' are not numbers of one "
                                                                              "shape")]:
         (corrupt / "scores.jsonl").write_text("\n".join([first, line]) + "\n")
@@ -595,6 +596,11 @@ def test_faults_of_long_runs_cost_nothing_finished(tmp_path, monkeypatch, capsys
             plot_main([str(corrupt), f"out={tmp_path / 'corrupt_figs'}"])
         assert refused.value.code == 2 and capsys.readouterr().err.strip().splitlines()[-1] == (
             f"error: {corrupt / 'scores.jsonl'}{' ' * what.startswith('line')}{what}; the file is corrupt")
+    # The records a resume sets aside, or a fast-forward reads: each row at its env step.
+    (corrupt / "metrics.jsonl").write_text('{"grad_steps": 10}\n')
+    with pytest.raises(ValueError, match=f"^{re.escape(str(corrupt / 'metrics.jsonl'))} line 1 holds no 'env_steps'; "
+                                         f"the file is corrupt$"):
+        read_run_file(str(corrupt), "metrics.jsonl")
     # Ctrl-C while plot draws: one line saying where the figures drawn so far are; a folder
     # it made and drew nothing into is gone.
     import admissable_jax.plot
