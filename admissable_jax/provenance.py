@@ -15,6 +15,7 @@ import sys
 from typing import Any
 
 INVOCATIONS = "invocations.jsonl"
+INVOCATION_KEYS = ("device", "devices", "physics", "versions", "commit")  # what plot's "Trained on" line reads
 PACKAGES = ("admissable_jax", "jax", "jaxlib", "mujoco", "mujoco-mjx", "mujoco-warp", "warp-lang", "flax", "optax", "orbax-checkpoint",
             "brax", "numpy", "gymnasium")
 

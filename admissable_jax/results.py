@@ -36,7 +36,7 @@ import numpy as np
 from admissable_jax.config import TrainConfig, number_text
 from admissable_jax.envs import observation_names
 from admissable_jax.method import candidate_sets, hidden_row, parse_set
-from admissable_jax.provenance import INVOCATIONS
+from admissable_jax.provenance import INVOCATION_KEYS, INVOCATIONS
 from admissable_jax.run_directory import (SCORING_KEYS, TornLine, load_config_yaml, read_jsonl,
                                           recorded_observation_names)
 from admissable_jax.scoring.worst_set import samples_to_separate
@@ -500,7 +500,7 @@ def trained_on(run_dirs: list[str]) -> str:
     """Where the runs were trained, from their ``invocations.jsonl`` (one record per command
     that trained a run): each distinct device, physics, versions and commit, with its count."""
     records = [record for path in run_dirs if os.path.exists(os.path.join(path, INVOCATIONS))
-               for record in read_jsonl(os.path.join(path, INVOCATIONS), torn="drop")]
+               for record in read_jsonl(os.path.join(path, INVOCATIONS), torn="drop", required=INVOCATION_KEYS)]
     if not records:
         return "Trained on: not recorded (runs written before `invocations.jsonl`)."
     setups = collections.Counter(

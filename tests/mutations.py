@@ -990,6 +990,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                  "        if False:", "test_runs.py"),
     "records_of_any_keys": ("admissable_jax/run_directory.py", "return read_jsonl(path, required=RECORD_KEYS) if",
                             "return read_jsonl(path) if", "test_runs.py"),
+    "invocations_of_any_keys": ("admissable_jax/results.py", 'torn="drop", required=INVOCATION_KEYS)]', 'torn="drop")]',
+                                "test_runs.py"),
     "scoring_columns_of_any_shape": ("admissable_jax/results.py", "        except (TypeError, ValueError):  # ragged",
                                      "        except ImportError:  # ragged", "test_runs.py"),
     "score_estimators_of_one_episode": ("benchmarks/score_estimators.py", "if config.n_episodes < 2 or any(",

@@ -601,6 +601,14 @@ def test_faults_of_long_runs_cost_nothing_finished(tmp_path, monkeypatch, capsys
     with pytest.raises(ValueError, match=f"^{re.escape(str(corrupt / 'metrics.jsonl'))} line 1 holds no 'env_steps'; "
                                          f"the file is corrupt$"):
         read_run_file(str(corrupt), "metrics.jsonl")
+    # And plot's "Trained on" line reads where each command trained.
+    (corrupt / "scores.jsonl").write_text(first + "\n")
+    invocations = (corrupt / "invocations.jsonl").read_text().splitlines()
+    (corrupt / "invocations.jsonl").write_text("\n".join([*invocations, '{"command": ["python"]}']) + "\n")
+    with pytest.raises(SystemExit) as refused:
+        plot_main([str(corrupt), f"out={tmp_path / 'corrupt_figs'}"])
+    assert refused.value.code == 2 and capsys.readouterr().err.strip().splitlines()[-1] == (
+        f"error: {corrupt / 'invocations.jsonl'} line {len(invocations) + 1} holds no 'device'; the file is corrupt")
     # Ctrl-C while plot draws: one line saying where the figures drawn so far are; a folder
     # it made and drew nothing into is gone.
     import admissable_jax.plot
