@@ -992,6 +992,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                             "return read_jsonl(path) if", "test_runs.py"),
     "invocations_of_any_keys": ("admissable_jax/results.py", 'torn="drop", required=INVOCATION_KEYS)]', 'torn="drop")]',
                                 "test_runs.py"),
+    "score_rollout_of_no_steps": ("admissable_jax/scoring/rollout_scores.py", "    if max_steps < 1:  # (at 0",
+                                  "    if False:  # (at 0", "test_training.py"),
     "scoring_columns_of_any_shape": ("admissable_jax/results.py", "        except (TypeError, ValueError):  # ragged",
                                      "        except ImportError:  # ragged", "test_runs.py"),
     "score_estimators_of_one_episode": ("benchmarks/score_estimators.py", "if config.n_episodes < 2 or any(",

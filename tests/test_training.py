@@ -396,13 +396,14 @@ def test_score_missingness_equals_a_plain_loop_and_finds_the_used_feature(caplog
                                num_slots=env.options.max_batch + 1)
     np.testing.assert_array_equal(beyond.returns, scored.returns)
     narrow = make_env("point_mass", episode_length=60, max_batch=14)
-    for scoring_env, slots, every, message in (
-            (narrow, 16, 1, "num_slots=16 steps 15 envs at once, more than the env's max_batch=14; build the env "
-                            "with a larger max_batch or give fewer slots"),
-            (env, None, 0, "steps_per_check must be >= 1, got 0")):
+    for scoring_env, slots, every, max_steps, message in (
+            (narrow, 16, 1, None, "num_slots=16 steps 15 envs at once, more than the env's max_batch=14; build the "
+                                  "env with a larger max_batch or give fewer slots"),
+            (env, None, 0, None, "steps_per_check must be >= 1, got 0"),
+            (env, None, 1, 0, "max_steps must be >= 1, got 0")):
         with pytest.raises(ValueError, match=f"^{re.escape(message)}($|\n)"):  # (JAX may add a note)
-            score_missingness(scoring_env, _feature_zero_controller, 2.0, rng, hidden_sets, n_episodes, num_slots=slots,
-                              steps_per_check=every)
+            score_missingness(scoring_env, _feature_zero_controller, 2.0, rng, hidden_sets, n_episodes, max_steps,
+                              num_slots=slots, steps_per_check=every)
 
     # Vmapped rollouts whose episodes end at different times (a policy that pushes harder
     # leaves the arena sooner) step together until the last ends: each member's results are its own.

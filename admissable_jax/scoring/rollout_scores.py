@@ -92,6 +92,8 @@ def score_by_rollout(
     num_sets, num_features = hidden_sets.shape
     chex.assert_equal(num_features, env.observation_size)
     max_steps = env.max_episode_steps if max_steps is None else max_steps
+    if max_steps < 1:  # (at 0, every episode would still take its first step)
+        raise ValueError(f"max_steps must be >= 1, got {max_steps}")
     num_rows = num_sets + 1
     num_episodes = num_rows * n_episodes  # episode e: set row e // N, initial state e % N
     max_batch = env.options.max_batch
