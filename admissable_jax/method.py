@@ -177,12 +177,19 @@ def parse_set(text: str) -> list[int]:
 
 
 def hidden_row(hidden, num_features: int) -> np.ndarray:
-    """u's 0/1 float32 row of length d from its feature indices (ints), or from a 0/1 row
-    given as floats or bools; ValueError for an index outside [0, d)."""
+    """u's 0/1 float32 row of length d from its feature indices (ints; one int is one
+    feature), or from a 0/1 row given as floats or bools; ValueError for an index outside
+    [0, d) or not whole, TypeError for a string (its characters are no indices)."""
+    if isinstance(hidden, str):
+        raise TypeError(f"hidden must be feature indices or a 0/1 row, got the string {hidden!r}")
+    if isinstance(hidden, (int, np.integer)):
+        hidden = [hidden]
     hidden = np.asarray(list(hidden) if not isinstance(hidden, np.ndarray) else hidden)
     if hidden.dtype.kind in "fb" and hidden.shape == (num_features,) and np.isin(hidden, (0, 1)).all():
         return hidden.astype(np.float32)
     indices = hidden.astype(np.int64)
+    if not np.array_equal(indices, hidden):
+        raise ValueError(f"hidden features must be whole indices, got {hidden.tolist()}")
     if indices.size and (indices.min() < 0 or indices.max() >= num_features):
         raise ValueError(f"hidden features must be in [0, {num_features}), got {indices.tolist()}")
     row = np.zeros(num_features, np.float32)

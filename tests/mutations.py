@@ -994,6 +994,12 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                 "test_runs.py"),
     "score_rollout_of_no_steps": ("admissable_jax/scoring/rollout_scores.py", "    if max_steps < 1:  # (at 0",
                                   "    if False:  # (at 0", "test_training.py"),
+    "hidden_of_one_int_refused": ("admissable_jax/method.py", "    if isinstance(hidden, (int, np.integer)):\n"
+                                  "        hidden = [hidden]\n", "", "test_wrappers.py"),
+    "hidden_of_a_string_read_by_characters": ("admissable_jax/method.py", "    if isinstance(hidden, str):\n",
+                                              "    if False:\n", "test_wrappers.py"),
+    "hidden_of_fractions_truncated": ("admissable_jax/method.py", "    if not np.array_equal(indices, hidden):",
+                                      "    if False:", "test_wrappers.py"),
     "scoring_columns_of_any_shape": ("admissable_jax/results.py", "        except (TypeError, ValueError):  # ragged",
                                      "        except ImportError:  # ragged", "test_runs.py"),
     "score_estimators_of_one_episode": ("benchmarks/score_estimators.py", "if config.n_episodes < 2 or any(",

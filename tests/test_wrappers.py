@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 
@@ -81,6 +82,12 @@ def test_masked_observation_and_its_space():
     assert drawn[0] == drawn[2]
     with pytest.raises(ValueError, match=r"hidden features must be in \[0, 3\)"):
         MissingnessObservation(ConstantFeatures(), hidden=[3])
+    # One index is one feature; a string's characters, or a fraction, are no indices.
+    np.testing.assert_array_equal(MissingnessObservation(ConstantFeatures(), hidden=2).hidden_row, [0, 0, 1])
+    for hidden, error, message in (("12", TypeError, "hidden must be feature indices or a 0/1 row, got the string '12'"),
+                                   ([1.5], ValueError, "hidden features must be whole indices, got [1.5]")):
+        with pytest.raises(error, match=f"^{re.escape(message)}$"):
+            MissingnessObservation(ConstantFeatures(), hidden=hidden)
     # A feature of a dict or image observation has no single index to hide: refused, not a traceback.
     pictures = type("Pictures", (ConstantFeatures,), {"observation_space": gymnasium.spaces.Box(0, 255, (2, 2), np.uint8)})
     with pytest.raises(ValueError, match=r"^MissingnessObservation needs a flat Box observation space, got Box\(0, 255, "
