@@ -59,7 +59,11 @@ class TrainedPolicy:
         return actions.reshape(*obs.shape[:-1], -1)
 
     def masked(self, masked_obs: np.ndarray) -> np.ndarray:
-        return np.asarray(self._act(self.actor_params, jnp.asarray(masked_obs, jnp.float32)))
+        masked_obs = jnp.asarray(masked_obs, jnp.float32)
+        if masked_obs.ndim != 2 or masked_obs.shape[1] != 2 * self.observation_size:
+            raise ValueError(f"expected a batch of masked observations (n, 2·d = {2 * self.observation_size}), "
+                             f"got shape {masked_obs.shape}")
+        return np.asarray(self._act(self.actor_params, masked_obs))
 
 
 def _checkpoint_dir(run_dir: str) -> str:
@@ -81,6 +85,8 @@ def load_policy(run_dir: str, step: int | None = None) -> TrainedPolicy:
     """The deterministic policy of the run in ``run_dir`` at checkpoint ``step`` (default:
     the latest). FileNotFoundError/CheckpointError with one line when there is none. Only
     the networks are read from the checkpoint, not the replay buffers beside them."""
+    if step is not None and not isinstance(step, (int, np.integer)):
+        raise TypeError(f"step must be an env step (an int) or None for the latest, got {step!r}")
     config_path = os.path.join(run_dir, "config.yaml")
     if not os.path.isfile(config_path):
         raise FileNotFoundError(f"{run_dir} is not a run directory (no config.yaml)")

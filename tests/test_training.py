@@ -236,8 +236,12 @@ def test_load_policy_is_the_trainers_deterministic_policy(point_mass_run, monkey
     assert sorted(os.listdir(os.path.join(run_dir, "checkpoints"))) == before
     with pytest.raises(CheckpointError, match="no checkpoint 10 in .*; saved: \\[6000\\]"):
         load_policy(run_dir, step=10)
+    with pytest.raises(TypeError, match="^step must be an env step \\(an int\\) or None for the latest, got '6000'$"):
+        load_policy(run_dir, step="6000")  # (it said "no checkpoint 6000 ...; saved: [6000]")
     with pytest.raises(ValueError, match=r"hidden features must be in \[0, 4\)"):
         policy(obs, hidden=[4])
+    with pytest.raises(ValueError, match=r"^expected a batch of masked observations \(n, 2·d = 8\), got shape \(7, 4\)$"):
+        policy.masked(obs)  # unmasked rows (it said Flax's "ScopeParamShapeError ...")
 
 
 def test_missing_set_fixed_within_episode_and_drawn_from_p_miss():
