@@ -118,7 +118,8 @@ def parse_args(
                 schema = OmegaConf.merge(schema, OmegaConf.create(from_file))
             except OmegaConfBaseException as error:
                 fail(f"in config={files[0]}: {_one_line(error)}")
-    # "key=" (or blanks after "=") means the empty string (OmegaConf would read None, which no key accepts).
+    # "key=" (or blanks after "=") means the empty string (OmegaConf would read None, which
+    # no key accepts).
     argv = [arg if arg.split("=", 1)[1].strip() else f"{arg.split('=', 1)[0]}=''" for arg in argv]
     try:
         overrides = _whole_numbers_as_ints(OmegaConf.to_container(_read_items(argv)), int_keys)

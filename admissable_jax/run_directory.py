@@ -58,8 +58,10 @@ def recorded_observation_names(run_dir: str) -> list[str] | None:
     return names
 
 
-RECORD_KEYS = ("env_steps",)  # what every scores.jsonl and metrics.jsonl row holds
-SCORING_KEYS = ("env_steps", "scores", "p_miss", "min_score", "clean_score")  # ... and every scores.jsonl row (score_row)
+# What every scores.jsonl and metrics.jsonl row holds, and what every scores.jsonl row holds
+# (score_row): read_jsonl's required keys for them.
+RECORD_KEYS = ("env_steps",)
+SCORING_KEYS = ("env_steps", "scores", "p_miss", "min_score", "clean_score")
 
 
 class TornLine(ValueError):

@@ -83,8 +83,9 @@ def score_by_rollout(
     ``max_batch``). Fewer trades loop steps for a smaller batch, which pays where a step's
     cost grows with the batch, as on a CPU. ``steps_per_check``: steps between checks
     whether any episode still runs (module docstring). ``progress(finished)``: told the
-    episodes finished after each check (module docstring). Jit-able with ``env``, ``policy_fn``, ``n_episodes``,
-    ``max_steps``, ``num_slots``, ``steps_per_check`` and ``progress`` static.
+    episodes finished after each check (module docstring). Jit-able with ``env``,
+    ``policy_fn``, ``n_episodes``, ``max_steps``, ``num_slots``, ``steps_per_check`` and
+    ``progress`` static.
     """
     if steps_per_check < 1:
         raise ValueError(f"steps_per_check must be >= 1, got {steps_per_check}")
