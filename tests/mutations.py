@@ -1010,6 +1010,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                            "test_documented_commands.py"),
     "benchmark_readme_key_renamed": ("benchmarks/README.md", "set_search.py d=105 k=3 widths=16,105 repeats=3",
                                      "set_search.py d=105 k=3 beam_widths=16,105 repeats=3", "test_documented_commands.py"),
+    "readme_python_keyword_renamed": ("README.md", "ks=(1, 2), n_episodes=50", "ks=(1, 2), episodes=50",
+                                      "test_documented_commands.py"),
     "scoring_columns_of_any_shape": ("admissable_jax/results.py", "        except (TypeError, ValueError):  # ragged",
                                      "        except ImportError:  # ragged", "test_runs.py"),
     "score_estimators_of_one_episode": ("benchmarks/score_estimators.py", "if config.n_episodes < 2 or any(",

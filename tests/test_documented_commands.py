@@ -1,12 +1,15 @@
 """Every command line the READMEs and the quickstart notebook show still parses: each
 ``key=value`` names a key its command takes, and, for the package's commands, holds a value of
-that key's type. A key renamed in the code and left in a document fails here."""
+that key's type; and every Python call they show of the package passes keywords it takes. A
+key or parameter renamed in the code and left in a document fails here."""
 
 from __future__ import annotations
 
+import ast
 import contextlib
 import dataclasses
 import importlib
+import inspect
 import io
 import json
 import os
@@ -109,3 +112,35 @@ def test_a_stale_command_line_is_found(line, problem):
     """The check above, on command lines a document could hold."""
     ((command, words),) = commands_in(f"```bash\n{line}\n```\n")
     assert problem_of(command, words) == problem
+
+
+def python_blocks() -> list[tuple[str, str]]:
+    """(document, code) of every Python block the README shows and every code cell of the quickstart."""
+    with open(os.path.join(ROOT, "README.md")) as file:
+        blocks = [("README.md", code) for code in re.findall(r"```python\n(.*?)```", file.read(), re.S)]
+    with open(os.path.join(ROOT, "notebooks", "quickstart.ipynb")) as file:
+        cells = json.load(file)["cells"]
+    return blocks + [("quickstart.ipynb", "".join(cell["source"])) for cell in cells if cell["cell_type"] == "code"]
+
+
+def test_every_documented_python_call_names_real_parameters():
+    """The README's and the quickstart's Python: each name imported from admissable_jax is
+    there, and each call of one (in that block or a later one of the document) passes
+    keywords its signature takes."""
+    calls, imported = 0, {}
+    for document, code in python_blocks():
+        for node in ast.walk(ast.parse(code)):
+            if isinstance(node, ast.ImportFrom) and node.module.split(".")[0] == "admissable_jax":
+                module = importlib.import_module(node.module)
+                for alias in node.names:
+                    assert hasattr(module, alias.name), f"{document}: {node.module} has no {alias.name}"
+                    imported[alias.asname or alias.name] = getattr(module, alias.name)
+        for node in ast.walk(ast.parse(code)):
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in imported:
+                parameters = inspect.signature(imported[node.func.id]).parameters
+                takes_any = any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values())
+                for keyword in node.keywords:
+                    assert keyword.arg is None or keyword.arg in parameters or takes_any, (
+                        f"{document}: {node.func.id}() takes no {keyword.arg}=")
+                calls += 1
+    assert calls >= 15, calls
