@@ -126,7 +126,8 @@ def python_blocks() -> list[tuple[str, str]]:
 def test_every_documented_python_call_names_real_parameters():
     """The README's and the quickstart's Python: each name imported from admissable_jax is
     there, and each call of one (in that block or a later one of the document) passes
-    keywords its signature takes."""
+    keywords its signature takes (a function that hands ``**env_kwargs`` on to Gymnasium
+    takes any: those are the env's to check)."""
     calls, imported = 0, {}
     for document, code in python_blocks():
         for node in ast.walk(ast.parse(code)):
