@@ -19,7 +19,7 @@ import threading
 import time
 from typing import Any, Callable, NoReturn, TypeVar
 
-from omegaconf import OmegaConf
+from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 from tqdm.auto import tqdm
 
@@ -138,17 +138,20 @@ def parse_args(
 def _read_items(argv: list[str]) -> Any:
     """OmegaConf's reading of ``key=value`` items, each value read as YAML; one line and exit
     2 naming an item whose value YAML cannot read (``hidden=[1``, ``modes=,``, ``out=@home``),
-    where YAML's own error would end the command in a traceback."""
+    where YAML's own error would end the command in a traceback, or reads as a mapping
+    (``env=toy_envs:``, where every key takes a number, a flag or a text)."""
     import yaml
 
     items = OmegaConf.create()
     for arg in argv:
+        key, value = arg.split("=", 1)
+        quoted = f"(to pass it as text, quote it: {key}=\"'{value}'\")"
         try:
             items.merge_with_dotlist([arg])
         except yaml.YAMLError as error:
-            key, value = arg.split("=", 1)
-            fail(f"cannot read {arg!r}{yaml_problem(error, with_line=False)} (to pass it as text, quote it: "
-                 f"{key}=\"'{value}'\")")
+            fail(f"cannot read {arg!r}{yaml_problem(error, with_line=False)} {quoted}")
+        if isinstance(items.get(key), DictConfig):
+            fail(f"cannot read {arg!r}: YAML reads {value!r} as a mapping {quoted}")
     return items
 
 

@@ -982,8 +982,10 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "rollout_of_a_negative_seed": ("admissable_jax/rollout.py", "    if config.seed < 0:  # as train's", "    if False:",
                                    "test_runs.py"),
     "cli_value_yaml_cannot_read_left_to_yaml": ("admissable_jax/cli.py", "        except yaml.YAMLError as error:\n"
-                                                "            key, value", "        except ImportError as error:\n"
-                                                "            key, value", "test_runs.py"),
+                                                "            fail(", "        except ImportError as error:\n"
+                                                "            fail(", "test_runs.py"),
+    "cli_value_read_as_a_mapping": ("admissable_jax/cli.py", "        if isinstance(items.get(key), DictConfig):",
+                                    "        if False:", "test_runs.py"),
     "cli_blank_value_read_as_none": ("admissable_jax/cli.py", 'argv = [arg if arg.split("=", 1)[1].strip() else',
                                      'argv = [arg if arg.split("=", 1)[1] else', "test_runs.py"),
     "scoring_rows_of_any_keys": ("admissable_jax/run_directory.py", "        if missing is None or missing:",

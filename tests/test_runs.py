@@ -159,6 +159,8 @@ def test_cli_edge_cases_are_one_line(tmp_path):
                                                    "pass it as text, quote it: hidden_size=\"'[1'\")"),
         ("admissable_jax.video", "out=@home", "cannot read 'out=@home': found character that cannot start any token "
                                               "(to pass it as text, quote it: out=\"'@home'\")"),
+        ("admissable_jax.train", "env=toy_envs:", "cannot read 'env=toy_envs:': YAML reads 'toy_envs:' as a mapping (to "
+                                                  "pass it as text, quote it: env=\"'toy_envs:'\")"),
         ("admissable_jax.train", "env= ", "unknown env ''; valid names: hopper, walker2d, ant, halfcheetah, point_mass, "
                                           "Hopper-v5, Walker2d-v5, Ant-v5, HalfCheetah-v5, or package.module:Class for an "
                                           "env of your own"),
