@@ -118,9 +118,6 @@ def parse_args(
                 schema = OmegaConf.merge(schema, OmegaConf.create(from_file))
             except OmegaConfBaseException as error:
                 fail(f"in config={files[0]}: {_one_line(error)}")
-    # "key=" (or blanks after "=") means the empty string (OmegaConf would read None, which
-    # no key accepts).
-    argv = [arg if arg.split("=", 1)[1].strip() else f"{arg.split('=', 1)[0]}=''" for arg in argv]
     try:
         overrides = _whole_numbers_as_ints(OmegaConf.to_container(_read_items(argv)), int_keys)
         merged = OmegaConf.merge(schema, OmegaConf.create(overrides))
@@ -136,15 +133,18 @@ def parse_args(
 
 
 def _read_items(argv: list[str]) -> Any:
-    """OmegaConf's reading of ``key=value`` items, each value read as YAML; one line and exit
-    2 naming an item whose value YAML cannot read (``hidden=[1``, ``modes=,``, ``out=@home``),
-    where YAML's own error would end the command in a traceback, or reads as a mapping
-    (``env=toy_envs:``, where every key takes a number, a flag or a text)."""
+    """OmegaConf's reading of ``key=value`` items, each value read as YAML, ``key=`` (or blanks
+    after ``=``) as the empty string (OmegaConf would read None, which no key accepts); one
+    line and exit 2 naming an item whose value YAML cannot read (``hidden=[1``, ``modes=,``,
+    ``out=@home``), where YAML's own error would end the command in a traceback, or reads as
+    a mapping (``env=toy_envs:``, where every key takes a number, a flag or a text)."""
     import yaml
 
     items = OmegaConf.create()
     for arg in argv:
         key, value = arg.split("=", 1)
+        if not value.strip():
+            arg = f"{key}=''"
         quoted = f"(to pass it as text, quote it: {key}=\"'{value}'\")"
         try:
             items.merge_with_dotlist([arg])

@@ -45,14 +45,21 @@ def commands_in(text: str) -> list[tuple[str, list[str]]]:
             for match in COMMAND_LINE.finditer(text.replace("\\\n", " ").replace("\\|", "|"))]
 
 
+def notebook_cells() -> list[dict]:
+    """The quickstart notebook's cells."""
+    with open(os.path.join(ROOT, "notebooks", "quickstart.ipynb")) as file:
+        return json.load(file)["cells"]
+
+
 def documented_commands() -> list[tuple[str, str, list[str]]]:
     """(document, command, words) of every command line the documents show."""
     found = []
     for document in DOCUMENTS:
-        with open(os.path.join(ROOT, document)) as file:
-            text = file.read()
         if document.endswith(".ipynb"):
-            text = "\n".join("".join(cell["source"]) for cell in json.loads(text)["cells"])
+            text = "\n".join("".join(cell["source"]) for cell in notebook_cells())
+        else:
+            with open(os.path.join(ROOT, document)) as file:
+                text = file.read()
         found += [(document, command, words) for command, words in commands_in(text)]
     return found
 
@@ -63,11 +70,10 @@ def keys_of(command: str, verb: str | None) -> set[str]:
     if command in COMMANDS:
         return {field.name for field in dataclasses.fields(COMMANDS[command])} | (
             {"config"} if command in ("train", "experiment") else set())  # settings from a file (config_file_of)
-    else:
-        module = importlib.import_module(command)  # benchmarks/ is on the tests' path (conftest.py)
-        configs = [module.VERBS[verb][0]] if command == "campaign" else [
-            value for name, value in vars(module).items()
-            if name.endswith("Config") and dataclasses.is_dataclass(value) and value.__module__ == module.__name__]
+    module = importlib.import_module(command)  # benchmarks/ is on the tests' path (conftest.py)
+    configs = [module.VERBS[verb][0]] if command == "campaign" else [
+        value for name, value in vars(module).items()
+        if name.endswith("Config") and dataclasses.is_dataclass(value) and value.__module__ == module.__name__]
     return {field.name for config in configs for field in dataclasses.fields(config)}
 
 
@@ -118,9 +124,7 @@ def python_blocks() -> list[tuple[str, str]]:
     """(document, code) of every Python block the README shows and every code cell of the quickstart."""
     with open(os.path.join(ROOT, "README.md")) as file:
         blocks = [("README.md", code) for code in re.findall(r"```python\n(.*?)```", file.read(), re.S)]
-    with open(os.path.join(ROOT, "notebooks", "quickstart.ipynb")) as file:
-        cells = json.load(file)["cells"]
-    return blocks + [("quickstart.ipynb", "".join(cell["source"])) for cell in cells if cell["cell_type"] == "code"]
+    return blocks + [("quickstart.ipynb", "".join(cell["source"])) for cell in notebook_cells() if cell["cell_type"] == "code"]
 
 
 def test_every_documented_python_call_names_real_parameters():
