@@ -43,10 +43,13 @@ class ConfigFile:
     """What ``config=FILE`` may set for a command: the file's keys in ``taken`` are defaults
     that ``key=value`` items override; those in ``skipped`` say which run the file came from
     (``out``, ``resume``, another command's own keys) and are left out, in one line; any
-    other key in the file is an error."""
+    other key in the file is an error. ``resumed`` names the settings file of the run a
+    ``resume=true`` command continues (its ``config.yaml``), read as ``config=`` is when the
+    command gives none, less :data:`PER_INVOCATION`."""
 
     taken: frozenset[str]
     skipped: frozenset[str]
+    resumed: Callable[[Any], str] | None = None
 
 
 def help_text(config_cls: type, program: str, summary: str, config_file: ConfigFile | None = None) -> str:
@@ -69,6 +72,10 @@ def help_text(config_cls: type, program: str, summary: str, config_file: ConfigF
 
 # Keys that say where a run is and whether it continues: never taken from a config file.
 RUN_LOCATION = ("out", "resume", "resume_step", "fast_forward")
+# Keys of a resumed run's settings that belong to the invocation and machine that wrote them,
+# not to the run: its wall-time budget, progress bar and budget-only look, and the devices
+# and scoring envs sized for that machine.
+PER_INVOCATION = ("time_limit", "progress", "budget_only", "devices", "score_envs")
 
 
 def check_at_least_one(config: Any, names: tuple[str, ...]) -> None:
@@ -92,7 +99,9 @@ def parse_args(
 
     With ``positional``, a first item without ``=`` is that key's value
     (``python -m admissable_jax.video RUN_DIR ...``). With ``config_file``, a ``config=FILE``
-    item sets the file's keys between the defaults and the other items. Exits with status 0
+    item sets the file's keys between the defaults and the other items; without one, a
+    ``resume=true`` command takes the resumed run's own settings so (``ConfigFile.resumed``),
+    so that ``resume=true out=DIR`` needs no other key. Exits with status 0
     after printing help for ``-h``/``--help``, and with status 2 and a one-line message on
     stderr for anything malformed, unknown, mistyped or rejected by ``validate`` (which
     raises ``ValueError``/``TypeError``).
@@ -107,29 +116,50 @@ def parse_args(
         fail(f"expected key=value, got {malformed[0]!r} (see --help)")
     schema = OmegaConf.structured(config_cls)
     int_keys = {field.name for field in dataclasses.fields(config_cls) if field.type in (int, "int")}
+    files: list[str] = []
     if config_file is not None:
         files = [arg.split("=", 1)[1] for arg in argv if arg.startswith("config=")]
         argv = [arg for arg in argv if not arg.startswith("config=")]
         if len(files) > 1:
             fail(f"config= given {len(files)} times; give one file and override its keys with key=value")
         if files:
-            try:
-                from_file = _whole_numbers_as_ints(_read_config_file(files[0], config_file), int_keys)
-                schema = OmegaConf.merge(schema, OmegaConf.create(from_file))
-            except OmegaConfBaseException as error:
-                fail(f"in config={files[0]}: {_one_line(error)}")
-    try:
-        overrides = _whole_numbers_as_ints(OmegaConf.to_container(_read_items(argv)), int_keys)
-        merged = OmegaConf.merge(schema, OmegaConf.create(overrides))
-        config = OmegaConf.to_object(merged)
-    except OmegaConfBaseException as error:
-        fail(_one_line(error))
+            schema = _with_config_file(schema, files[0], config_file, int_keys)
+    config = _config_of(schema, argv, int_keys)
+    if not files and config_file is not None and config_file.resumed is not None and getattr(config, "resume", False):
+        try:
+            resumed = config_file.resumed(config)
+        except ValueError:  # no run to find (an unknown env): left for validate to say
+            resumed = None
+        if resumed is not None and os.path.isfile(resumed):
+            run_only = dataclasses.replace(config_file, taken=config_file.taken - set(PER_INVOCATION),
+                                           skipped=config_file.skipped | set(PER_INVOCATION))
+            report(f"resume=true: the run's settings from {resumed}; keys given here override them")
+            config = _config_of(_with_config_file(schema, resumed, run_only, int_keys, quiet=True), argv, int_keys)
     if validate is not None:
         try:
             validate(config)
         except (ValueError, TypeError) as error:
             fail(str(error))
     return config
+
+
+def _with_config_file(schema: Any, path: str, config_file: ConfigFile, int_keys: set[str], quiet: bool = False) -> Any:
+    """``schema`` with the keys the settings file ``path`` sets as its defaults."""
+    try:
+        from_file = _whole_numbers_as_ints(_read_config_file(path, config_file, quiet), int_keys)
+        return OmegaConf.merge(schema, OmegaConf.create(from_file))
+    except OmegaConfBaseException as error:
+        fail(f"in config={path}: {_one_line(error)}")
+
+
+def _config_of(schema: Any, argv: list[str], int_keys: set[str]) -> Any:
+    """The dataclass of ``schema`` with the ``key=value`` items ``argv`` set; exit 2 in one
+    line for an unknown key or a mistyped value."""
+    try:
+        overrides = _whole_numbers_as_ints(OmegaConf.to_container(_read_items(argv)), int_keys)
+        return OmegaConf.to_object(OmegaConf.merge(schema, OmegaConf.create(overrides)))
+    except OmegaConfBaseException as error:
+        fail(_one_line(error))
 
 
 def _read_items(argv: list[str]) -> Any:
@@ -172,9 +202,10 @@ def _whole_numbers_as_ints(items: dict[str, Any], int_keys: set[str]) -> dict[st
     return {key: as_int(value) if key in int_keys else value for key, value in items.items()}
 
 
-def _read_config_file(path: str, config_file: ConfigFile) -> dict[str, Any]:
+def _read_config_file(path: str, config_file: ConfigFile, quiet: bool = False) -> dict[str, Any]:
     """The keys ``config=path`` sets (see :class:`ConfigFile`); one line and exit 2 for a
-    file that is missing, not YAML, not a mapping, or holds a key no command takes."""
+    file that is missing, not YAML, not a mapping, or holds a key no command takes. The keys
+    left out are said in one line, unless ``quiet``."""
     import yaml
 
     try:
@@ -190,7 +221,7 @@ def _read_config_file(path: str, config_file: ConfigFile) -> dict[str, Any]:
     if unknown:
         fail(f"unknown key {unknown[0]!r} in config={path} (see --help for the valid keys)")
     skipped = sorted(key for key in loaded if key in config_file.skipped)
-    if skipped:
+    if skipped and not quiet:
         report(f"config={path}: {', '.join(skipped)} not taken from it (they say which run it came from)")
     return {key: value for key, value in loaded.items() if key in config_file.taken}
 

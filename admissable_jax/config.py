@@ -125,9 +125,13 @@ class TrainConfig(RunSettings):
             raise ValueError(
                 f"score_every ({config.score_every}) must be a multiple of num_envs ({config.num_envs})"
             )
-        if not config.out:
-            config.out = f"runs/{short_env_name(config.env)}-{config.missingness}-s{config.seed}"
+        config.out = run_out(config)
         return config
+
+
+def run_out(config: TrainConfig) -> str:
+    """A train run's directory: ``out``, or runs/<env>-<missingness>-s<seed>."""
+    return config.out or f"runs/{short_env_name(config.env)}-{config.missingness}-s{config.seed}"
 
 
 @dataclasses.dataclass
@@ -163,7 +167,7 @@ def pair_configs(config: ExperimentConfig) -> list[TrainConfig]:
     if swept and "adversarial" not in modes:
         raise ValueError(f"lower_bounds sweeps the adversarial mode's l, and modes={config.modes!r} has no adversarial")
     shared = {field.name: getattr(config, field.name) for field in dataclasses.fields(RunSettings)}
-    out = config.out or f"runs/fig1-{short_env_name(config.env)}"
+    out = experiment_out(config)
     curves = [(mode, bound) for mode in modes
               for bound in (swept if swept and mode == "adversarial" else [shared["lower_bound"]])]
     return [
@@ -172,6 +176,11 @@ def pair_configs(config: ExperimentConfig) -> list[TrainConfig]:
         for mode, bound in curves
         for seed in range(config.first_seed, config.first_seed + config.seeds)
     ]
+
+
+def experiment_out(config: ExperimentConfig) -> str:
+    """An experiment's directory: ``out``, or runs/fig1-<env>."""
+    return config.out or f"runs/fig1-{short_env_name(config.env)}"
 
 
 def curve_name(mode: str, lower_bound: float, swept: bool) -> str:
@@ -217,10 +226,14 @@ def config_file_of(cls: type) -> ConfigFile:
     ``ExperimentConfig``): its own keys; skipped, which run the file came from (``out``,
     ``resume``, ``resume_step``, ``fast_forward``) and the other command's own keys (a train run's
     ``missingness`` and ``seed`` given to ``experiment``; an experiment's ``seeds`` and
-    ``modes`` given to ``train``)."""
+    ``modes`` given to ``train``). A resumed run's own settings: its ``config.yaml``, an
+    experiment's ``experiment.yaml``."""
     own = {field.name for field in dataclasses.fields(cls)}
     every = own | {field.name for command in (TrainConfig, ExperimentConfig) for field in dataclasses.fields(command)}
-    return ConfigFile(taken=frozenset(own - set(RUN_LOCATION)), skipped=frozenset((every - own) | set(RUN_LOCATION)))
+    resumed = {TrainConfig: lambda config: os.path.join(run_out(config), "config.yaml"),
+               ExperimentConfig: lambda config: os.path.join(experiment_out(config), "experiment.yaml")}[cls]
+    return ConfigFile(taken=frozenset(own - set(RUN_LOCATION)), skipped=frozenset((every - own) | set(RUN_LOCATION)),
+                      resumed=resumed)
 
 
 def default_num_envs(score_every: int) -> int:

@@ -131,9 +131,16 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
     assert sorted(os.listdir(pair_folder)) == before  # and nothing was made in it
     elsewhere = str(tmp_path / "elsewhere")  # the records alone, as a lent machine's pack brings them back
     shutil.copytree(resumed_root, elsewhere, ignore=shutil.ignore_patterns("checkpoints"))
-    assert experiment_main([*argv, "total_steps=3000", f"out={resumed_root}", "resume=true"]) == 0
+    # resume=true out=DIR needs no other key: the experiment's own experiment.yaml gives them.
+    assert experiment_main(["total_steps=3000", f"out={resumed_root}", "resume=true", "progress=false"]) == 0
     assert _scores(resumed_root) == _scores(str(tmp_path / "straight"))
-    said = capsys.readouterr().out
+    said, stderr = capsys.readouterr()
+    assert f"resume=true: the run's settings from {resumed_root}/experiment.yaml; keys given here override" in stderr
+    status = experiment_main(["total_steps=3000", f"out={resumed_root}", "resume=true", "seeds=3"])
+    assert (status, capsys.readouterr().err.strip().splitlines()[-1]) == (2, (
+        f"error: cannot resume with other pairs: the experiment in {resumed_root} has adversarial-s0, adversarial-s1, "
+        "uniform-s0, uniform-s1, this one adversarial-s0, adversarial-s1, adversarial-s2, uniform-s0, uniform-s1, "
+        "uniform-s2 (keep seeds, first_seed, modes and lower_bounds)"))
     # Fast-forwarded from them, the four pairs re-train 2,000 env steps without scoring, each
     # pair's rounds put in place from its own records, and go on as the uninterrupted run.
     assert experiment_main([*argv, "total_steps=3000", f"out={elsewhere}", "resume=true", "fast_forward=true"]) == 0

@@ -660,13 +660,13 @@ def test_cli_rejects_bad_input_with_one_line(args, message, tmp_path, capsys, mo
     assert not os.path.exists(tmp_path / "x")  # refused before anything is created
 
 
-def test_config_file_sets_keys_the_command_line_overrides(tmp_path, capsys):
+def test_config_file_sets_keys_the_command_line_overrides(tmp_path, capsys, monkeypatch):
     """``config=FILE``: a run's config.yaml (or an experiment's, or one's own) sets the keys,
     key=value items override them; the keys that say which run the file came from are left
     out, said in one line; a bad file is one line and exit 2, from train's and experiment's
     own command lines."""
     from admissable_jax.cli import parse_args
-    from admissable_jax.config import ExperimentConfig, config_file_of
+    from admissable_jax.config import ExperimentConfig, config_file_of, run_out
     from admissable_jax.experiment import main as experiment_main
     from admissable_jax.train import main as train_main
 
@@ -682,6 +682,30 @@ def test_config_file_sets_keys_the_command_line_overrides(tmp_path, capsys):
     assert (experiment.env, experiment.k, experiment.score_episodes, experiment.seeds, experiment.modes) == (
         "point_mass", 2, 3, 2, "adversarial,uniform")
     assert "fast_forward, missingness, out, resume, resume_step, seed not taken" in capsys.readouterr().err
+
+    # resume=true without config=: the resumed run's own config.yaml gives the keys, so that
+    # resume=true out=DIR needs no other; the invocation's and machine's own keys (time_limit,
+    # progress, score_envs) are not taken from it. Where out is not given, it is the run of
+    # env, missingness and seed; config= names the file instead.
+    run = tmp_path / "runs" / "point_mass-uniform-s4"
+    run.mkdir(parents=True)
+    OmegaConf.save(OmegaConf.structured(dataclasses.replace(
+        POINT_MASS, k=2, score_episodes=5, missingness="uniform", seed=4, time_limit=60.0, progress=False,
+        score_envs=6, out=str(run)).resolved()), run / "config.yaml")
+    monkeypatch.chdir(tmp_path)
+    for argv in (["resume=true", f"out={run}", "total_steps=9000"],
+                 ["resume=true", "env=point_mass", "missingness=uniform", "seed=4", "total_steps=9000"]):
+        resumed = parse_args(TrainConfig, argv, "t", "", config_file=config_file_of(TrainConfig))
+        assert (resumed.env, resumed.k, resumed.score_episodes, resumed.missingness, resumed.seed, resumed.total_steps,
+                resumed.time_limit, resumed.progress, resumed.score_envs, resumed.resume) == (
+            "point_mass", 2, 5, "uniform", 4, 9000, 0.0, True, 0, True), argv
+        said = capsys.readouterr().err
+        assert said == f"resume=true: the run's settings from {run_out(resumed)}/config.yaml; keys given here override them\n"
+    resumed = parse_args(TrainConfig, [f"config={saved}", "resume=true", f"out={run}"], "t", "",
+                         config_file=config_file_of(TrainConfig))
+    assert (resumed.score_episodes, resumed.out) == (3, str(run)) and "not taken from it" in capsys.readouterr().err
+    fresh = parse_args(TrainConfig, [f"out={run}"], "t", "", config_file=config_file_of(TrainConfig))
+    assert (fresh.env, fresh.k) == (TrainConfig.env, TrainConfig.k) and not capsys.readouterr().err
 
     # Step counts as researchers write them: 1e6 on the command line (a float to OmegaConf),
     # 2e5 in YAML (a string to it), both taken as ints; 1234.5 is refused (above).
