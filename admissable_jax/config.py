@@ -67,7 +67,8 @@ class RunSettings:
     batch_size: int = setting(SB3_SAC.batch_size, "minibatch size")
     hidden_size: int = setting(SB3_SAC.hidden_sizes[0], "units per hidden layer")
     hidden_layers: int = setting(len(SB3_SAC.hidden_sizes), "hidden layers per network")
-    buffer_size: int = setting(1_000_000, "replay capacity (transitions)")
+    buffer_size: int = setting(1_000_000, "replay capacity (transitions; rounded down to a multiple of num_envs, "
+                                          "at least num_envs)")
     learning_starts: int = setting(10_000, "env steps of uniform random actions before learning (10,000: RL-Zoo's "
                                            "MuJoCo setting; SB3's library default is 100)")
     utd: float = setting(1.0, "gradient steps per env step: with n parallel envs an iteration takes n env steps, "
