@@ -214,6 +214,10 @@ class TrainingLoop:
             _, state = self._restore(self.abstract_state(), resume_from)
             self.checkpoints.close()
             return state
+        if config.learning_starts >= config.planned_steps:  # SAC learns once env steps pass learning_starts
+            report(f"warning: learning_starts={config.learning_starts} is not below the run's {config.planned_steps} "
+                   "env steps: SAC never updates, and every scoring scores the untrained policy (lower "
+                   "learning_starts or raise total_steps)")
         # Read before compiling, so that records which cannot be fast-forwarded cost no compile.
         recorded = self._recorded_scorings(resume_from or 0) if config.fast_forward else [[] for _ in self.runs]
         budget = self.compile()

@@ -98,8 +98,11 @@ def test_a_run_directory_has_one_owner_and_a_stale_lock_is_taken_over(tmp_path, 
     result = train_fn(dataclasses.replace(RUN, total_steps=500, out=str(out)))
     assert _steps(result.run_dir) == [500]
     assert LOCK_NAME not in os.listdir(out)
-    # With progress=false too, the run says what it compiles and how long that took.
+    # With progress=false too, the run says what it compiles and how long that took. Its
+    # learning_starts (500) is all its env steps: it says that SAC never updates.
     said = capsys.readouterr().err
+    assert ("warning: learning_starts=500 is not below the run's 500 env steps: SAC never updates, and every scoring "
+            "scores the untrained policy (lower learning_starts or raise total_steps)\n") in said
     assert re.search(r"warning: keeping 1 checkpoint\(s\) of about 0\.\d\d GiB each needs 0\.\d\d GiB, and 0\.00 GiB are "
                      rf"free for {out / 'checkpoints'}: lower keep_checkpoints or free space", said), said
     assert "compiling the training step and the scoring round for point_mass (jax physics) on cpu..." in said
