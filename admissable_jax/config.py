@@ -329,3 +329,21 @@ def validate(config: TrainConfig) -> None:
         )
     if config.episode_length > 1000:
         raise ValueError("episode_length must be <= 1000 (the v5 limit)")
+
+
+def setting_warnings(config: TrainConfig) -> list[str]:
+    """What a resolved run's settings do that its keys do not say, one line each: a
+    ``learning_starts`` not below the run's env steps (SAC, learning once env steps pass it,
+    never updates; a random-policy baseline may mean it), and a ``utd`` whose
+    ``num_envs · utd`` gradient steps per iteration is no whole number (rounded, at least 1)."""
+    warnings = []
+    if config.learning_starts >= config.planned_steps:
+        warnings.append(f"learning_starts={config.learning_starts} is not below the run's {config.planned_steps} env "
+                        "steps: SAC never updates, and every scoring scores the untrained policy (lower learning_starts "
+                        "or raise total_steps)")
+    updates, asked = config.updates_per_iteration, config.num_envs * config.utd
+    if not math.isclose(updates, asked, rel_tol=1e-9):
+        warnings.append(f"utd={number_text(float(config.utd))} with num_envs={config.num_envs} asks for {asked:.4g} "
+                        f"gradient steps per iteration, which is rounded to {updates}: the run's utd is "
+                        f"{updates / config.num_envs:.4g} (choose num_envs and utd whose product is a whole number)")
+    return warnings

@@ -28,7 +28,7 @@ from tqdm.auto import tqdm
 
 from admissable_jax.checkpointing import CheckpointError, Checkpoints
 from admissable_jax.cli import in_background, report, reporting, stop_at_next_boundary, ticking
-from admissable_jax.config import TrainConfig, curve_names
+from admissable_jax.config import TrainConfig, curve_names, setting_warnings
 from admissable_jax.envs import make_env
 from admissable_jax.errors import Interrupted, RunFailed
 from admissable_jax.fast_forward import RecordedScoring, check_fingerprint, recorded_rows, recorded_scorings
@@ -214,10 +214,8 @@ class TrainingLoop:
             _, state = self._restore(self.abstract_state(), resume_from)
             self.checkpoints.close()
             return state
-        if config.learning_starts >= config.planned_steps:  # SAC learns once env steps pass learning_starts
-            report(f"warning: learning_starts={config.learning_starts} is not below the run's {config.planned_steps} "
-                   "env steps: SAC never updates, and every scoring scores the untrained policy (lower "
-                   "learning_starts or raise total_steps)")
+        for warning in setting_warnings(config):
+            report(f"warning: {warning}")
         # Read before compiling, so that records which cannot be fast-forwarded cost no compile.
         recorded = self._recorded_scorings(resume_from or 0) if config.fast_forward else [[] for _ in self.runs]
         budget = self.compile()

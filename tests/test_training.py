@@ -660,6 +660,26 @@ def test_cli_rejects_bad_input_with_one_line(args, message, tmp_path, capsys, mo
     assert not os.path.exists(tmp_path / "x")  # refused before anything is created
 
 
+def test_settings_whose_effect_their_keys_do_not_say_are_warned():
+    """A run says, one warning line each, where its settings do what their keys do not say: a
+    learning_starts not below its planned env steps (SAC never updates), and a utd whose
+    num_envs · utd gradient steps per iteration is rounded (the run's utd is another); not
+    for a product that float arithmetic leaves a hair off a whole number (100 · 0.07)."""
+    from admissable_jax.config import setting_warnings
+
+    def warnings(**settings):
+        return setting_warnings(dataclasses.replace(POINT_MASS, **settings).resolved())
+
+    assert warnings() == warnings(num_envs=100, utd=0.07) == warnings(num_envs=8, utd=0.25) == []
+    assert warnings(num_envs=4, utd=0.3) == [
+        "utd=0.3 with num_envs=4 asks for 1.2 gradient steps per iteration, which is rounded to 1: the run's utd is "
+        "0.25 (choose num_envs and utd whose product is a whole number)"]
+    assert warnings(total_steps=1000, learning_starts=1000) == [
+        "learning_starts=1000 is not below the run's 1000 env steps: SAC never updates, and every scoring scores the "
+        "untrained policy (lower learning_starts or raise total_steps)"]
+    assert warnings(total_steps=1001, learning_starts=1000) == []  # planned: 2000 env steps (ζ = 1000)
+
+
 def test_config_file_sets_keys_the_command_line_overrides(tmp_path, capsys, monkeypatch):
     """``config=FILE``: a run's config.yaml (or an experiment's, or one's own) sets the keys,
     key=value items override them; the keys that say which run the file came from are left
