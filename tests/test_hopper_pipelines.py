@@ -166,7 +166,9 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
         (False, "", "mujoco-warp package", 4), (True, "", "mujoco-warp package", 4),
         (True, "NONE", "mujoco-warp package", 4)], costs
     for row in costs:  # env steps per second: every env's steps, from the ms a batched step takes
-        assert row["env_steps_per_s"] == pytest.approx(row["num_envs"] * 1000 / row["env_ms_per_step"], rel=1e-3), row
+        # (the record rounds it to 0.1: at the CPU's 40-odd env steps/s that is more than 0.1%)
+        assert row["env_steps_per_s"] == pytest.approx(row["num_envs"] * 1000 / row["env_ms_per_step"], rel=1e-3,
+                                                       abs=0.051), row
         # The speed step's first goal, our env step over the bare physics of as many steps:
         # near 1 here (0.93 to 1.35 in every CPU record), as Warp's step outweighs the env's work.
         # Bounds wide enough for a busy machine (one timed call each, 10 steps): a bare rollout
