@@ -1029,6 +1029,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "utd_rounding_warned_for_float_noise": ("admissable_jax/config.py",
                                             "    if not math.isclose(updates, asked, rel_tol=1e-9):",
                                             "    if updates != asked:", "test_training.py"),
+    "score_missingness_of_a_seed": ("admissable_jax/scoring/estimators.py", "    if not (typed or raw):",
+                                    "    if False:", "test_audit.py"),
     "scoring_columns_of_any_shape": ("admissable_jax/results.py", "        except (TypeError, ValueError):  # ragged",
                                      "        except ImportError:  # ragged", "test_runs.py"),
     "score_estimators_of_one_episode": ("benchmarks/score_estimators.py", "if config.n_episodes < 2 or any(",

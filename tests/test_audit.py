@@ -93,6 +93,10 @@ def test_full_horizon_without_discount_is_the_papers_rollout():
     with pytest.raises(ValueError, match=r"policy_fn\(params, masked_obs\) must return one action of shape \(2,\) "
                                          r"for a masked observation of shape \(8,\), got \(3,\)"):
         score_missingness(ENV, lambda gain, masked: jnp.zeros(3), gain, rng, SETS, N)
+    # ...and a seed given where the key goes, or a batch of keys.
+    for key, given in ((0, "int 0"), (jax.random.split(rng, 3), r"an array of .* and shape \(3,")):
+        with pytest.raises(TypeError, match=rf"rng must be one JAX PRNG key \(jax.random.key\(seed\)\), got {given}"):
+            score_missingness(ENV, steer, gain, key, SETS, N)
     np.testing.assert_array_equal(score_missingness(ENV, steer, gain, rng, SETS, np.int64(N)).scores, rollout.scores)
 
 

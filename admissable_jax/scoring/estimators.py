@@ -51,6 +51,7 @@ def score_missingness(
     shape of ``hidden_sets`` (op by op, each call compiled its rollout again and each eager
     op of its start states once); inside a caller's jit it is part of the caller's program."""
     _check_arguments(env, hidden_sets, n_episodes)
+    _check_key(rng)
     _check_policy(env, policy_fn, params)
     if score_estimator not in SCORE_ESTIMATORS:
         raise ValueError(f"score_estimator must be one of {', '.join(SCORE_ESTIMATORS)}, got {score_estimator!r}")
@@ -84,6 +85,17 @@ def _check_policy(env, policy_fn: PolicyFn, params: Any) -> None:
         returned = jax.tree.map(lambda leaf: tuple(leaf.shape), action)
         raise ValueError(f"policy_fn(params, masked_obs) must return one action of shape ({env.action_size},) "
                          f"for a masked observation of shape ({2 * env.observation_size},), got {returned}")
+
+
+def _check_key(rng) -> None:
+    """TypeError in one line for an ``rng`` that is no JAX PRNG key (a seed given as an int,
+    where JAX would say "invalid PRNG key data")."""
+    dtype, shape = getattr(rng, "dtype", None), np.shape(rng)
+    typed = dtype is not None and jax.dtypes.issubdtype(dtype, jax.dtypes.prng_key) and shape == ()
+    raw = dtype == np.uint32 and shape == (2,)
+    if not (typed or raw):
+        given = f"{type(rng).__name__} {rng!r}" if dtype is None else f"an array of {dtype} and shape {shape}"
+        raise TypeError(f"rng must be one JAX PRNG key (jax.random.key(seed)), got {given}")
 
 
 def _check_arguments(env, hidden_sets, n_episodes: int) -> None:
