@@ -100,8 +100,8 @@ def parse_args(
     With ``positional``, a first item without ``=`` is that key's value
     (``python -m admissable_jax.video RUN_DIR ...``). With ``config_file``, a ``config=FILE``
     item sets the file's keys between the defaults and the other items; without one, a
-    ``resume=true`` command takes the resumed run's own settings so (``ConfigFile.resumed``),
-    so that ``resume=true out=DIR`` needs no other key. Exits with status 0
+    ``resume=true`` command reads the resumed run's own settings file the same way
+    (``ConfigFile.resumed``), so that ``resume=true out=DIR`` needs no other key. Exits with status 0
     after printing help for ``-h``/``--help``, and with status 2 and a one-line message on
     stderr for anything malformed, unknown, mistyped or rejected by ``validate`` (which
     raises ``ValueError``/``TypeError``).
@@ -125,22 +125,30 @@ def parse_args(
         if files:
             schema = _with_config_file(schema, files[0], config_file, int_keys)
     config = _config_of(schema, argv, int_keys)
-    if not files and config_file is not None and config_file.resumed is not None and getattr(config, "resume", False):
-        try:
-            resumed = config_file.resumed(config)
-        except ValueError:  # no run to find (an unknown env): left for validate to say
-            resumed = None
-        if resumed is not None and os.path.isfile(resumed):
-            run_only = dataclasses.replace(config_file, taken=config_file.taken - set(PER_INVOCATION),
-                                           skipped=config_file.skipped | set(PER_INVOCATION))
-            report(f"resume=true: the run's settings from {resumed}; keys given here override them")
-            config = _config_of(_with_config_file(schema, resumed, run_only, int_keys, quiet=True), argv, int_keys)
+    resumed = None if files or config_file is None else _resumed_settings(config, config_file)
+    if resumed is not None:
+        run_only = dataclasses.replace(config_file, taken=config_file.taken - set(PER_INVOCATION),
+                                       skipped=config_file.skipped | set(PER_INVOCATION))
+        report(f"resume=true: the run's settings from {resumed}; keys given here override them")
+        config = _config_of(_with_config_file(schema, resumed, run_only, int_keys, quiet=True), argv, int_keys)
     if validate is not None:
         try:
             validate(config)
         except (ValueError, TypeError) as error:
             fail(str(error))
     return config
+
+
+def _resumed_settings(config: Any, config_file: ConfigFile) -> str | None:
+    """The settings file of the run a ``resume=true`` command continues, where it exists
+    (none for another command, or where there is no run: the resume says so)."""
+    if config_file.resumed is None or not getattr(config, "resume", False):
+        return None
+    try:
+        path = config_file.resumed(config)
+    except ValueError:  # no run to find (an unknown env): left for validate to say
+        return None
+    return path if os.path.isfile(path) else None
 
 
 def _with_config_file(schema: Any, path: str, config_file: ConfigFile, int_keys: set[str], quiet: bool = False) -> Any:
