@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import numbers
 
 import numpy as np
 
@@ -34,6 +35,8 @@ def _sizes_text(num_features: int, k: int, up_to_k: bool) -> str:
 def num_candidate_sets(num_features: int, k: int = 1, include_empty: bool = False, up_to_k: bool = False) -> int:
     """|U| = C(d, k), or the sum of C(d, j) for j = 1 .. k with ``up_to_k`` (+ 1 with the
     empty set); TypeError/ValueError for a bad ``k`` or a U too big for int32 indices."""
+    if not isinstance(num_features, numbers.Integral) or isinstance(num_features, bool):
+        raise TypeError(f"num_features (d) must be an int, got {type(num_features).__name__}")
     if not isinstance(k, int) or isinstance(k, bool):
         raise TypeError(f"k must be an int, got {type(k).__name__}")
     if not 1 <= k < num_features:

@@ -12,9 +12,9 @@ sampling.
 
 from __future__ import annotations
 
-import chex
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from admissable_jax import method
 from admissable_jax.method import SetNumbering, candidate_sets, describe_set, num_candidate_sets
@@ -28,10 +28,33 @@ def mask_observation(obs: jax.Array, hidden: jax.Array) -> jax.Array:
     (:func:`admissable_jax.method.mask_observation`, shape-checked for JAX callers).
 
     ``hidden`` is the 0/1 row of u (broadcast against ``obs``); used by training, replay
-    sampling and scoring.
+    sampling and scoring. ValueError in one line for a ``hidden`` that does not broadcast to
+    ``obs``'s shape, or holds other values than 0 and 1 (feature indices given for the row,
+    which would broadcast to nonsense).
     """
-    chex.assert_equal_shape([obs, jnp.broadcast_to(hidden, obs.shape)])
-    return method.mask_observation(jnp.asarray(obs), hidden)
+    obs = jnp.asarray(obs)
+    try:
+        broadcast = np.broadcast_shapes(np.shape(hidden), obs.shape) == obs.shape
+    except ValueError:
+        broadcast = False
+    if not broadcast:
+        raise ValueError(f"hidden of shape {np.shape(hidden)} does not broadcast to the observations' shape {obs.shape}: "
+                         f"give u's 0/1 row(s) of d = {obs.shape[-1] if obs.ndim else 0}")
+    check_zero_one(hidden, "hidden")
+    return method.mask_observation(obs, hidden)
+
+
+def check_zero_one(rows, name: str) -> None:
+    """ValueError in one line where ``rows``, sets as 0/1 rows, hold another value (feature
+    indices given for a row). Checked where the values are concrete; under jit they are not
+    known when this runs, and it passes."""
+    try:
+        values = np.asarray(rows)
+    except jax.errors.TracerArrayConversionError:
+        return
+    if not np.isin(values, (0, 1)).all():
+        raise ValueError(f"{name} must hold only 0 (seen) and 1 (hidden), got {np.unique(values)[:5].tolist()}; "
+                         "method.hidden_row(indices, d) makes the row of feature indices")
 
 
 def sample_set_indices(rng: jax.Array, p_miss: jax.Array, shape: tuple[int, ...]) -> jax.Array:

@@ -42,6 +42,9 @@ def test_candidate_sets():
         candidate_sets(11, k=True)
     with pytest.raises(TypeError, match="^k must be an int, got float$"):  # a YAML "2.0" read as a float
         candidate_sets(11, k=2.0)
+    with pytest.raises(TypeError, match=r"^num_features \(d\) must be an int, got str$"):
+        candidate_sets("11", k=1)
+    np.testing.assert_array_equal(candidate_sets(np.int64(11)), candidate_sets(11))  # d as NumPy gives it
     with pytest.raises(ValueError, match="exceed"):
         candidate_sets(105, k=4)
     assert check_exact_size(85, 3) == 98_770  # listed; with the smaller sets it is only numbered
@@ -110,8 +113,16 @@ def test_mask_observation():
     )
     # A single row of u broadcasts over a batch; nothing hidden leaves obs and a zero indicator.
     np.testing.assert_array_equal(mask_observation(obs, jnp.zeros(3)), jnp.concatenate([obs, jnp.zeros((2, 3))], 1))
-    with pytest.raises((AssertionError, ValueError)):
+    # Rows of another d, or feature indices given for the row (which would broadcast to
+    # nonsense: [2] to [2, 2, 2]), are refused in one line; under jit the values are not
+    # known, and only the shape is checked.
+    with pytest.raises(ValueError, match=r"hidden of shape \(4,\) does not broadcast to the observations' shape "
+                                         r"\(2, 3\): give u's 0/1 row\(s\) of d = 3"):
         mask_observation(obs, jnp.zeros(4))
+    with pytest.raises(ValueError, match=r"hidden must hold only 0 \(seen\) and 1 \(hidden\), got \[2.0\]; "
+                                         r"method.hidden_row\(indices, d\) makes the row of feature indices"):
+        mask_observation(obs, jnp.array([2.0]))
+    np.testing.assert_array_equal(jax.jit(mask_observation)(obs, hidden), mask_observation(obs, hidden))
 
 
 def test_p_miss_update_against_hand_computed_values():

@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from admissable_jax.missingness import check_zero_one
 from admissable_jax.scoring.rollout_scores import MissingnessScores, PolicyFn, score_by_rollout
 from admissable_jax.scoring.value_estimates import CriticFn, estimate_scores
 
@@ -107,10 +108,5 @@ def _check_arguments(env, hidden_sets, n_episodes: int) -> None:
     shape = np.shape(hidden_sets)
     if len(shape) != 2 or shape[1] != d:
         raise ValueError(f"hidden_sets must be (|U|, d = {d}) 0/1 rows, one per set, got shape {shape}")
-    try:
-        values = np.asarray(hidden_sets)
-    except jax.errors.TracerArrayConversionError:  # under jit: the values are not known here
-        return
-    if not np.isin(values, (0, 1)).all():
-        raise ValueError("hidden_sets must hold only 0 (seen) and 1 (hidden)")
+    check_zero_one(hidden_sets, "hidden_sets")
 
