@@ -49,6 +49,14 @@ def test_an_env_of_ones_own_trains_resumes_plots_and_is_audited(tmp_path, capsys
         TrainConfig(env=toy_envs.Reach).resolved()  # the class itself: its name is what a run keeps
     with pytest.raises(TypeError, match="^env name must be a string, got int$"):
         make_env(123)
+    # Options: EnvOptions fields as keywords; a dict for the EnvOptions, or a field misspelt,
+    # is one line (before: an env holding the dict, or EnvOptions' own TypeError).
+    with pytest.raises(TypeError, match=r"^options must be an EnvOptions, got dict \(a dict's keys go as keywords: "
+                                        r"make_env\(name, \*\*options\)\)$"):
+        make_env(NAME, {"episode_length": 20})
+    with pytest.raises(TypeError, match="^make_env got an unknown option 'episode_lenght'; the options are "
+                                        "episode_length, physics, "):
+        make_env(NAME, episode_lenght=20)
     # The state the base class fills in: one step by hand, then truncation at episode_length.
     start = env.reset(jax.random.key(1))
     position, _, goal = np.asarray(start.obs)

@@ -77,6 +77,13 @@ def make_env(name: str, options: EnvOptions | None = None, **option_overrides) -
     The defaults reproduce Gymnasium v5 (the XML's solver settings, 1000-step episodes) on
     the best backend for this machine (``physics="auto"``).
     """
+    if options is not None and not isinstance(options, EnvOptions):
+        raise TypeError(f"options must be an EnvOptions, got {type(options).__name__} (a dict's keys go as keywords: "
+                        "make_env(name, **options))")
+    fields = [field.name for field in dataclasses.fields(EnvOptions)]
+    unknown = sorted(set(option_overrides) - set(fields))
+    if unknown:
+        raise TypeError(f"make_env got an unknown option {unknown[0]!r}; the options are {', '.join(fields)}")
     if options is None:
         options = EnvOptions(**option_overrides)
     elif option_overrides:
