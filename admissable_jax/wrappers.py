@@ -122,6 +122,18 @@ class PolicyScores:
     hidden_sets: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 0), np.float32))  # U, (|U|, d)
 
 
+def _batch_of_actions(returned: Any, action_space: gymnasium.Space) -> np.ndarray:
+    """A policy's batch of actions for a vector env (a returned tuple's first item: SB3's
+    ``(actions, state)``); ValueError in one line for a batch not of the vector env's action
+    shape, which Gymnasium would take apart env by env (a wider action silently cut to the
+    env's first entries) or fail on deep inside its step."""
+    actions = np.asarray(returned[0] if isinstance(returned, tuple) else returned)
+    if actions.dtype == object or actions.shape != action_space.shape:
+        got = f"shape {actions.shape}" if actions.dtype != object else repr(returned)[:80]
+        raise ValueError(f"policy must return a batch of actions of shape {action_space.shape} (one per env), got {got}")
+    return actions
+
+
 def score_policy(env_id: str, policy: Callable[[np.ndarray], Any], k: int = 1, n_episodes: int = 10,
                  num_envs: int = 8, include_empty_set: bool = False, seed: int = 0,
                  vectorization_mode: str = "sync", hidden_sets: np.ndarray | None = None,
@@ -163,8 +175,7 @@ def score_policy(env_id: str, policy: Callable[[np.ndarray], Any], k: int = 1, n
         with tqdm(total=total, unit="episode", disable=not progress, smoothing=0) as bar:  # closed before any error line
             while (episode_of_slot < total).any():
                 masked = mask_observation(np.asarray(obs, np.float32), rows[np.minimum(episode_of_slot, total - 1) // n_episodes])
-                actions = policy(masked)
-                actions = np.asarray(actions[0] if isinstance(actions, tuple) else actions)
+                actions = _batch_of_actions(policy(masked), envs.action_space)
                 obs, reward, terminated, truncated, _ = envs.step(actions)
                 loop_steps += 1
                 counted = ~resetting & (episode_of_slot < total)

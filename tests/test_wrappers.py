@@ -59,6 +59,12 @@ def test_score_policy_gives_the_papers_a_u_for_a_numpy_policy(capsys):
     for counts in (dict(n_episodes=0), dict(num_envs=0)):  # refused before any env is made
         with pytest.raises(ValueError, match="^n_episodes and num_envs must be >= 1$"):
             score_policy("ConstantFeatures-v0", sum_of_visible, **counts)
+    # A policy whose batch is not the vector env's actions: a wider action (Gymnasium would
+    # hand each env its row and the env read the first entry, silently), none at all.
+    for policy, got in ((lambda obs: np.zeros((len(obs), 5)), r"shape \(2, 5\)"), (lambda obs: None, "None")):
+        with pytest.raises(ValueError, match=rf"^policy must return a batch of actions of shape \(2, 1\) \(one per "
+                                             rf"env\), got {got}$"):
+            score_policy("ConstantFeatures-v0", policy, n_episodes=1, num_envs=2)
 
 
 def test_masked_observation_and_its_space():
