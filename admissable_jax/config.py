@@ -78,7 +78,7 @@ class RunSettings:
     keep_checkpoints: int = setting(2, "the newest checkpoints kept on disk (each holds the replay buffer); more let "
                                        "audit steps= look back over training")
     resume: bool = setting(False, "continue the run in 'out' from its last checkpoint, with the settings in its "
-                                  "config.yaml (keys given override them)")
+                                  "config.yaml (an experiment's experiment.yaml); keys given override them")
     resume_step: int = setting(-1, "with resume=true: the checkpoint (env step) to continue from; -1 = the latest")
     fast_forward: bool = setting(False, "with resume=true: re-train, without scoring, from that checkpoint (or from the "
                                         "start, where there is none) to the run's last recorded scoring, each p_miss "
