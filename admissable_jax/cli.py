@@ -129,8 +129,9 @@ def parse_args(
     if resumed is not None:
         run_only = dataclasses.replace(config_file, taken=config_file.taken - set(PER_INVOCATION),
                                        skipped=config_file.skipped | set(PER_INVOCATION))
+        schema = _with_config_file(schema, resumed, run_only, int_keys, resumed=True)
         report(f"resume=true: the run's settings from {resumed}; keys given here override them")
-        config = _config_of(_with_config_file(schema, resumed, run_only, int_keys, quiet=True), argv, int_keys)
+        config = _config_of(schema, argv, int_keys)
     if validate is not None:
         try:
             validate(config)
@@ -151,13 +152,20 @@ def _resumed_settings(config: Any, config_file: ConfigFile) -> str | None:
     return path if os.path.isfile(path) else None
 
 
-def _with_config_file(schema: Any, path: str, config_file: ConfigFile, int_keys: set[str], quiet: bool = False) -> Any:
-    """``schema`` with the keys the settings file ``path`` sets as its defaults."""
+def _with_config_file(schema: Any, path: str, config_file: ConfigFile, int_keys: set[str], resumed: bool = False) -> Any:
+    """``schema`` with the keys the settings file ``path`` sets as its defaults (``resumed``:
+    the resumed run's own, see :func:`_read_config_file`)."""
     try:
-        from_file = _whole_numbers_as_ints(_read_config_file(path, config_file, quiet), int_keys)
+        from_file = _whole_numbers_as_ints(_read_config_file(path, config_file, resumed), int_keys)
         return OmegaConf.merge(schema, OmegaConf.create(from_file))
     except OmegaConfBaseException as error:
-        fail(f"in config={path}: {_one_line(error)}")
+        fail(f"in {_file_label(path, resumed)}: {_one_line(error)}")
+
+
+def _file_label(path: str, resumed: bool) -> str:
+    """How an error names a settings file: ``config=FILE`` as the command gave it, or the
+    resumed run's own file by its path."""
+    return path if resumed else f"config={path}"
 
 
 def _config_of(schema: Any, argv: list[str], int_keys: set[str]) -> Any:
@@ -210,26 +218,28 @@ def _whole_numbers_as_ints(items: dict[str, Any], int_keys: set[str]) -> dict[st
     return {key: as_int(value) if key in int_keys else value for key, value in items.items()}
 
 
-def _read_config_file(path: str, config_file: ConfigFile, quiet: bool = False) -> dict[str, Any]:
+def _read_config_file(path: str, config_file: ConfigFile, resumed: bool = False) -> dict[str, Any]:
     """The keys ``config=path`` sets (see :class:`ConfigFile`); one line and exit 2 for a
     file that is missing, not YAML, not a mapping, or holds a key no command takes. The keys
-    left out are said in one line, unless ``quiet``."""
+    left out are said in one line, but for the resumed run's own file (``resumed``), whose
+    keys of another run or invocation are left out as a matter of course."""
     import yaml
 
+    label = _file_label(path, resumed)
     try:
         with open(path) as file:
             loaded = yaml.safe_load(file)
     except OSError as error:
-        fail(f"cannot read config={path}: {error.strerror or error}")
+        fail(f"cannot read {label}: {error.strerror or error}")
     except yaml.YAMLError as error:
-        fail(f"config={path} is not valid YAML{yaml_problem(error)}")
+        fail(f"{label} is not valid YAML{yaml_problem(error)}")
     if not isinstance(loaded, dict):
-        fail(f"config={path} must hold key: value lines, got {type(loaded).__name__}")
+        fail(f"{label} must hold key: value lines, got {type(loaded).__name__}")
     unknown = sorted(str(key) for key in loaded if key not in config_file.taken | config_file.skipped)
     if unknown:
-        fail(f"unknown key {unknown[0]!r} in config={path} (see --help for the valid keys)")
+        fail(f"unknown key {unknown[0]!r} in {label} (see --help for the valid keys)")
     skipped = sorted(key for key in loaded if key in config_file.skipped)
-    if skipped and not quiet:
+    if skipped and not resumed:
         report(f"config={path}: {', '.join(skipped)} not taken from it (they say which run it came from)")
     return {key: value for key, value in loaded.items() if key in config_file.taken}
 

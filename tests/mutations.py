@@ -1049,6 +1049,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "score_policy_of_any_action_shape": ("admissable_jax/wrappers.py",
                                          "    if actions.dtype == object or actions.shape != action_space.shape:",
                                          "    if False:", "test_wrappers.py"),
+    "resumed_settings_named_as_a_config_item": ("admissable_jax/cli.py", '    return path if resumed else f"config={path}"',
+                                                '    return f"config={path}"', "test_runs.py"),
     "scoring_columns_of_any_shape": ("admissable_jax/results.py", "        except (TypeError, ValueError):  # ragged",
                                      "        except ImportError:  # ragged", "test_runs.py"),
     "score_estimators_of_one_episode": ("benchmarks/score_estimators.py", "if config.n_episodes < 2 or any(",
