@@ -376,6 +376,7 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
     from test_wrappers import sum_of_visible  # registers ConstantFeatures-v0
 
     from admissable_jax.audit import audit_gymnasium, write_audit
+    from admissable_jax.audit.sets import audit_sizes
 
     result = audit_gymnasium("ConstantFeatures-v0", sum_of_visible, ks=(1, 2), n_episodes=2, num_envs=3)
     assert result.clean_score == 30.0 and result.n_episodes == 2 and result.feature_names == ["0", "1", "2"]
@@ -392,6 +393,10 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
             in report)  # k = 2: the mean's own drop, (30 − 10) / 30
     with pytest.raises(ValueError, match="ks must be set sizes 1 <= k < d = 3"):
         audit_gymnasium("ConstantFeatures-v0", sum_of_visible, ks=(3,))
+    with pytest.raises(TypeError, match=r"^ks must be set sizes \(ints\), got \('1',\)$"):
+        audit_gymnasium("ConstantFeatures-v0", sum_of_visible, ks=("1",))
+    # One int is one size, and a size given twice is scored once (as audit k=1,1 reads them).
+    assert audit_sizes(2, 3) == audit_sizes((2, 2), 3) == (2,) and audit_sizes((2, 1), 3) == (1, 2)
 
     # What each feature is worth to a policy that acts on the largest value it sees: the max
     # game's Shapley values (a blind 1 added to every action moves none), beside the loss of

@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import numbers
 from typing import Any
 
 import numpy as np
@@ -138,6 +139,7 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
 
     check_search(search, beam_width, ranker)
     d = env.observation_size
+    ks = audit_sizes(ks, d)
     searched = [k for k in ks if search == "beam" and k > 1]
     plan = shapley_plan(d, shapley, seed)
     check_audit_size(env.name, d, ks, n_episodes, search, beam_width, plan)
@@ -261,9 +263,20 @@ def gymnasium_features(env_id: str, ks, **env_kwargs) -> int:
         raise ValueError(f"cannot make the Gymnasium env {env_id!r}: {error}") from None
     d = int(probe.observation_space.shape[0])
     probe.close()
-    if not ks or any(not 1 <= k < d for k in ks):
-        raise ValueError(f"ks must be set sizes 1 <= k < d = {d}, got {tuple(ks)}")
+    audit_sizes(ks, d)
     return d
+
+
+def audit_sizes(ks, d: int) -> tuple[int, ...]:
+    """The set sizes an audit scores: ``ks`` (several, or one int), each once, smallest
+    first, as ``audit k=`` reads them; TypeError/ValueError in one line for a size that is
+    no int, or not 1 <= k < d."""
+    sizes = (ks,) if isinstance(ks, numbers.Integral) else tuple(ks)
+    if not all(isinstance(k, numbers.Integral) and not isinstance(k, bool) for k in sizes):
+        raise TypeError(f"ks must be set sizes (ints), got {ks!r}")
+    if not sizes or any(not 1 <= k < d for k in sizes):
+        raise ValueError(f"ks must be set sizes 1 <= k < d = {d}, got {sizes}")
+    return tuple(sorted({int(k) for k in sizes}))
 
 
 def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs: int = 8, seed: int = 0,
@@ -282,6 +295,7 @@ def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs
     from admissable_jax.wrappers import score_policy
 
     d = gymnasium_features(env_id, ks, **env_kwargs)
+    ks = audit_sizes(ks, d)
     blocks = [candidate_sets(d, k) for k in ks]
     plan = shapley_plan(d, shapley, seed)
     check_audit_size(env_id, d, ks, n_episodes, search=None, plan=plan)
