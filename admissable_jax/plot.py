@@ -265,13 +265,15 @@ def plot_envs_side_by_side(run_dirs: list[str], out_dir: str, window: int = 0,
     return _save(figure, out_dir, "figure1", formats)
 
 
-def plot_runs(run_dirs: list[str], out_dir: str, window: int = 0,
+def plot_runs(run_dirs: list[str] | str, out_dir: str, window: int = 0,
               formats: tuple[str, ...] = DEFAULT_FORMATS, per_seed: bool = False) -> list[str]:
     """Draw the figures for these runs into ``out_dir``, each in every one of ``formats``;
-    returns the files written. ``window``: records in the moving average (0: the paper's,
-    :func:`effective_window`); ``per_seed``: each seed's curve too, thin (:func:`draw_curves`)."""
+    returns the files written. ``run_dirs``: run directories (one as a string; the runs
+    under a folder: :func:`~admissable_jax.results.find_runs`). ``window``: records in the
+    moving average (0: the paper's, :func:`effective_window`); ``per_seed``: each seed's curve
+    too, thin (:func:`draw_curves`)."""
     check_formats(formats)
-    runs = load_runs(run_dirs)
+    runs = load_runs([run_dirs] if isinstance(run_dirs, str) else run_dirs)
     if not runs:
         raise ValueError("no runs to plot")
     envs = sorted({run.env for run in runs})

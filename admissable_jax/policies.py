@@ -23,7 +23,7 @@ from admissable_jax.config import ExperimentConfig, pair_configs
 from admissable_jax.host_loop import init_arguments, make_trainer, stacked_init_arguments, take_pair
 from admissable_jax.method import hidden_row
 from admissable_jax.missingness import mask_observation
-from admissable_jax.run_directory import load_config
+from admissable_jax.run_directory import load_config, run_config_path
 from admissable_jax.training import Trainer
 
 
@@ -87,10 +87,7 @@ def load_policy(run_dir: str, step: int | None = None) -> TrainedPolicy:
     the networks are read from the checkpoint, not the replay buffers beside them."""
     if step is not None and not isinstance(step, (int, np.integer)):
         raise TypeError(f"step must be an env step (an int) or None for the latest, got {step!r}")
-    config_path = os.path.join(run_dir, "config.yaml")
-    if not os.path.isfile(config_path):
-        raise FileNotFoundError(f"{run_dir} is not a run directory (no config.yaml)")
-    config = load_config(config_path, TrainConfig).resolved()
+    config = load_config(run_config_path(run_dir), TrainConfig).resolved()
     checkpoint_dir = _checkpoint_dir(run_dir)
     experiment_yaml = os.path.join(os.path.dirname(os.path.abspath(run_dir)), "experiment.yaml")
     if checkpoint_dir == os.path.join(run_dir, "checkpoints"):  # its own

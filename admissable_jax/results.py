@@ -38,7 +38,7 @@ from admissable_jax.envs import observation_names
 from admissable_jax.method import candidate_sets, hidden_row, parse_set
 from admissable_jax.provenance import INVOCATION_KEYS, INVOCATIONS
 from admissable_jax.run_directory import (SCORING_KEYS, TornLine, load_config_yaml, read_jsonl,
-                                          recorded_observation_names)
+                                          recorded_observation_names, run_config_path)
 from admissable_jax.scoring.worst_set import samples_to_separate
 
 # Config keys that change neither what a run learns nor how it is scored: runs that differ
@@ -105,7 +105,7 @@ def per_feature_of_sets(values: np.ndarray, members: np.ndarray, attribute: str)
 
 def load_run(path: str) -> Run:
     """A run directory's config and scoring history."""
-    config = load_config_yaml(os.path.join(path, "config.yaml"))
+    config = load_config_yaml(run_config_path(path))
     scores_path = os.path.join(path, "scores.jsonl")
     try:
         rows = read_jsonl(scores_path, required=SCORING_KEYS)

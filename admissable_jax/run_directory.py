@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
+import glob
 import json
 import os
 from typing import Any
@@ -40,6 +41,17 @@ RESUMABLE_CHANGES = ("resume", "resume_step", "fast_forward", "total_steps", "pr
 OBSERVATION_NAMES = "observation_names.json"
 # What a run writes before its first scoring: a folder holding only these is removed again.
 SETTINGS_FILES = ("config.yaml", OBSERVATION_NAMES)
+
+
+def run_config_path(path: str) -> str:
+    """The ``config.yaml`` of the run in ``path``; FileNotFoundError in one line where there
+    is none, naming a run folder under ``path`` where it holds some (an experiment's)."""
+    config_path = os.path.join(path, "config.yaml")
+    if os.path.isfile(config_path):
+        return config_path
+    below = sorted(os.path.dirname(found) for found in glob.glob(os.path.join(glob.escape(path), "*", "config.yaml")))
+    holds = f"; the runs under it are its folders, like {below[0]}" if below else ""
+    raise FileNotFoundError(f"{path} is not a run directory (no config.yaml){holds}")
 
 
 def recorded_observation_names(run_dir: str) -> list[str] | None:

@@ -62,6 +62,10 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
     assert straight[0].scores[-1]["scores"] != straight[1].scores[-1]["scores"]
     # A pair's policy outside the trainer: the experiment's checkpoint, that pair's part.
     policy = load_policy(straight[2].run_dir)
+    root = os.path.dirname(straight[2].run_dir)  # the experiment's folder is none of its runs: one line naming one
+    with pytest.raises(FileNotFoundError, match=rf"^{root} is not a run directory \(no config.yaml\); the runs under "
+                                                rf"it are its folders, like {root}/adversarial-s0$"):
+        load_policy(root)
     obs = np.random.default_rng(0).normal(size=(5, 4)).astype(np.float32)
     expected = jax.vmap(straight[2].trainer.policy, (None, 0))(straight[2].actor_params, mask_observation(obs, np.array([0, 1, 0, 0])))
     assert policy.step == 3000 and policy.config.missingness == "uniform"

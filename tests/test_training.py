@@ -347,7 +347,8 @@ def test_candidate_pool_for_k2_search_draws_and_records(tmp_path, monkeypatch):
             hiding = [score for hidden, score in zip(row["sets"], row["scores"]) if i in parse_set(hidden)]
             cell = table[len(names) * t + i]["a_u"]
             assert (float(cell) if cell else None) == (min(hiding) if hiding else None)
-    assert any("scores_adversarial.png" in path for path in plot_runs([config.out], str(tmp_path / "figures"), formats=("png",)))
+    # (one run directory may be given as itself, not in a list)
+    assert any("scores_adversarial.png" in path for path in plot_runs(config.out, str(tmp_path / "figures"), formats=("png",)))
     # Fast-forward puts each recorded round's pool in place by its sets' names: from checkpoint
     # 2000, the last interval re-trained without scoring gives the run's final state again.
     shutil.rmtree(os.path.join(config.out, "checkpoints", "3000"))
