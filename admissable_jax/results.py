@@ -205,14 +205,16 @@ def per_feature(rows: list[dict], num_features: int) -> tuple[np.ndarray, np.nda
     return scores, p_miss
 
 
-def find_runs(paths: list[str]) -> list[str]:
-    """Every directory at or under ``paths`` that holds a run's ``config.yaml`` and a
-    ``scores.jsonl`` of at least one row. A run that has not scored since it started, or
+def find_runs(paths: list[str] | str) -> list[str]:
+    """Every directory at or under ``paths`` (folders; one may be given as a string, not taken
+    letter by letter for paths, the first of which would be ``/``) that holds a run's
+    ``config.yaml`` and a ``scores.jsonl`` of at least one row. A run that has not scored since it started, or
     since a restart set its rows aside (``RunDirectory.set_aside_rows_after``), is left out
     with a warning, as one not yet scored at all is: a folder of runs can be read while one
     of them starts over. FileNotFoundError for a path that is no directory; ValueError where
     none holds a run, naming an archive beside them to unpack first (``benchmarks/results``
     keeps a campaign's runs packed, ``runs.tar.xz``, beside their figures)."""
+    paths = [paths] if isinstance(paths, str) else list(paths)
     found, unscored = [], []
     for path in paths:
         if not os.path.isdir(path):

@@ -185,6 +185,9 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
         f"interrupted: the runs are written; python -m admissable_jax.plot {resumed_root} summarises them")
     monkeypatch.undo()
 
+    with monkeypatch.context() as here:  # one folder as itself, not letter by letter ("r", "e", ...; "/" first if absolute)
+        here.chdir(tmp_path)
+        assert [str(tmp_path / run) for run in find_runs("resumed")] == find_runs([resumed_root])
     written = plot_runs(find_runs([resumed_root]), str(tmp_path / "figures"), window=2, formats=("png",))
     assert {os.path.basename(path) for path in written} >= {"min_score.png", "p_miss_adversarial.png"}
 
