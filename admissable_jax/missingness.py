@@ -54,7 +54,7 @@ def check_zero_one(rows, name: str) -> None:
         return
     if not np.isin(values, (0, 1)).all():
         raise ValueError(f"{name} must hold only 0 (seen) and 1 (hidden), got {np.unique(values)[:5].tolist()}; "
-                         "method.hidden_row(indices, d) makes the row of feature indices")
+                         "admissable_jax.method.hidden_row(indices, d) makes the row of feature indices")
 
 
 def sample_set_indices(rng: jax.Array, p_miss: jax.Array, shape: tuple[int, ...]) -> jax.Array:

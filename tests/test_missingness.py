@@ -120,7 +120,7 @@ def test_mask_observation():
                                          r"\(2, 3\): give u's 0/1 row\(s\) of d = 3"):
         mask_observation(obs, jnp.zeros(4))
     with pytest.raises(ValueError, match=r"hidden must hold only 0 \(seen\) and 1 \(hidden\), got \[2.0\]; "
-                                         r"method.hidden_row\(indices, d\) makes the row of feature indices"):
+                                         r"admissable_jax.method.hidden_row\(indices, d\) makes the row of feature indices"):
         mask_observation(obs, jnp.array([2.0]))
     np.testing.assert_array_equal(jax.jit(mask_observation)(obs, hidden), mask_observation(obs, hidden))
 
