@@ -11,6 +11,7 @@ import math
 import os
 
 import jax
+import numpy as np
 
 from admissable_jax.adversary import MODES
 from admissable_jax.agent import SACHyperparams
@@ -111,8 +112,8 @@ class TrainConfig(RunSettings):
 
     def resolved(self) -> "TrainConfig":
         """A copy with the env name and physics backend canonical, ``num_envs``,
-        ``score_envs`` and ``out`` filled in, validated."""
-        config = dataclasses.replace(self)
+        ``score_envs`` and ``out`` filled in, NumPy scalars as Python numbers, validated."""
+        config = dataclasses.replace(self, **python_numbers(self))
         validate(config)
         config.env = canonical_env_name(config.env)
         config.physics = env_physics(config.env, config.physics)
@@ -129,6 +130,16 @@ class TrainConfig(RunSettings):
             )
         config.out = run_out(config)
         return config
+
+
+def python_numbers(config) -> dict[str, int | float]:
+    """The fields of ``config`` that hold NumPy scalars (a sweep's ``np.arange`` seeds or
+    ``np.linspace`` bounds) as the Python numbers a config holds and saves: an int field's
+    NumPy integer, a float field's NumPy integer or float. Anything else is left to
+    :func:`validate`."""
+    kinds = {"int": (np.integer,), "float": (np.integer, np.floating)}
+    return {field.name: (int if field.type == "int" else float)(getattr(config, field.name))
+            for field in dataclasses.fields(config) if isinstance(getattr(config, field.name), kinds.get(field.type, ()))}
 
 
 def run_out(config: TrainConfig) -> str:

@@ -1066,6 +1066,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "find_runs_of_a_path_string": ("admissable_jax/results.py",
                                    "    paths = [paths] if isinstance(paths, str) else list(paths)\n", "",
                                    "test_experiment.py"),
+    "numpy_seed_refused": ("admissable_jax/config.py", "        config = dataclasses.replace(self, **python_numbers(self))",
+                           "        config = dataclasses.replace(self)", "test_training.py"),
     "scoring_columns_of_any_shape": ("admissable_jax/results.py", "        except (TypeError, ValueError):  # ragged",
                                      "        except ImportError:  # ragged", "test_runs.py"),
     "score_estimators_of_one_episode": ("benchmarks/score_estimators.py", "if config.n_episodes < 2 or any(",

@@ -681,6 +681,19 @@ def test_settings_whose_effect_their_keys_do_not_say_are_warned():
     assert warnings(total_steps=1001, learning_starts=1000) == []  # planned: 2000 env steps (ζ = 1000)
 
 
+def test_numpy_scalars_are_settings_as_python_numbers():
+    """A sweep's np.arange seeds or np.linspace bounds are settings as the Python numbers they
+    name (they were refused: "seed must be int, got np.int64(2)"); a float for an int field
+    still is."""
+    import numpy as np
+
+    config = dataclasses.replace(POINT_MASS, seed=np.int64(2), lower_bound=np.float32(0.5), gamma=np.int64(1)).resolved()
+    assert (config.seed, config.lower_bound, config.gamma) == (2, 0.5, 1.0)
+    assert (type(config.seed), type(config.lower_bound), type(config.gamma)) == (int, float, float)
+    with pytest.raises(TypeError, match=r"^total_steps must be int, got np.float64\(1000.0\)$"):
+        dataclasses.replace(POINT_MASS, total_steps=np.float64(1000)).resolved()
+
+
 def test_config_file_sets_keys_the_command_line_overrides(tmp_path, capsys, monkeypatch):
     """``config=FILE``: a run's config.yaml (or an experiment's, or one's own) sets the keys,
     key=value items override them; the keys that say which run the file came from are left
