@@ -273,7 +273,7 @@ def plot_runs(run_dirs: list[str] | str, out_dir: str, window: int = 0,
     moving average (0: the paper's, :func:`effective_window`); ``per_seed``: each seed's curve
     too, thin (:func:`draw_curves`)."""
     check_formats(formats)
-    runs = load_runs([run_dirs] if isinstance(run_dirs, str) else run_dirs)
+    runs = load_runs(run_dirs)
     if not runs:
         raise ValueError("no runs to plot")
     envs = sorted({run.env for run in runs})

@@ -206,15 +206,14 @@ def per_feature(rows: list[dict], num_features: int) -> tuple[np.ndarray, np.nda
 
 
 def find_runs(paths: list[str] | str) -> list[str]:
-    """Every directory at or under ``paths`` (folders; one may be given as a string, not taken
-    letter by letter for paths, the first of which would be ``/``) that holds a run's
-    ``config.yaml`` and a ``scores.jsonl`` of at least one row. A run that has not scored since it started, or
-    since a restart set its rows aside (``RunDirectory.set_aside_rows_after``), is left out
-    with a warning, as one not yet scored at all is: a folder of runs can be read while one
-    of them starts over. FileNotFoundError for a path that is no directory; ValueError where
+    """Every directory at or under ``paths`` (folders, or one as a string: :func:`paths_of`)
+    that holds a run's ``config.yaml`` and a ``scores.jsonl`` of at least one row. A run
+    that has not scored since it started, or since a restart set its rows aside
+    (``RunDirectory.set_aside_rows_after``), is left out with a warning, as one not yet
+    scored at all is: a folder of runs can be read while one of them starts over. FileNotFoundError for a path that is no directory; ValueError where
     none holds a run, naming an archive beside them to unpack first (``benchmarks/results``
     keeps a campaign's runs packed, ``runs.tar.xz``, beside their figures)."""
-    paths = [paths] if isinstance(paths, str) else list(paths)
+    paths = paths_of(paths)
     found, unscored = [], []
     for path in paths:
         if not os.path.isdir(path):
@@ -296,9 +295,16 @@ def estimate(values: np.ndarray) -> str:
     return f"{mean[0]:.1f} ± {mean[0] - low[0]:.1f}" if len(values) > 1 else f"{mean[0]:.1f}"
 
 
-def load_runs(run_dirs: list[str]) -> list[Run]:
-    """The runs in these directories, each with its variant named (:func:`label_variants`)."""
-    return label_variants([load_run(path) for path in run_dirs])
+def paths_of(paths: list[str] | str) -> list[str]:
+    """``paths`` as a list, one path given as a string being one path (iterated, its
+    characters would be taken for paths, an absolute path's first being ``/``)."""
+    return [paths] if isinstance(paths, str) else list(paths)
+
+
+def load_runs(run_dirs: list[str] | str) -> list[Run]:
+    """The runs in these directories (one as a string), each with its variant named
+    (:func:`label_variants`)."""
+    return label_variants([load_run(path) for path in paths_of(run_dirs)])
 
 
 def curves_of(run_dirs: list[str]) -> dict[tuple[str, str, str], list[Run]]:
