@@ -12,8 +12,8 @@ from typing import TYPE_CHECKING, Any, Callable
 
 from admissable_jax.audit.report import compare_modes, comparison_chart, over_training_chart, over_training_table, \
     pair_curves, shapley_order, write_audit
-from admissable_jax.audit.sets import AuditResult, audit, audit_gymnasium, check_audit_size, check_search, \
-    gymnasium_features, rollout_sets, shapley_plan
+from admissable_jax.audit.sets import AuditResult, audit, audit_gymnasium, audit_sizes, check_audit_size, \
+    check_search, gymnasium_features, rollout_sets, shapley_plan
 from admissable_jax.cli import enable_compilation_cache, parse_args, reporting, run_from_cli, setting
 from admissable_jax.errors import make_directory, remove_if_unused
 from admissable_jax.method import set_sizes
@@ -140,7 +140,7 @@ def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
         raise ValueError(f"policy={config.policy} is not callable (its type: {type(policy).__name__}): give a function "
                          "masked_obs_batch -> actions")
     ks = _ks(config.k)
-    gymnasium_features(config.gym, ks)  # before anything is written
+    audit_sizes(ks, gymnasium_features(config.gym))  # before anything is written
     out = config.out or f"audit-{config.gym}-{name}"
     with _audit_folder(out):
         with reporting(f"auditing {config.policy} on {config.gym} for k={_sizes(ks)} ({_episodes_asked(config)})"):

@@ -249,9 +249,8 @@ def _audit_result(env_name: str, estimator: str, score_rows, ks, blocks: list[np
                        list(names), source, search_info, shapley=shapley)
 
 
-def gymnasium_features(env_id: str, ks, **env_kwargs) -> int:
-    """d of the Gymnasium env ``env_id``; one-line ValueError if it cannot be made or a k
-    in ``ks`` does not fit it."""
+def gymnasium_features(env_id: str, **env_kwargs) -> int:
+    """d of the Gymnasium env ``env_id``; one-line ValueError if it cannot be made."""
     import gymnasium
 
     from admissable_jax.envs import settotalmass_warning_dropped
@@ -263,7 +262,6 @@ def gymnasium_features(env_id: str, ks, **env_kwargs) -> int:
         raise ValueError(f"cannot make the Gymnasium env {env_id!r}: {error}") from None
     d = int(probe.observation_space.shape[0])
     probe.close()
-    audit_sizes(ks, d)
     return d
 
 
@@ -294,7 +292,7 @@ def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs
     from admissable_jax.envs import canonical_env_name, observation_names, settotalmass_warning_dropped
     from admissable_jax.wrappers import score_policy
 
-    d = gymnasium_features(env_id, ks, **env_kwargs)
+    d = gymnasium_features(env_id, **env_kwargs)
     ks = audit_sizes(ks, d)
     blocks = [candidate_sets(d, k) for k in ks]
     plan = shapley_plan(d, shapley, seed)
