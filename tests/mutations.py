@@ -1066,6 +1066,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                    "test_experiment.py"),
     "numpy_seed_refused": ("admissable_jax/config.py", "        config = dataclasses.replace(self, **python_numbers(self))",
                            "        config = dataclasses.replace(self)", "test_training.py"),
+    "package_runs_no_command_given_as_a_word": ("admissable_jax/__main__.py",
+                                                "        return run_command(argv[0], argv[1:])\n", "", "test_runs.py"),
     "scoring_columns_of_any_shape": ("admissable_jax/results.py", "        except (TypeError, ValueError):  # ragged",
                                      "        except ImportError:  # ragged", "test_runs.py"),
     "score_estimators_of_one_episode": ("benchmarks/score_estimators.py", "if config.n_episodes < 2 or any(",
