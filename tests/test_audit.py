@@ -391,7 +391,7 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
     assert "N = 2 episodes of the policy as given, each set's from the vector env's own resets" in report
     assert ("Mean over all 3 sets (the average case, u drawn uniformly): 10.0, 66.7% below clean; the worst: 5.0."
             in report)  # k = 2: the mean's own drop, (30 − 10) / 30
-    with pytest.raises(ValueError, match="ks must be set sizes 1 <= k < d = 3"):
+    with pytest.raises(ValueError, match="^k must be set sizes 1 <= k < d = 3, got 3$"):
         audit_gymnasium("ConstantFeatures-v0", sum_of_visible, ks=(3,))
     with pytest.raises(TypeError, match=r"^ks must be set sizes \(ints\), got \('1',\)$"):
         audit_gymnasium("ConstantFeatures-v0", sum_of_visible, ks=("1",))
@@ -455,7 +455,7 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
         (["some_run", "search=beam", "beam_width=0"], "beam_width must be >= 1, got 0"),
         # checked on the env itself before anything is written (HalfCheetah's settotalmass
         # deprecation, Gymnasium's file, kept out of the output and the working directory)
-        (["policy=test_wrappers:sum_of_visible", "gym=HalfCheetah-v5", "k=17"], "ks must be set sizes 1 <= k < d = 17"),
+        (["policy=test_wrappers:sum_of_visible", "gym=HalfCheetah-v5", "k=17"], "k must be set sizes 1 <= k < d = 17, got 17"),
     ]:
         try:
             status = audit_main([*args, f"out={tmp_path / 'never'}"])
@@ -712,14 +712,18 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
                           (["step=300", f"out={tmp_path / 'at300'}"], "no checkpoint 300 in "),
                           (["k=1", "episodes=20000", "shapley=exact", f"out={tmp_path / 'big'}"],  # 4 + 16 sets
                            "auditing k=1 on point_mass is 20 sets x 20000 episodes in one rollout, over 200,000: lower "
-                           "episodes=, drop the largest k, use search=beam or give shapley= fewer feature orders")]:
+                           "episodes=, drop the largest k, use search=beam or give shapley= fewer feature orders"),
+                          (["k=1,4", f"out={tmp_path / 'k4'}"], "k must be set sizes 1 <= k < d = 4, got 1, 4")]:
         try:
             status = audit_main([short_run.run_dir, *args])
         except SystemExit as exit_info:  # refused by the parser's validation
             status = exit_info.code
-        error = capsys.readouterr().err.strip().splitlines()
+        said = capsys.readouterr()
+        error = said.err.strip().splitlines()
         assert status == 2 and len(error) == 1 and error[0].startswith(f"error: {message}"), error
-    assert not (tmp_path / "big").exists() and not (tmp_path / "at300").exists()  # refused before the folder is made
+        assert "auditing" not in said.out, said.out  # refused before the audit starts
+    # refused before the folder is made
+    assert not (tmp_path / "big").exists() and not (tmp_path / "at300").exists() and not (tmp_path / "k4").exists()
     unsaved = tmp_path / "unsaved"  # a run folder copied without its checkpoints (or stopped before the first)
     unsaved.mkdir()
     shutil.copy(os.path.join(short_run.run_dir, "config.yaml"), unsaved)

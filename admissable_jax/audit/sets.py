@@ -273,7 +273,7 @@ def audit_sizes(ks, d: int) -> tuple[int, ...]:
     if not all(isinstance(k, numbers.Integral) and not isinstance(k, bool) for k in sizes):
         raise TypeError(f"ks must be set sizes (ints), got {ks!r}")
     if not sizes or any(not 1 <= k < d for k in sizes):
-        raise ValueError(f"ks must be set sizes 1 <= k < d = {d}, got {sizes}")
+        raise ValueError(f"k must be set sizes 1 <= k < d = {d}, got {', '.join(map(str, sizes)) or 'none'}")
     return tuple(sorted({int(k) for k in sizes}))
 
 
@@ -329,8 +329,9 @@ def check_audit_size(env_name: str, d: int, ks, n_episodes: int, search: str | N
     """Refuse, in one line, an audit whose one rollout would step more than
     MAX_AUDIT_EPISODES episodes: (its sets, where searched the b finalists, and the plan's
     coalitions, + the clean case) × N; a beam search's levels rank b · d sets a batch.
-    ``search`` None: the audit cannot search (a Gymnasium policy's)."""
-    num_sets = rollout_sets(d, ks, search, beam_width, plan)
+    ``search`` None: the audit cannot search (a Gymnasium policy's). The sizes are checked
+    first (:func:`audit_sizes`)."""
+    num_sets = rollout_sets(d, audit_sizes(ks, d), search, beam_width, plan)
     if (num_sets + 1) * n_episodes > MAX_AUDIT_EPISODES:
         offers = ["lower episodes=", "drop the largest k"]
         offers += [] if search is None else ["use search=beam" if search == "exact" else "lower beam_width="]
