@@ -46,6 +46,12 @@ class TrainedPolicy:
     def __post_init__(self):
         self._act = jax.jit(jax.vmap(self.trainer.policy, in_axes=(None, 0)))
 
+    def __repr__(self) -> str:
+        """Which policy, not its parameters (a notebook showing one printed thousands of lines)."""
+        train = self.config
+        return (f"<TrainedPolicy of {train.env} {train.missingness} seed {train.seed} at env step {self.step} "
+                f"({train.out}): {self.observation_size} features in, {self.trainer.env.action_size} actions out>")
+
     @property
     def observation_size(self) -> int:
         return self.trainer.env.observation_size

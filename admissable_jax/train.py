@@ -46,6 +46,11 @@ class TrainResult:
         """Whether the run reached its planned steps (False after a ``time_limit`` pause)."""
         return bool(self.scores) and self.scores[-1]["env_steps"] >= self.config.planned_steps
 
+    def __repr__(self) -> str:
+        """The run's summary line, not the fields': the state holds the networks and the
+        replay buffer (a notebook showing a result printed 5,000 lines for a 1,000-step toy run)."""
+        return f"<TrainResult {self.summary() if self.scores else f'of {self.run_dir}, not scored yet'}>"
+
     def summary(self) -> str:
         """One line: how far the run got, its last min_u a_u (with a pool: the pool's lowest
         a_u, an upper bound on min_u a_u) and clean return, where it is (an adversarial run's

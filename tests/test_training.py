@@ -228,6 +228,11 @@ def test_load_policy_is_the_trainers_deterministic_policy(point_mass_run, monkey
     assert sorted(leaf.size for leaf in asked[0].values()) == sorted(
         leaf.size for leaf in jax.tree.leaves(point_mass_run.state.sac) if leaf.size)
     assert policy.step == 6000
+    # Shown in a notebook: which policy and which run, in one line, not its parameters (and
+    # the result of train_fn: its summary, not its state's networks and replay buffer).
+    assert repr(policy) == (f"<TrainedPolicy of point_mass {point_mass_run.config.missingness} seed "
+                            f"{point_mass_run.config.seed} at env step 6000 ({run_dir}): 4 features in, 2 actions out>")
+    assert repr(point_mass_run) == f"<TrainResult {point_mass_run.summary()}>"
     obs = np.random.default_rng(0).normal(size=(7, 4)).astype(np.float32)
     expected = jax.vmap(point_mass_run.trainer.policy, (None, 0))(point_mass_run.actor_params,
                                                                   mask_observation(obs, np.array([0, 0, 1, 0])))
