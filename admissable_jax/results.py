@@ -231,7 +231,7 @@ def find_runs(paths: list[str] | str) -> list[str]:
         unpack = (f"; are they packed in {archives[0]}? unpack it (mkdir DIR && tar -xf {archives[0]} -C DIR) "
                   f"and give DIR" if archives else "")
         raise ValueError(f"no run directories (config.yaml + scores.jsonl) under {', '.join(paths)}{unpack}")
-    return sorted(found)
+    return sorted(distinct_directories(found))
 
 
 def _holds_a_row(path: str) -> bool:
@@ -301,10 +301,19 @@ def paths_of(paths: list[str] | str) -> list[str]:
     return [paths] if isinstance(paths, str) else list(paths)
 
 
+def distinct_directories(paths: list[str]) -> list[str]:
+    """``paths`` with each directory once, as first spelt: a run reached twice (``plot runs
+    runs/x``, ``runs/x ./runs/x``) is one seed, not two that agree to the last digit."""
+    first_spelt: dict[str, str] = {}
+    for path in paths:
+        first_spelt.setdefault(os.path.realpath(path), path)
+    return list(first_spelt.values())
+
+
 def load_runs(run_dirs: list[str] | str) -> list[Run]:
-    """The runs in these directories (one as a string), each with its variant named
-    (:func:`label_variants`)."""
-    return label_variants([load_run(path) for path in paths_of(run_dirs)])
+    """The runs in these directories (one as a string; each directory once:
+    :func:`distinct_directories`), each with its variant named (:func:`label_variants`)."""
+    return label_variants([load_run(path) for path in distinct_directories(paths_of(run_dirs))])
 
 
 def curves_of(run_dirs: list[str]) -> dict[tuple[str, str, str], list[Run]]:

@@ -18,7 +18,7 @@ from admissable_jax.method import candidate_sets
 from admissable_jax.plot import LOWEST_BARS, _cell_edges, _final_scores_figure, _heatmap, _seeds, curve_colors, \
     draw_curves, effective_window, env_steps_axis, main, plot_envs_side_by_side, plot_runs
 from admissable_jax.results import (
-    Difference, final_scores, find_runs, format_comparison, load_run, mean_and_interval, mode_differences,
+    Difference, final_scores, find_runs, format_comparison, load_run, load_runs, mean_and_interval, mode_differences,
     moving_average, per_feature_of_sets, set_names, steps_text, summary_table,
 )
 
@@ -71,6 +71,9 @@ def test_plot_runs_writes_every_figure(tmp_path, capsys):
             _fake_run(str(tmp_path / "runs"), mode, seed)
     runs = find_runs([str(tmp_path / "runs")])
     assert len(runs) == 6
+    # A run reached twice (a folder and a run in it, another spelling) is one seed, not two.
+    assert find_runs([str(tmp_path / "runs"), runs[0], f"{tmp_path}/runs/./adversarial-s1"]) == runs
+    assert [run.path for run in load_runs([runs[0], f"{runs[0]}/", runs[1]])] == runs[:2]
     written = plot_runs(runs, str(tmp_path / "figures"), window=4)
     names = sorted(os.path.basename(p) for p in written)
     assert names == sorted(
