@@ -216,6 +216,9 @@ def find_runs(paths: list[str] | str) -> list[str]:
     paths = paths_of(paths)
     found, unscored = [], []
     for path in paths:
+        if os.path.isfile(path):
+            raise FileNotFoundError(f"{path} is a file: give a run's folder (or a folder of runs), such as "
+                                    f"{os.path.dirname(path) or '.'}")
         if not os.path.isdir(path):
             raise FileNotFoundError(f"no such directory: {path}")
         for root, _, files in os.walk(path):

@@ -1083,6 +1083,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                      "    return sorted(found)", "test_plots.py"),
     "load_runs_counts_a_run_twice": ("admissable_jax/results.py", "for path in distinct_directories(paths_of(run_dirs))",
                                      "for path in paths_of(run_dirs)", "test_plots.py"),
+    "find_runs_calls_a_file_no_directory": ("admissable_jax/results.py", "        if os.path.isfile(path):",
+                                            "        if False:", "test_plots.py"),
     "scoring_columns_of_any_shape": ("admissable_jax/results.py", "        except (TypeError, ValueError):  # ragged",
                                      "        except ImportError:  # ragged", "test_runs.py"),
     "score_estimators_of_one_episode": ("benchmarks/score_estimators.py", "if config.n_episodes < 2 or any(",

@@ -94,6 +94,9 @@ def test_plot_runs_writes_every_figure(tmp_path, capsys):
     assert height("p_miss_adversarial", "mixed_figures") > 450
     with pytest.raises(FileNotFoundError, match=f"no such directory: {tmp_path / 'missing'}$"):
         find_runs([str(tmp_path / "missing")])
+    with pytest.raises(FileNotFoundError, match=f"^{runs[0]}/scores.jsonl is a file: give a run's folder \\(or a "
+                                                f"folder of runs\\), such as {runs[0]}$"):
+        find_runs(f"{runs[0]}/scores.jsonl")  # (it said "no such directory")
     # Runs of several envs from the command line: a figures subfolder per env, one summary;
     # the figures in the formats asked for, a format matplotlib cannot write refused first.
     walker = _fake_run(str(tmp_path / "runs" / "walker"), "uniform", 0, sets=17, env="walker2d")
