@@ -162,6 +162,22 @@ class ExperimentConfig(RunSettings):
                               "jax.distributed), N = the first N")
     budget_only: bool = setting(False, "print the memory budget and stop")
 
+    def resolved(self) -> "ExperimentConfig":
+        """A copy as the experiment runs and saves it: ``modes`` and ``lower_bounds`` given
+        as Python sequences (``["adversarial", "uniform"]``, ``np.linspace(0, 100, 3)``) as
+        the comma lists the command line writes, NumPy scalars as Python numbers; TypeError
+        in one line for an experiment-only field of another type (the shared ones are each
+        pair's, checked by :meth:`TrainConfig.resolved` in :func:`pair_configs`)."""
+        lists = {name: ",".join(map(str, value)) for name in ("modes", "lower_bounds")
+                 if not isinstance(value := getattr(self, name), str) and isinstance(value, (list, tuple, np.ndarray))}
+        config = dataclasses.replace(self, **python_numbers(self), **lists)
+        for name, kind in (("seeds", int), ("first_seed", int), ("devices", int), ("budget_only", bool),
+                           ("modes", str), ("lower_bounds", str), ("out", str)):
+            value = getattr(config, name)
+            if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
+                raise TypeError(f"{name} must be {kind.__name__}, got {value!r}")
+        return config
+
 
 def pair_configs(config: ExperimentConfig) -> list[TrainConfig]:
     """One resolved TrainConfig per pair, in the batch's order: modes outer, then (for the

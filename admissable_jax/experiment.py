@@ -45,9 +45,13 @@ def experiment_dir(pairs: list[TrainConfig]) -> str:
     return os.path.dirname(pairs[0].out)
 
 
-def run_experiment(config) -> list[TrainResult]:
+def run_experiment(config: ExperimentConfig) -> list[TrainResult]:
     """Train every pair of ``config`` (seed, mode, and l in a sweep) in one program spread over the devices;
     one result per pair this process holds (every pair, in one process)."""
+    if not isinstance(config, ExperimentConfig):
+        raise TypeError(f"run_experiment expects an ExperimentConfig, got {type(config).__name__}"
+                        + (" (one run: train_fn)" if isinstance(config, TrainConfig) else ""))
+    config = config.resolved()
     initialize_distributed()
     pairs = pair_configs(config)
     first = pairs[0]

@@ -697,6 +697,22 @@ def test_numpy_scalars_are_settings_as_python_numbers():
     assert (type(config.seed), type(config.lower_bound), type(config.gamma)) == (int, float, float)
     with pytest.raises(TypeError, match=r"^total_steps must be int, got np.float64\(1000.0\)$"):
         dataclasses.replace(POINT_MASS, total_steps=np.float64(1000)).resolved()
+    # An experiment from Python: modes and lower_bounds as sequences too (they failed deep
+    # inside: "'list' object has no attribute 'split'"), saved as the command line's comma lists.
+    from admissable_jax.config import ExperimentConfig, pair_configs
+    from admissable_jax.experiment import run_experiment
+
+    given = ExperimentConfig(env="point_mass", modes=["adversarial", "uniform"], lower_bounds=np.linspace(0, 50, 2),
+                             seeds=np.int64(2), out="sweep").resolved()
+    assert given == ExperimentConfig(env="point_mass", modes="adversarial,uniform", lower_bounds="0.0,50.0", seeds=2,
+                                     out="sweep")
+    assert [os.path.basename(pair.out) for pair in pair_configs(given)] == [
+        "adversarial-l0-s0", "adversarial-l0-s1", "adversarial-l50-s0", "adversarial-l50-s1", "uniform-s0", "uniform-s1"]
+    with pytest.raises(TypeError, match=r"^seeds must be int, got '3'$"):
+        ExperimentConfig(env="point_mass", seeds="3").resolved()
+    with pytest.raises(TypeError, match=r"^run_experiment expects an ExperimentConfig, got TrainConfig \(one run: "
+                                        r"train_fn\)$"):
+        run_experiment(POINT_MASS)  # (it said "'TrainConfig' object has no attribute 'modes'")
 
 
 def test_config_file_sets_keys_the_command_line_overrides(tmp_path, capsys, monkeypatch):
