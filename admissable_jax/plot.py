@@ -52,7 +52,7 @@ import dataclasses
 import os
 import re
 import sys
-from typing import Any
+from typing import Any, Sequence
 
 import matplotlib
 
@@ -182,20 +182,18 @@ def _heatmap(ax, figure, steps: np.ndarray, values: np.ndarray, names: list[str]
 DEFAULT_FORMATS = ("png", "pdf")
 
 
-def check_formats(formats: tuple[str, ...]) -> tuple[str, ...]:
-    """``formats`` if matplotlib writes every one of them (and there is one); ValueError naming
-    the formats it writes otherwise."""
+def check_formats(formats: Sequence[str] | str) -> tuple[str, ...]:
+    """``formats``, a sequence or a comma list as the command line gives them (``"png,SVG"``),
+    as a tuple, each once and in lower case (``("png", "svg")``), if matplotlib writes every
+    one of them (and there is one); ValueError naming the formats it writes otherwise."""
+    names = formats.split(",") if isinstance(formats, str) else formats
+    formats = tuple(dict.fromkeys(name.strip().lower() for name in names if name.strip()))
     writable = FigureCanvasBase.get_supported_filetypes()
     unknown = [name for name in formats if name not in writable]
     if unknown or not formats:
         raise ValueError(f"formats: {', '.join(map(repr, unknown)) or 'none given'}: give formats matplotlib writes, "
                          f"comma separated ({', '.join(sorted(writable))})")
     return formats
-
-
-def parse_formats(text: str) -> tuple[str, ...]:
-    """``"png,SVG"`` -> ``("png", "svg")`` (each once), checked (:func:`check_formats`)."""
-    return check_formats(tuple(dict.fromkeys(name.strip().lower() for name in text.split(",") if name.strip())))
 
 
 def _save(figure, out_dir: str, name: str, formats: tuple[str, ...]) -> list[str]:
@@ -237,12 +235,12 @@ def draw_curves(ax, runs: list[Run], attribute: str, window: int, per_seed: bool
 
 
 def plot_envs_side_by_side(run_dirs: list[str], out_dir: str, window: int = 0,
-                           formats: tuple[str, ...] = DEFAULT_FORMATS, per_seed: bool = False) -> list[str]:
+                           formats: Sequence[str] | str = DEFAULT_FORMATS, per_seed: bool = False) -> list[str]:
     """The paper's Figure 1 as it lays it out: min_u a_u of each env's runs in a panel of its
     own, side by side (Hopper-v5, Walker2d-v5, Ant-v5 first), as ``figure1.png``/``.pdf`` (or
     ``formats``) in ``out_dir``; each env smoothed by its own records (:func:`effective_window`);
     ``per_seed`` as in :func:`draw_curves`."""
-    check_formats(formats)
+    formats = check_formats(formats)
     runs = load_runs(run_dirs)
     if not runs:
         raise ValueError("no runs to plot")
@@ -266,13 +264,13 @@ def plot_envs_side_by_side(run_dirs: list[str], out_dir: str, window: int = 0,
 
 
 def plot_runs(run_dirs: list[str] | str, out_dir: str, window: int = 0,
-              formats: tuple[str, ...] = DEFAULT_FORMATS, per_seed: bool = False) -> list[str]:
+              formats: Sequence[str] | str = DEFAULT_FORMATS, per_seed: bool = False) -> list[str]:
     """Draw the figures for these runs into ``out_dir``, each in every one of ``formats``;
     returns the files written. ``run_dirs``: run directories (one as a string; the runs
     under a folder: :func:`~admissable_jax.results.find_runs`). ``window``: records in the
     moving average (0: the paper's, :func:`effective_window`); ``per_seed``: each seed's curve
     too, thin (:func:`draw_curves`)."""
-    check_formats(formats)
+    formats = check_formats(formats)
     runs = load_runs(run_dirs)
     if not runs:
         raise ValueError("no runs to plot")
@@ -430,7 +428,7 @@ def main(argv: list[str]) -> int:
         fail("give at least one run directory (or a folder of them)")
     out_dir, made_out_dir = None, False
     try:
-        formats = parse_formats(config.formats)
+        formats = check_formats(config.formats)
         runs = find_runs(paths)
         by_env: dict[str, list[Run]] = collections.defaultdict(list)
         for path in runs:

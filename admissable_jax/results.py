@@ -562,8 +562,10 @@ def tidy_rows(runs: list[Run]) -> tuple[list[dict], list[dict]]:
 
 def write_tables(run_dirs: list[str], out_dir: str) -> list[str]:
     """:func:`tidy_rows` of these runs (their variants named, as in the figures) as
-    ``curves.csv`` and ``scores.csv`` in ``out_dir``; NaN is an empty cell. Returns the paths."""
+    ``curves.csv`` and ``scores.csv`` in ``out_dir`` (made if need be); NaN is an empty cell.
+    Returns the paths."""
     curves, sets = tidy_rows(load_runs(run_dirs))
+    os.makedirs(out_dir, exist_ok=True)
     written = []
     for name, columns, rows in (("curves.csv", CURVE_COLUMNS, curves), ("scores.csv", SET_COLUMNS, sets)):
         path = os.path.join(out_dir, name)

@@ -37,7 +37,7 @@ import numpy as np
 
 from admissable_jax.cli import exit_with, fail, parse_args
 from admissable_jax.errors import INTERRUPTED, UnusableDirectory, remove_if_unused
-from admissable_jax.plot import new_folder, parse_formats, plot_envs_side_by_side, plot_runs
+from admissable_jax.plot import check_formats, new_folder, plot_envs_side_by_side, plot_runs
 from admissable_jax.results import (
     IMPROVEMENT_COLUMN, Difference, Run, differing_settings, find_runs, format_comparison, load_run, mean_and_interval,
     mode_differences, summary_table, trained_on, write_tables,
@@ -210,7 +210,7 @@ def main(argv: list[str]) -> int:
     sections, rows, made = [], [], []
     out_folder = os.path.dirname(os.path.abspath(config.out))
     try:
-        formats = parse_formats(f"png,{config.formats}")
+        formats = check_formats(f"png,{config.formats}")
         for env, folder in folders.items():
             section, env_rows = env_section(env, folder, config.window, config.out, formats, config.per_seed, made)
             sections.append(section)

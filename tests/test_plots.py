@@ -15,8 +15,8 @@ from omegaconf import OmegaConf
 from admissable_jax.config import TrainConfig
 from admissable_jax.envs import observation_names
 from admissable_jax.method import candidate_sets
-from admissable_jax.plot import LOWEST_BARS, _cell_edges, _final_scores_figure, _heatmap, _seeds, curve_colors, \
-    draw_curves, effective_window, env_steps_axis, main, plot_envs_side_by_side, plot_runs
+from admissable_jax.plot import LOWEST_BARS, _cell_edges, _final_scores_figure, _heatmap, _seeds, check_formats, \
+    curve_colors, draw_curves, effective_window, env_steps_axis, main, plot_envs_side_by_side, plot_runs
 from admissable_jax.results import (
     Difference, final_scores, find_runs, format_comparison, load_run, load_runs, mean_and_interval, mode_differences,
     moving_average, per_feature_of_sets, set_names, steps_text, summary_table,
@@ -90,8 +90,10 @@ def test_plot_runs_writes_every_figure(tmp_path, capsys):
     stuck = _fake_run(str(tmp_path / "mixed"), "adversarial", 7)
     _edit_rows(stuck, lambda t, row: {**row, "p_miss": [1 / 11] * 11})
     shutil.copytree(tmp_path / "runs" / "adversarial-s0", tmp_path / "mixed" / "adversarial-s0")
-    plot_runs(find_runs([str(tmp_path / "mixed")]), str(tmp_path / "mixed_figures"), window=4, formats=("png",))
+    written = plot_runs(find_runs([str(tmp_path / "mixed")]), str(tmp_path / "mixed_figures"), window=4, formats="PNG")
     assert height("p_miss_adversarial", "mixed_figures") > 450
+    assert {os.path.splitext(path)[1] for path in written} == {".png"}  # one format as a string ("png,svg" too), not
+    assert check_formats(" png, SVG,png") == ("png", "svg")  # its letters ('formats: 'p', 'n', 'g': give formats ...')
     with pytest.raises(FileNotFoundError, match=f"no such directory: {tmp_path / 'missing'}$"):
         find_runs([str(tmp_path / "missing")])
     with pytest.raises(FileNotFoundError, match=f"^{runs[0]}/scores.jsonl is a file: give a run's folder \\(or a "

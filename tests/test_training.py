@@ -342,8 +342,8 @@ def test_candidate_pool_for_k2_search_draws_and_records(tmp_path, monkeypatch):
     assert run.scores.shape == (3, 4) and np.allclose(run.p_miss.sum(axis=1), 2.0)  # each pair counts for 2 features
     assert np.isnan(run.mean_score).all()
     # Its tidy table: a row per feature, the lowest a_u of the pool's sets hiding it (empty where none does).
-    write_tables([config.out], str(tmp_path))
-    with open(tmp_path / "scores.csv") as file:
+    write_tables([config.out], str(tmp_path / "tables"))  # a folder not there yet is made
+    with open(tmp_path / "tables" / "scores.csv") as file:
         table = list(csv.DictReader(file))
     names = observation_names("point_mass")
     assert [row["hidden"] for row in table] == names * 3 and {row["pooled"] for row in table} == {"True"}
