@@ -97,6 +97,9 @@ def test_full_horizon_without_discount_is_the_papers_rollout():
     for key, given in ((0, "int 0"), (jax.random.split(rng, 3), r"an array of .* and shape \(3,")):
         with pytest.raises(TypeError, match=rf"rng must be one JAX PRNG key \(jax.random.key\(seed\)\), got {given}"):
             score_missingness(ENV, steer, gain, key, SETS, N)
+    with pytest.raises(TypeError, match=r"^env must be an env, as make_env builds it, got 'point_mass': "
+                                        r"make_env\('point_mass'\)$"):
+        score_missingness("point_mass", steer, gain, rng, SETS, N)  # (it said "'str' object has no attribute ...")
     np.testing.assert_array_equal(score_missingness(ENV, steer, gain, rng, SETS, np.int64(N)).scores, rollout.scores)
 
 

@@ -101,7 +101,11 @@ def _check_key(rng) -> None:
 
 def _check_arguments(env, hidden_sets, n_episodes: int) -> None:
     """ValueError in one line for sets that are not (|U|, d) 0/1 rows (their values are
-    checked where they are concrete, not under jit) or for N < 1."""
+    checked where they are concrete, not under jit) or for N < 1; TypeError for an env that
+    is none (its name, say)."""
+    if not all(hasattr(env, name) for name in ("observation_size", "action_size", "reset", "step")):
+        raise TypeError(f"env must be an env, as make_env builds it, got {env!r}"
+                        + (f": make_env({env!r})" if isinstance(env, str) else ""))
     if not isinstance(n_episodes, numbers.Integral) or isinstance(n_episodes, bool) or n_episodes < 1:
         raise ValueError(f"n_episodes must be an int >= 1, got {n_episodes!r}")
     d = env.observation_size
