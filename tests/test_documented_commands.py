@@ -30,10 +30,12 @@ DOCUMENTS = ("README.md", "benchmarks/README.md", "notebooks/quickstart.ipynb")
 COMMANDS = {"train": TrainConfig, "experiment": ExperimentConfig, "plot": PlotConfig, "audit": AuditConfig,
             "video": VideoConfig, "rollout": RolloutConfig}
 PATHS_ONLY = ("compact_pngs", "load_policy_memory")  # scripts that take paths, no keys
-# A command line: `python -m admissable_jax.<command>` or `python benchmarks/<script>.py`, then
-# its items up to the end of the line, a closing backtick or a table's bar (" | "; a bar inside a
-# table's cell, "\|", reads "one or the other": env=hopper|ant).
-COMMAND_LINE = re.compile(r"python3? (?:-m admissable_jax\.(\w+)|benchmarks/(\w+)\.py)(.*?)(?=`|\n| \| |$)")
+# A command line: `python -m admissable_jax.<command>` (or `python -m admissable_jax <command>`)
+# or `python benchmarks/<script>.py`, then its items up to the end of the line, a closing
+# backtick or a table's bar (" | "; a bar inside a table's cell, "\|", reads "one or the
+# other": env=hopper|ant).
+COMMAND_LINE = re.compile(rf"python3? (?:-m admissable_jax(?:\.| (?=(?:{'|'.join(COMMANDS)})\b))(\w+)|"
+                          r"benchmarks/(\w+)\.py)(.*?)(?=`|\n| \| |$)")
 # A value standing for one's own (DIR, RUN_DIR, S, <run>, ...), not a value to parse.
 PLACEHOLDER = re.compile(r"^(<[^>]*>|[A-Z][A-Z_]*)(/.*)?$|\.\.\.")
 
@@ -109,6 +111,7 @@ def test_every_documented_command_line_parses():
 
 @pytest.mark.parametrize("line, problem", [
     ("python -m admissable_jax.train env=hopper total_step=5", "'total_step=5' names no key of train"),
+    ("python -m admissable_jax experiment env=hopper seed=5", "'seed=5' names no key of experiment"),
     ("python -m admissable_jax.audit DIR k=1 episodes=ten", "error: bad value for 'episodes': Value 'ten' of type 'str' "
                                                             "could not be converted to Integer"),
     ("python benchmarks/scoring_round.py env=hopper episodes=10", "'episodes=10' names no key of scoring_round"),
