@@ -22,10 +22,11 @@ WANDB_PROJECT = "admissable_jax"  # when WANDB_PROJECT is not set
 
 
 def parse_logger_names(names: str) -> tuple[str, ...]:
-    """``"tensorboard,wandb"`` → ``("tensorboard", "wandb")``; ``"none"`` → ``()``. Raises
-    ValueError for an unknown name, or for ``wandb`` where its package is not installed (so a
-    run is refused before it starts, not after its first scoring)."""
-    parsed = tuple(name.strip() for name in names.split(",") if name.strip())
+    """``"tensorboard,wandb"`` → ``("tensorboard", "wandb")``, each once (two TensorBoard
+    writers started in one second write one file); ``"none"`` → ``()``. Raises ValueError
+    for an unknown name, or for ``wandb`` where its package is not installed (so a run is
+    refused before it starts, not after its first scoring)."""
+    parsed = tuple(dict.fromkeys(name.strip() for name in names.split(",") if name.strip()))
     unknown = [name for name in parsed if name != "none" and name not in _LOGGER_CLASSES]
     if unknown or not parsed or ("none" in parsed and len(parsed) > 1):
         raise ValueError(f"logger must be none or a comma list of {', '.join(_LOGGER_CLASSES)}, got {names!r}")

@@ -182,6 +182,9 @@ def test_loggers_mirror_the_jsonl_rows(point_mass_run, tmp_path, capsys, monkeyp
         assert main(["logger=tensorboard,wandb", f"out={tmp_path / 'never'}", "progress=false"]) == 2
     assert capsys.readouterr().err == "error: logger=wandb needs the wandb package: pip install -e '.[wandb]'\n"
     assert not (tmp_path / "never").exists()
+    from admissable_jax.loggers import parse_logger_names  # a logger named twice is one logger
+
+    assert parse_logger_names("tensorboard, wandb,tensorboard") == ("tensorboard", "wandb")
     values = collections.defaultdict(dict)
     for event in _tensorboard_events(os.path.join(point_mass_run.run_dir, "tensorboard")):
         for value in event.summary.value:
