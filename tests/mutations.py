@@ -1103,6 +1103,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                          "    parsed = tuple(dict.fromkeys(name.strip() for name in names.split(\",\") if name.strip()))",
                                          "    parsed = tuple(name.strip() for name in names.split(\",\") if name.strip())",
                                          "test_training.py"),
+    "audit_without_its_chart_by_size": ("admissable_jax/audit/report.py", "    if len(result.sets) > 1:\n",
+                                        "    if len(result.sets) > 9:\n", "test_audit.py"),
     "scoring_columns_of_any_shape": ("admissable_jax/results.py", "        except (TypeError, ValueError):  # ragged",
                                      "        except ImportError:  # ragged", "test_runs.py"),
     "score_estimators_of_one_episode": ("benchmarks/score_estimators.py", "if config.n_episodes < 2 or any(",

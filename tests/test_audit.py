@@ -388,7 +388,8 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
     assert result.worst(2, 1)[0].drop_percent == pytest.approx(100 * 25 / 30)
     assert (result.mean(1), result.mean(2)) == (20.0, 10.0)
     written = write_audit(result, str(tmp_path / "audit"))
-    assert sorted(os.path.basename(path) for path in written) == ["audit.json", "pairs_k2.png", "report.md", "scores_k1.png"]
+    assert sorted(os.path.basename(path) for path in written) == ["audit.json", "pairs_k2.png", "report.md", "scores_k1.png",
+                                                                   "worst_by_k.png"]
     report = (tmp_path / "audit" / "report.md").read_text()
     assert "Gymnasium env ConstantFeatures-v0, policy sum_of_visible" in report and "| 1 | 1, 2 | 1, 2 | 5.0 ± 0.0 | 83.3% |" in report
     assert "N = 2 episodes of the policy as given, each set's from the vector env's own resets" in report
@@ -568,7 +569,8 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
     assert re.fullmatch(r"(auditing checkpoint \d+ of point_mass for k=1,2 \(exact search, 6 episodes per set, jax "
                         r"physics on cpu; compiling included\))\.\.\.\n[^\n]*\r100%[^\n]* 96/96 [^\n]*\n\1: done in "
                         r"\d+\.\d s\n", captured.err), captured.err
-    assert sorted(os.listdir(out)) == ["audit.json", "pairs_k2.png", "report.md", "scores_k1.png", "shapley.png"]
+    assert sorted(os.listdir(out)) == ["audit.json", "pairs_k2.png", "report.md", "scores_k1.png", "shapley.png",
+                                       "worst_by_k.png"]
     with open(os.path.join(out, "audit.json")) as file:
         record = json.load(file)
     assert [len(record["sets"][k]) for k in ("1", "2")] == [4, 6]

@@ -37,6 +37,8 @@ def write_audit(result: AuditResult, out: str, top: int = 10) -> list[str]:
         written.append(_pair_heatmap(result, os.path.join(out, "pairs_k2.png")))
     if result.shapley is not None:
         written.append(_shapley_chart(result, os.path.join(out, "shapley.png")))
+    if len(result.sets) > 1:
+        written.append(_by_size_chart(result, os.path.join(out, "worst_by_k.png")))
     with open(written[1], "w") as file:
         file.write(_report(result, top, [os.path.basename(path) for path in written[2:]]))
     return written
@@ -202,6 +204,38 @@ def _bar_chart(result: AuditResult, path: str) -> str:
     ax.set_ylabel(f"$a_u$: mean return of {result.n_episodes} episodes (95% CI)")
     ax.set_title(f"{result.env}: return with one feature hidden (worst in red)")
     ax.legend()
+    figure.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(figure)
+    return path
+
+
+def _by_size_chart(result: AuditResult, path: str) -> str:
+    """The return against how many features are hidden: the clean case at 0, then per audited
+    k the worst a_u (its 95% interval, its set named) and the mean a_u over the sets (where
+    every set was scored): how fast the policy falls as more sensors go."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ks = sorted(result.sets)
+    worst = [result.worst(k, 1)[0] for k in ks]
+    figure, ax = plt.subplots(figsize=(max(5, 1.2 * len(ks) + 3), 4))
+    ax.errorbar([0, *ks], [result.clean_score, *(entry.score for entry in worst)],
+                yerr=[result.clean_ci95, *(entry.ci95 for entry in worst)], color="tab:red", marker="o", capsize=3,
+                label="worst $a_u$ (95% CI)")
+    for k, entry in zip(ks, worst):
+        ax.annotate(", ".join(entry.names), (k, entry.score), textcoords="offset points", xytext=(6, -10), fontsize=7)
+    exhaustive = [k for k in ks if k not in result.search]
+    ax.plot([0, *exhaustive], [result.clean_score, *(result.mean(k) for k in exhaustive)], color="gray",
+            linestyle=":", marker=".", label="mean $a_u$ over the sets (u drawn uniformly)")
+    ax.set_xticks([0, *ks], ["0\n(clean)", *map(str, ks)])
+    ax.set_xlim(-0.3, ks[-1] + 0.9)  # room for the last set's names
+    ax.set_xlabel("features hidden, k")
+    ax.set_ylabel(f"return ({result.n_episodes} episodes per set)")
+    ax.set_title(f"{result.env}: the return as more features are hidden", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
     figure.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(figure)
     return path
