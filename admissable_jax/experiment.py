@@ -38,7 +38,7 @@ from admissable_jax.errors import INTERRUPTED, make_directory, remove_if_unused
 from admissable_jax.host_loop import TrainingLoop, make_trainer, pairs_init
 from admissable_jax.placement import PairPlacement, initialize_distributed
 from admissable_jax.results import comparison_section, mode_differences, summary_table
-from admissable_jax.run_directory import RunDirectory, load_config, read_jsonl
+from admissable_jax.run_directory import RunDirectory, check_folder_kind, load_config, read_jsonl
 from admissable_jax.train import TrainResult
 
 def experiment_dir(pairs: list[TrainConfig]) -> str:
@@ -59,6 +59,7 @@ def run_experiment(config: ExperimentConfig) -> list[TrainResult]:
     trainer = make_trainer(first, num_runs=placement.pairs_per_device)
     root = experiment_dir(pairs)
     experiment_yaml = os.path.join(root, "experiment.yaml")
+    check_folder_kind(root, "experiment")
     if config.resume:  # checked before anything is created
         if not os.path.isdir(root):
             raise CheckpointError(f"nothing to resume: {root} does not exist")

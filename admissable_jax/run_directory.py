@@ -54,6 +54,29 @@ def run_config_path(path: str) -> str:
     raise FileNotFoundError(f"{path} is not a run directory (no config.yaml){holds}")
 
 
+def check_folder_kind(out: str, command: str) -> None:
+    """FileExistsError in one line where ``out`` of ``command`` (``train`` or ``experiment``)
+    is another command's folder: an experiment's, or one of its pairs, for ``train`` (whose
+    run would sit inside it, or miss the checkpoints the experiment keeps for every pair); a
+    train run's, or an experiment's pair, for ``experiment``. It names the command that
+    continues what is there. A pair is a run without checkpoints of its own in a folder that
+    holds an experiment."""
+    holds_experiment = lambda folder: os.path.isfile(os.path.join(folder, "experiment.yaml"))
+    holds_run = os.path.isfile(os.path.join(out, "config.yaml"))
+    own_checkpoints = Checkpoints.steps_in(os.path.join(out, "checkpoints"))
+    if holds_run and not own_checkpoints and holds_experiment(os.path.dirname(os.path.abspath(out))):
+        experiment = os.path.dirname(os.path.normpath(out)) or "."
+        found, owner, where = f"a pair of the experiment in {experiment}, whose checkpoints hold every pair", "experiment", experiment
+    elif command == "train" and holds_experiment(out):
+        found, owner, where = "an experiment", "experiment", out
+    elif command == "experiment" and holds_run:
+        found, owner, where = "a train run", "train", out
+    else:
+        return
+    raise FileExistsError(f"{out} is {found}: choose another out, or continue it with python -m admissable_jax.{owner} "
+                          f"resume=true out={where}")
+
+
 def recorded_observation_names(run_dir: str) -> list[str] | None:
     """The feature names a run recorded (``observation_names.json``); None for a run from
     before the file was written, whose env's code names them."""

@@ -19,7 +19,7 @@ from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.cli import enable_compilation_cache, exit_with, parse_args, run_from_cli
 from admissable_jax.config import TrainConfig, config_file_of, number_text
 from admissable_jax.host_loop import TrainingLoop, init_arguments, make_trainer
-from admissable_jax.run_directory import RunDirectory
+from admissable_jax.run_directory import RunDirectory, check_folder_kind
 from admissable_jax.training import Trainer, TrainState
 
 
@@ -76,6 +76,7 @@ def train_fn(config: TrainConfig) -> TrainResult:
     if not isinstance(config, TrainConfig):
         raise TypeError(f"train_fn expects a TrainConfig, got {type(config).__name__}")
     config = config.resolved()
+    check_folder_kind(config.out, "train")
     trainer = make_trainer(config)
     checkpoint_dir = os.path.join(config.out, "checkpoints")
     run = RunDirectory(config, checkpoint_dir)

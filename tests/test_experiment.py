@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shutil
@@ -66,6 +67,27 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
     with pytest.raises(FileNotFoundError, match=rf"^{root} is not a run directory \(no config.yaml\); the runs under "
                                                 rf"it are its folders, like {root}/adversarial-s0$"):
         load_policy(root)
+    # A train run into the experiment's folder, or continuing one of its pairs alone (whose
+    # checkpoints are the experiment's), is refused, naming the command that continues it; so
+    # is an experiment into a train run's folder (they said "already holds a run" or "no
+    # checkpoint to resume from", and a train run would have written into the experiment's).
+    from admissable_jax import TrainConfig, train_fn
+
+    pair = straight[0].config
+    refused = {root: "an experiment", pair.out: f"a pair of the experiment in {root}, whose checkpoints hold every pair"}
+    for out, resume in ((root, False), (pair.out, True)):
+        with pytest.raises(FileExistsError, match=rf"^{out} is {refused[out]}: choose another out, or continue it with "
+                                                  rf"python -m admissable_jax.experiment resume=true out={root}$"):
+            train_fn(dataclasses.replace(pair, out=out, resume=resume))
+    assert sorted(os.listdir(root)) == ["adversarial-s0", "adversarial-s1", "checkpoints", "experiment.yaml",
+                                        "uniform-s0", "uniform-s1"]
+    lone = tmp_path / "lone"
+    lone.mkdir()
+    shutil.copy(os.path.join(pair.out, "config.yaml"), lone)
+    with pytest.raises(FileExistsError, match=rf"^{lone} is a train run: choose another out, or continue it with "
+                                              rf"python -m admissable_jax.train resume=true out={lone}$"):
+        run_experiment(ExperimentConfig(**EXPERIMENT, total_steps=3000, out=str(lone)))
+    assert sorted(os.listdir(lone)) == ["config.yaml"]
     obs = np.random.default_rng(0).normal(size=(5, 4)).astype(np.float32)
     expected = jax.vmap(straight[2].trainer.policy, (None, 0))(straight[2].actor_params, mask_observation(obs, np.array([0, 1, 0, 0])))
     assert policy.step == 3000 and policy.config.missingness == "uniform"
@@ -130,8 +152,9 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
     before = sorted(os.listdir(pair_folder))
     capsys.readouterr()  # (what the runs above said)
     status = experiment_main([*argv, "total_steps=3000", f"out={pair_folder}", "resume=true"])
-    assert (status, capsys.readouterr().err.strip().splitlines()[-1]) == (
-        1, f"error: nothing to resume: {pair_folder}/experiment.yaml does not exist")
+    assert (status, capsys.readouterr().err.strip().splitlines()[-1]) == (  # (it said "nothing to resume")
+        2, f"error: {pair_folder} is a pair of the experiment in {resumed_root}, whose checkpoints hold every pair: "
+           f"choose another out, or continue it with python -m admissable_jax.experiment resume=true out={resumed_root}")
     assert sorted(os.listdir(pair_folder)) == before  # and nothing was made in it
     elsewhere = str(tmp_path / "elsewhere")  # the records alone, as a lent machine's pack brings them back
     shutil.copytree(resumed_root, elsewhere, ignore=shutil.ignore_patterns("checkpoints"))
