@@ -460,6 +460,8 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
         # checked on the env itself before anything is written (HalfCheetah's settotalmass
         # deprecation, Gymnasium's file, kept out of the output and the working directory)
         (["policy=test_wrappers:sum_of_visible", "gym=HalfCheetah-v5", "k=17"], "k must be set sizes 1 <= k < d = 17, got 17"),
+        # our env names as env= takes them name the Gymnasium env (it said "Environment `halfcheetah` doesn't exist")
+        (["policy=test_wrappers:sum_of_visible", "gym=halfcheetah", "k=17"], "k must be set sizes 1 <= k < d = 17, got 17"),
     ]:
         try:
             status = audit_main([*args, f"out={tmp_path / 'never'}"])

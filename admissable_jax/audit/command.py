@@ -55,7 +55,8 @@ class AuditConfig:
                              "its folder, then robustness_over_training.md/.png (worst and mean a_u per k by step)")
     policy: str = setting("", "instead of a run: MODULE:NAME, any Python policy masked_obs_batch -> actions "
                               "(Stable-Baselines3, CleanRL, PyTorch) to audit on the Gymnasium env gym=")
-    gym: str = setting("", "with policy=: the Gymnasium env id (Hopper-v5, or any other) the policy acts in")
+    gym: str = setting("", "with policy=: the Gymnasium env id (Hopper-v5, or any other; hopper names Hopper-v5 as "
+                           "env= does) the policy acts in")
     tell_apart: bool = setting(False, "audit twice: a pilot of `episodes` per set, then, from fresh start states, as "
                                       "many episodes per set as the pilot says tell the worst set of each k from the "
                                       "runner-up (80% power; at most 1000)")
@@ -125,10 +126,14 @@ def _shapley(text: str) -> int | str:
 def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     """Audit ``config.policy`` (MODULE:NAME, importable from here) on the Gymnasium env
     ``config.gym`` by :func:`~admissable_jax.audit.sets.audit_gymnasium`; write the report
-    into ``config.out`` (default ``audit-<ENV_ID>-<NAME>``)."""
+    into ``config.out`` (default ``audit-<ENV_ID>-<NAME>``). ``gym=`` may name one of our
+    envs as ``env=`` does (``hopper`` for Hopper-v5)."""
     import importlib
 
+    from admissable_jax.envs import gymnasium_env_id
+
     check_audit_config(config)
+    config = dataclasses.replace(config, gym=gymnasium_env_id(config.gym))
     module_name, _, name = config.policy.partition(":")
     if not module_name or not name:
         raise ValueError(f"policy must be MODULE:NAME (a callable in an importable module), got {config.policy!r}")

@@ -191,6 +191,13 @@ def canonical_env_name(name: str) -> str:
     return key
 
 
+def gymnasium_env_id(name: str) -> str:
+    """The Gymnasium id of one of our envs named as ``env=`` names it (``hopper`` →
+    ``Hopper-v5``); any other name as it is, a Gymnasium id for Gymnasium to read."""
+    spec = ENV_SPECS.get(_ALIASES.get(name.lower(), name.lower()))
+    return spec.gymnasium_id if spec is not None and spec.gymnasium_id else name
+
+
 def env_spec(name: str) -> EnvSpec:
     """The catalog entry of env ``name`` (any name :func:`canonical_env_name` takes)."""
     return _external(name)[0] if is_external(name) else ENV_SPECS[canonical_env_name(name)]
