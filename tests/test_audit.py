@@ -387,6 +387,12 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
     assert [(entry.hidden, entry.score) for entry in result.sets[2]] == [((0, 1), 15.0), ((0, 2), 10.0), ((1, 2), 5.0)]
     assert result.worst(2, 1)[0].drop_percent == pytest.approx(100 * 25 / 30)
     assert (result.mean(1), result.mean(2)) == (20.0, 10.0)
+    assert repr(result) == (  # shown in a notebook: what was found, not every episode's return
+        "<AuditResult of ConstantFeatures-v0, 2 episodes per set: clean 30.0 ± 0.0\n"
+        "  k=1: worst 2 ([2]): a_u 15.0 ± 0.0, 50.0% below clean 30.0; mean over the 3 sets 20.0; told apart from every "
+        "other set\n"
+        "  k=2: worst 1, 2 ([1, 2]): a_u 5.0 ± 0.0, 83.3% below clean 30.0; mean over the 3 sets 10.0; told apart from "
+        "every other set>")
     written = write_audit(result, str(tmp_path / "audit"))
     assert sorted(os.path.basename(path) for path in written) == ["audit.json", "pairs_k2.png", "report.md", "scores_k1.png",
                                                                    "worst_by_k.png"]

@@ -71,7 +71,7 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
     # checkpoints are the experiment's), is refused, naming the command that continues it; so
     # is an experiment into a train run's folder (they said "already holds a run" or "no
     # checkpoint to resume from", and a train run would have written into the experiment's).
-    from admissable_jax import TrainConfig, train_fn
+    from admissable_jax import train_fn
 
     pair = straight[0].config
     refused = {root: "an experiment", pair.out: f"a pair of the experiment in {root}, whose checkpoints hold every pair"}

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import math
 import os
 from typing import TYPE_CHECKING, Any, Callable
 
@@ -130,7 +129,7 @@ def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     envs as ``env=`` does (``hopper`` for Hopper-v5)."""
     import importlib
 
-    from admissable_jax.envs import gymnasium_env_id
+    from admissable_jax.envs.catalog import gymnasium_env_id
 
     check_audit_config(config)
     config = dataclasses.replace(config, gym=gymnasium_env_id(config.gym))
@@ -348,12 +347,7 @@ def main(argv: list[str]) -> int:
         if result.pilot is not None:
             print(f"{pair}N = {result.pilot['chosen']} episodes per set, chosen by a pilot of {result.pilot['episodes']}")
         for k in result.sets:
-            (worst,) = result.worst(k, 1)
-            average = "" if math.isnan(result.mean(k)) else f"; mean over the {len(result.sets[k])} sets {result.mean(k):.1f}"
-            tied = sum(gap.tied for gap in result.gaps_to_worst(k)[1:])
-            print(f"{pair}k={k}: worst {', '.join(worst.names)} ({list(worst.hidden)}): a_u {worst.score:.1f} ± "
-                  f"{worst.ci95:.1f}, {worst.drop_percent:.1f}% below clean {result.clean_score:.1f}{average}; "
-                  f"{f'not told apart from {tied} other set(s)' if tied else 'told apart from every other set'}")
+            print(f"{pair}{result.worst_line(k)}")
         if result.shapley is not None:
             attribution, top = result.shapley, shapley_order(result.shapley)[0]
             print(f"{pair}shapley: {result.feature_names[top]} ({top}) worth most: φ {attribution.values[top]:.1f} ± "

@@ -93,6 +93,24 @@ class AuditResult:
         worst, runner_up = self.worst(k, 2)
         return samples_to_separate(worst.returns, runner_up.returns, self.same_starts)
 
+    def worst_line(self, k: int) -> str:
+        """What the audit found at size k in one line, as the command prints it: the worst set,
+        its a_u ± 95% CI and drop below clean, the mean over the sets, and whether the worst
+        is told apart from the others."""
+        (worst,) = self.worst(k, 1)
+        average = "" if math.isnan(self.mean(k)) else f"; mean over the {len(self.sets[k])} sets {self.mean(k):.1f}"
+        tied = sum(gap.tied for gap in self.gaps_to_worst(k)[1:])
+        return (f"k={k}: worst {', '.join(worst.names)} ({list(worst.hidden)}): a_u {worst.score:.1f} ± "
+                f"{worst.ci95:.1f}, {worst.drop_percent:.1f}% below clean {self.clean_score:.1f}{average}; "
+                f"{f'not told apart from {tied} other set(s)' if tied else 'told apart from every other set'}")
+
+    def __repr__(self) -> str:
+        """What was found, a line per k, not every episode's return (a notebook showing an
+        audit of Hopper's 66 sets of 1 and 2 features printed each of their 50 returns)."""
+        lines = [f"<AuditResult of {self.env}, {self.n_episodes} episodes per set: clean {self.clean_score:.1f} ± "
+                 f"{self.clean_ci95:.1f}", *(f"  {self.worst_line(k)}" for k in self.sets)]
+        return "\n".join(lines) + ">"
+
 
 @dataclasses.dataclass(frozen=True)
 class GapToWorst:

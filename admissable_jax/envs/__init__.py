@@ -26,7 +26,6 @@ from admissable_jax.envs.catalog import (
     canonical_env_name,
     env_spec,
     external_class,
-    gymnasium_env_id,
     is_external,
     observation_names,
     observation_size,
