@@ -55,11 +55,11 @@ def run_experiment(config: ExperimentConfig) -> list[TrainResult]:
     initialize_distributed()
     pairs = pair_configs(config)
     first = pairs[0]
+    root = experiment_dir(pairs)
+    check_folder_kind(root, "experiment")
     placement = PairPlacement.over(len(pairs), config.devices)
     trainer = make_trainer(first, num_runs=placement.pairs_per_device)
-    root = experiment_dir(pairs)
     experiment_yaml = os.path.join(root, "experiment.yaml")
-    check_folder_kind(root, "experiment")
     if config.resume:  # checked before anything is created
         if not os.path.isdir(root):
             raise CheckpointError(f"nothing to resume: {root} does not exist")

@@ -66,7 +66,8 @@ def check_folder_kind(out: str, command: str) -> None:
     own_checkpoints = Checkpoints.steps_in(os.path.join(out, "checkpoints"))
     if holds_run and not own_checkpoints and holds_experiment(os.path.dirname(os.path.abspath(out))):
         experiment = os.path.dirname(os.path.normpath(out)) or "."
-        found, owner, where = f"a pair of the experiment in {experiment}, whose checkpoints hold every pair", "experiment", experiment
+        found = f"a pair of the experiment in {experiment}, whose checkpoints hold every pair"
+        owner, where = "experiment", experiment
     elif command == "train" and holds_experiment(out):
         found, owner, where = "an experiment", "experiment", out
     elif command == "experiment" and holds_run:
