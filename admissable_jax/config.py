@@ -171,11 +171,8 @@ class ExperimentConfig(RunSettings):
         lists = {name: ",".join(map(str, value)) for name in ("modes", "lower_bounds")
                  if not isinstance(value := getattr(self, name), str) and isinstance(value, (list, tuple, np.ndarray))}
         config = dataclasses.replace(self, **python_numbers(self), **lists)
-        for name, kind in (("seeds", int), ("first_seed", int), ("devices", int), ("budget_only", bool),
-                           ("modes", str), ("lower_bounds", str), ("out", str)):
-            value = getattr(config, name)
-            if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
-                raise TypeError(f"{name} must be {kind.__name__}, got {value!r}")
+        shared = {field.name for field in dataclasses.fields(RunSettings)}
+        check_field_types(config, [field for field in dataclasses.fields(config) if field.name not in shared])
         return config
 
 
@@ -299,19 +296,25 @@ def check_sets(config: RunSettings) -> None:
         raise ValueError(f"pool_size must be <= d = {d} and k <= d/2 (the beam search starts from the single features)")
 
 
-def validate(config: TrainConfig) -> None:
-    """Raise ValueError/TypeError with a one-line message for any bad setting."""
-    if not isinstance(config, TrainConfig):
-        raise TypeError(f"expected a TrainConfig, got {type(config).__name__}")
-    if isinstance(config.env, type):  # a class of one's own, given as itself: its name is what runs keep
-        raise TypeError(f"env must be a name: env={config.env.__module__}:{config.env.__qualname__} names this class")
-    for field in dataclasses.fields(TrainConfig):
+def check_field_types(config, fields) -> None:
+    """TypeError in one line for a field of ``fields`` whose value is not of its type (a bool
+    is no int), ValueError for a float field that is not finite."""
+    for field in fields:
         value = getattr(config, field.name)
         expected = {"int": int, "float": (int, float), "bool": bool, "str": str}[field.type]
         if not isinstance(value, expected) or (field.type == "int" and isinstance(value, bool)):
             raise TypeError(f"{field.name} must be {field.type}, got {value!r}")
         if field.type == "float" and not math.isfinite(value):
             raise ValueError(f"{field.name} must be a finite number, got {value!r}")
+
+
+def validate(config: TrainConfig) -> None:
+    """Raise ValueError/TypeError with a one-line message for any bad setting."""
+    if not isinstance(config, TrainConfig):
+        raise TypeError(f"expected a TrainConfig, got {type(config).__name__}")
+    if isinstance(config.env, type):  # a class of one's own, given as itself: its name is what runs keep
+        raise TypeError(f"env must be a name: env={config.env.__module__}:{config.env.__qualname__} names this class")
+    check_field_types(config, dataclasses.fields(TrainConfig))
     canonical_env_name(config.env)
     env_physics(config.env, config.physics)
     parse_logger_names(config.logger)

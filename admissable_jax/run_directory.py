@@ -54,6 +54,11 @@ def run_config_path(path: str) -> str:
     raise FileNotFoundError(f"{path} is not a run directory (no config.yaml){holds}")
 
 
+def is_experiment(path: str) -> bool:
+    """Whether the folder ``path`` holds an experiment (its ``experiment.yaml``)."""
+    return os.path.isfile(os.path.join(path, "experiment.yaml"))
+
+
 def check_folder_kind(out: str, command: str) -> None:
     """FileExistsError in one line where ``out`` of ``command`` (``train`` or ``experiment``)
     is another command's folder: an experiment's, or one of its pairs, for ``train`` (whose
@@ -61,14 +66,13 @@ def check_folder_kind(out: str, command: str) -> None:
     train run's, or an experiment's pair, for ``experiment``. It names the command that
     continues what is there. A pair is a run without checkpoints of its own in a folder that
     holds an experiment."""
-    holds_experiment = lambda folder: os.path.isfile(os.path.join(folder, "experiment.yaml"))
     holds_run = os.path.isfile(os.path.join(out, "config.yaml"))
     own_checkpoints = Checkpoints.steps_in(os.path.join(out, "checkpoints"))
-    if holds_run and not own_checkpoints and holds_experiment(os.path.dirname(os.path.abspath(out))):
+    if holds_run and not own_checkpoints and is_experiment(os.path.dirname(os.path.abspath(out))):
         experiment = os.path.dirname(os.path.normpath(out)) or "."
         found = f"a pair of the experiment in {experiment}, whose checkpoints hold every pair"
         owner, where = "experiment", experiment
-    elif command == "train" and holds_experiment(out):
+    elif command == "train" and is_experiment(out):
         found, owner, where = "an experiment", "experiment", out
     elif command == "experiment" and holds_run:
         found, owner, where = "a train run", "train", out

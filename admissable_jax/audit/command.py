@@ -16,6 +16,7 @@ from admissable_jax.audit.sets import AuditResult, audit, audit_gymnasium, audit
 from admissable_jax.cli import enable_compilation_cache, parse_args, reporting, run_from_cli, setting
 from admissable_jax.errors import make_directory, remove_if_unused
 from admissable_jax.method import set_sizes
+from admissable_jax.run_directory import is_experiment
 from admissable_jax.scoring import SCORE_ESTIMATORS
 from admissable_jax.scoring.attribution import MIN_ORDERS, ShapleyPlan
 
@@ -234,7 +235,8 @@ def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
 
     out = config.out or os.path.join(config.run_dir, f"audit-step{policy.step}")
     train = policy.config
-    d, ks = policy.observation_size, _ks(config.k, train)
+    d = policy.observation_size
+    ks = audit_sizes(_ks(config.k, train), d)  # before the audit starts
     check_audit_size(train.env, d, ks, config.episodes, config.search, config.beam_width, _plan(config, d))
     with _audit_folder(out):
         with reporting(f"auditing checkpoint {policy.step} of {train.env} for k={_sizes(ks)} ({config.search} search, "
@@ -296,10 +298,6 @@ def _audit_each(jobs: list[tuple[AuditConfig, int | None]]) -> tuple[list[AuditR
         results.append(result)
         written += files
     return results, written
-
-
-def is_experiment(path: str) -> bool:
-    return os.path.isfile(os.path.join(path, "experiment.yaml"))
 
 
 def audit_experiment(config: AuditConfig) -> tuple[list[AuditResult], list[str]]:

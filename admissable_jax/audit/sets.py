@@ -347,9 +347,8 @@ def check_audit_size(env_name: str, d: int, ks, n_episodes: int, search: str | N
     """Refuse, in one line, an audit whose one rollout would step more than
     MAX_AUDIT_EPISODES episodes: (its sets, where searched the b finalists, and the plan's
     coalitions, + the clean case) × N; a beam search's levels rank b · d sets a batch.
-    ``search`` None: the audit cannot search (a Gymnasium policy's). The sizes are checked
-    first (:func:`audit_sizes`)."""
-    num_sets = rollout_sets(d, audit_sizes(ks, d), search, beam_width, plan)
+    ``search`` None: the audit cannot search (a Gymnasium policy's)."""
+    num_sets = rollout_sets(d, ks, search, beam_width, plan)
     if (num_sets + 1) * n_episodes > MAX_AUDIT_EPISODES:
         offers = ["lower episodes=", "drop the largest k"]
         offers += [] if search is None else ["use search=beam" if search == "exact" else "lower beam_width="]
