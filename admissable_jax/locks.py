@@ -37,8 +37,8 @@ class RunLock:
                 self.held = True
                 return
             except FileExistsError:
-                holder = self._holder()
-                if holder is not None and _is_alive(holder, owner["host"]):
+                holder = live_holder(os.path.dirname(self.path))
+                if holder is not None:
                     raise RunDirectoryLocked(
                         f"{os.path.dirname(self.path)} is in use by process {holder.get('pid')} on "
                         f"{holder.get('host')}; wait for it or choose another out"
@@ -51,12 +51,18 @@ class RunLock:
             os.remove(self.path)
         self.held = False
 
-    def _holder(self) -> dict | None:
-        try:
-            with open(self.path) as file:
-                return json.load(file)
-        except (OSError, ValueError):
-            return None  # unreadable: a lock file half written by a killed process
+
+def live_holder(directory: str) -> dict | None:
+    """The owner (``{"pid", "host"}``) of ``directory``'s lock where it still runs; None where
+    the directory is free or its lock is stale (its owner ended, or a killed process left it
+    half written). A lock taken on another host is taken to be live: its owner cannot be
+    asked from here."""
+    try:
+        with open(os.path.join(directory, LOCK_NAME)) as file:
+            holder = json.load(file)
+    except (OSError, ValueError):
+        return None
+    return holder if isinstance(holder, dict) and _is_alive(holder, socket.gethostname()) else None
 
 
 def _is_alive(holder: dict, this_host: str) -> bool:

@@ -216,11 +216,7 @@ def find_runs(paths: list[str] | str) -> list[str]:
     paths = paths_of(paths)
     found, unscored = [], []
     for path in paths:
-        if os.path.isfile(path):
-            raise FileNotFoundError(f"{path} is a file: give a run's folder (or a folder of runs), such as "
-                                    f"{os.path.dirname(path) or '.'}")
-        if not os.path.isdir(path):
-            raise FileNotFoundError(f"no such directory: {path}")
+        check_is_folder(path)
         for root, _, files in os.walk(path):
             if "scores.jsonl" in files and "config.yaml" in files:
                 (found if _holds_a_row(os.path.join(root, "scores.jsonl")) else unscored).append(root)
@@ -235,6 +231,16 @@ def find_runs(paths: list[str] | str) -> list[str]:
                   f"and give DIR" if archives else "")
         raise ValueError(f"no run directories (config.yaml + scores.jsonl) under {', '.join(paths)}{unpack}")
     return sorted(distinct_directories(found))
+
+
+def check_is_folder(path: str) -> None:
+    """FileNotFoundError in one line where ``path``, given as a folder of runs, is none (a
+    file: naming its folder)."""
+    if os.path.isfile(path):
+        raise FileNotFoundError(f"{path} is a file: give a run's folder (or a folder of runs), such as "
+                                f"{os.path.dirname(path) or '.'}")
+    if not os.path.isdir(path):
+        raise FileNotFoundError(f"no such directory: {path}")
 
 
 def _holds_a_row(path: str) -> bool:

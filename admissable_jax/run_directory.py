@@ -59,6 +59,16 @@ def is_experiment(path: str) -> bool:
     return os.path.isfile(os.path.join(path, "experiment.yaml"))
 
 
+def experiment_of(run_dir: str) -> str | None:
+    """The folder of the experiment whose pair the run in ``run_dir`` is (a run without
+    checkpoints of its own in a folder that holds an experiment, whose checkpoints hold
+    every pair), as spelt from ``run_dir``; None for a run of its own."""
+    parent = os.path.dirname(os.path.normpath(run_dir)) or "."
+    if Checkpoints.steps_in(os.path.join(run_dir, "checkpoints")) or not is_experiment(parent):
+        return None
+    return parent
+
+
 def check_folder_kind(out: str, command: str) -> None:
     """FileExistsError in one line where ``out`` of ``command`` (``train`` or ``experiment``)
     is another command's folder: an experiment's, or one of its pairs, for ``train`` (whose
@@ -67,9 +77,8 @@ def check_folder_kind(out: str, command: str) -> None:
     continues what is there. A pair is a run without checkpoints of its own in a folder that
     holds an experiment."""
     holds_run = os.path.isfile(os.path.join(out, "config.yaml"))
-    own_checkpoints = Checkpoints.steps_in(os.path.join(out, "checkpoints"))
-    if holds_run and not own_checkpoints and is_experiment(os.path.dirname(os.path.abspath(out))):
-        experiment = os.path.dirname(os.path.normpath(out)) or "."
+    experiment = experiment_of(out) if holds_run else None
+    if experiment is not None:
         found = f"a pair of the experiment in {experiment}, whose checkpoints hold every pair"
         owner, where = "experiment", experiment
     elif command == "train" and is_experiment(out):
@@ -134,11 +143,12 @@ def read_jsonl(path: str, torn: str = "raise", required: tuple[str, ...] = ()) -
     return rows
 
 
-def read_run_file(run_path: str, name: str) -> list[dict[str, Any]]:
+def read_run_file(run_path: str, name: str, torn: str = "raise") -> list[dict[str, Any]]:
     """The rows of the run's JSONL file ``name`` (scores.jsonl, metrics.jsonl: each row at
-    its ``env_steps``; none where it has no such file yet)."""
+    its ``env_steps``; none where it has no such file yet). ``torn``: what a cut-off last
+    line does (:func:`read_jsonl`)."""
     path = os.path.join(run_path, name)
-    return read_jsonl(path, required=RECORD_KEYS) if os.path.exists(path) else []
+    return read_jsonl(path, torn, RECORD_KEYS) if os.path.exists(path) else []
 
 
 def load_config_yaml(path: str):

@@ -17,7 +17,7 @@ LAYERS = [
     {"agent", "scoring", "config", "run_spec"},
     {"training"},  # the pure core
     {"run_directory", "fast_forward", "host_loop", "results"},  # a run's files written, and read back
-    {"train", "experiment", "policies", "plot", "audit", "video", "rollout", "__main__"},  # the entry points
+    {"train", "experiment", "policies", "plot", "audit", "video", "rollout", "status", "__main__"},  # the entry points
 ]
 FILE_KEEPERS = {"checkpointing", "run_directory", "host_loop", "locks", "loggers", "provenance", "cli"}
 PURE = {"training", "missingness", "adversary", "agent", "sac_losses", "replay", "scoring", "method", "branching",

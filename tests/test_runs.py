@@ -231,7 +231,7 @@ def test_the_package_lists_its_commands(capsys):
     assert listed[3].endswith("Which sensors break a policy? A robustness audit over every set of k hidden features.")
     assert main(["env=ant"]) == 2  # a command given as a word runs: test_unwritable_out_is_one_line
     assert capsys.readouterr().err == ("error: 'env=ant' is no command: run one of train, experiment, plot, audit, "
-                                       "video, rollout, e.g. python -m admissable_jax train env=ant (python -m "
+                                       "video, rollout, status, e.g. python -m admissable_jax train env=ant (python -m "
                                        "admissable_jax lists them)\n")
     # --version: what a bug report needs, read from the installed metadata (no JAX imported).
     import importlib.metadata
@@ -567,6 +567,7 @@ def test_faults_of_long_runs_cost_nothing_finished(tmp_path, monkeypatch, capsys
     assert not paused.finished and _steps(paused_dir) == [500]
     assert "paused at 500 of 2000 env steps: another scoring interval would pass time_limit=15 s" in capsys.readouterr().err
     assert sorted(os.listdir(os.path.join(paused_dir, "checkpoints"))) == ["500"]
+    check_where_runs_stand(tmp_path, straight, paused_dir, capsys)
 
     # A crash mid-append leaves a torn last line: resume drops it and says so; plot skips it
     # with a warning naming the file.
@@ -707,3 +708,72 @@ def test_faults_of_long_runs_cost_nothing_finished(tmp_path, monkeypatch, capsys
     assert os.listdir(checkpoints) == ["500"]
     monkeypatch.setattr(ocp.CheckpointManager, "save", real_save)
     assert train_fn(dataclasses.replace(RUN, out=full_dir, resume=True)).scores == straight.scores
+
+
+def check_where_runs_stand(tmp_path, straight, paused_dir: str, capsys) -> None:
+    """``status``: each run's state read from its folder, and the command that continues a
+    stopped one: from its checkpoint (an experiment's pair: the experiment's), from its
+    records where the checkpoints are gone, or from its settings where it never scored."""
+    from admissable_jax.status import main as status_main
+    from admissable_jax.status import run_status
+
+    stand = tmp_path / "stand"
+    running, copied, unscored, broken = (stand / name for name in ("running", "copied", "unscored", "broken"))
+    shutil.copytree(paused_dir, running)
+    (running / LOCK_NAME).write_text(json.dumps({"pid": 1, "host": os.uname().nodename}))  # init: always alive
+    with open(running / "scores.jsonl", "a") as file:  # a row the run is writing as status reads
+        file.write('{"env_steps": 1000, "min_sc')
+    with open(running / "metrics.jsonl", "a") as file:  # its pace: the last five intervals'
+        file.write("".join(json.dumps({"env_steps": 500, "env_steps_per_s": rate, "score_seconds": 0.0}) + "\n"
+                           for rate in (1, 2, 3, 4, 5, 6)))
+    shutil.copytree(paused_dir, copied, ignore=shutil.ignore_patterns("checkpoints"))
+    unscored.mkdir()
+    shutil.copy(os.path.join(paused_dir, "config.yaml"), unscored)
+    shutil.copytree(unscored, broken)
+    (broken / "config.yaml").write_text("env: [point_mass\n")
+    pair = stand / "experiment" / "adversarial-s0"  # a pair: the experiment's checkpoints hold it
+    shutil.copytree(paused_dir, pair, ignore=shutil.ignore_patterns("checkpoints"))
+    shutil.copytree(os.path.join(paused_dir, "checkpoints"), stand / "experiment" / "checkpoints")
+    (stand / "experiment" / "experiment.yaml").write_text("env: point_mass\n")
+    metrics = read_run_file(paused_dir, "metrics.jsonl")
+    pace = sum(500 / row["env_steps_per_s"] + row["score_seconds"] for row in metrics) / len(metrics)
+
+    stopped = run_status(paused_dir)
+    assert (stopped.state, stopped.scored_steps, stopped.checkpoint_steps, stopped.planned_steps) == ("stopped", 500, 500, 2000)
+    assert stopped.seconds_left == pytest.approx(3 * pace) and stopped.min_score == straight.scores[0]["min_score"]
+    assert 0 <= stopped.seconds_since_scoring < 600
+    assert run_status(straight.run_dir).state == "finished" and run_status(straight.run_dir).seconds_left is None
+    live = run_status(str(running))
+    assert live.holder == f"process 1 on {os.uname().nodename}" and live.scored_steps == 500
+    assert live.seconds_left == pytest.approx(3 * sum(500 / rate for rate in (2, 3, 4, 5, 6)) / 5)
+    assert run_status(str(copied)).seconds_left == pytest.approx(4 * pace)  # from the start: no checkpoint
+    assert status_main([straight.run_dir, paused_dir, str(stand)]) == 0
+    table = capsys.readouterr().out
+    rows = {line.split()[0]: line for line in table.splitlines()[1:8]}
+    assert re.search(r"point_mass  adversarial  0     2,000 / 2,000  finished +\d+\.\d +\d+\.\d +\d+ s ago$",
+                     rows[straight.run_dir]), table
+    assert "500 / 2,000    stopped (checkpoint 500)" in rows[paused_dir] and rows[paused_dir].endswith(" s")
+    assert f"running (process 1 on {os.uname().nodename})" in rows[str(running)]
+    assert "0 / 2,000      stopped (no checkpoint)" in rows[str(unscored)] and rows[str(broken)].endswith("unreadable")
+    assert table.endswith(
+        "\n7 run(s): 1 running, 1 finished, 4 stopped, 1 unreadable\nto continue the stopped runs:\n"
+        f"  python -m admissable_jax.train resume=true out={paused_dir}\n"
+        f"  python -m admissable_jax.train resume=true fast_forward=true out={copied}\n"
+        f"  python -m admissable_jax.experiment resume=true out={stand / 'experiment'}\n"
+        f"  python -m admissable_jax.train config={unscored / 'config.yaml'} out={unscored}\n"
+        f"{broken}: {broken / 'config.yaml'} is not valid YAML (line 2): did not find expected ',' or ']'\n"), table
+    # For scripts: one JSON object per run, of the states asked for.
+    assert status_main([str(stand), "state=stopped,unreadable", "format=jsonl"]) == 0
+    listed = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert [(row["path"], row["state"]) for row in listed] == [
+        (str(broken), "unreadable"), (str(copied), "stopped"), (str(pair), "stopped"), (str(unscored), "stopped")]
+    assert listed[2]["experiment"] == str(stand / "experiment") and listed[2]["checkpoint_steps"] == 500
+    for argv, said in (([str(stand), "state=paused"], "state=paused: 'paused' is no state; the states are running, "
+                                                        "finished, stopped, unreadable"),
+                       ([os.path.join(paused_dir, "config.yaml")], f"{os.path.join(paused_dir, 'config.yaml')} is a file: "
+                                                                   f"give a run's folder (or a folder of runs), such as "
+                                                                   f"{paused_dir}"),
+                       ([str(tmp_path / "nothing")], f"no such directory: {tmp_path / 'nothing'}")):
+        with pytest.raises(SystemExit) as refused:
+            status_main(argv)
+        assert refused.value.code == 2 and capsys.readouterr().err == f"error: {said}\n"
