@@ -12,8 +12,9 @@ states (:data:`STATES`):
   taken on another host is taken to be live, as ``train`` takes it);
 - ``finished``: a checkpoint at the planned env steps;
 - ``stopped``: anything else that a command can continue (paused at ``time_limit``,
-  interrupted, killed, crashed, refused a checkpoint by a full disk): the command that
-  continues it is printed (``resume=true`` from the latest checkpoint; ``fast_forward=true``
+  interrupted, killed, crashed, refused a checkpoint by a full disk; *killed* where its
+  process ended without giving back its lock, as no exit of Python does: SIGKILL, the
+  out-of-memory killer, a machine that went down): the command that continues it is printed (``resume=true`` from the latest checkpoint; ``fast_forward=true``
   where the checkpoints are gone but the records can rebuild the run; the run's own
   settings again where it stopped before its first scoring);
 - ``unreadable``: its ``config.yaml`` or records cannot be read (the reason is printed).
@@ -34,7 +35,7 @@ import time
 from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.cli import exit_with, fail, parse_args, setting
 from admissable_jax.config import TrainConfig
-from admissable_jax.locks import live_holder
+from admissable_jax.locks import LOCK_NAME, live_holder
 from admissable_jax.loggers import FINGERPRINT
 from admissable_jax.results import check_is_folder, distinct_directories, paths_of
 from admissable_jax.run_directory import experiment_of, load_config, read_run_file, run_config_path
@@ -60,6 +61,7 @@ class RunStatus:
     seconds_since_scoring: float | None = None  # since the last scoring row was written
     seconds_left: float | None = None  # the steps left (from the checkpoint, for a stopped run) at the records' pace
     holder: str = ""  # running: "process <pid> on <host>"
+    killed: bool = False  # stopped, and its process ended without giving back its lock
     experiment: str = ""  # the experiment folder of a pair ('' for a run of its own)
     continue_with: str = ""  # stopped: the command that continues it
     problem: str = ""  # unreadable: why
@@ -94,6 +96,7 @@ def run_status(run_dir: str) -> RunStatus:
         seconds_since_scoring=time.time() - os.path.getmtime(os.path.join(run_dir, "scores.jsonl")) if scores else None,
         seconds_left=(planned - start) / config.score_every * interval if interval and state != "finished" else None,
         holder=f"process {holder.get('pid')} on {holder.get('host')}" if holder is not None else "",
+        killed=state == "stopped" and os.path.exists(os.path.join(run_dir, LOCK_NAME)),
         experiment=experiment,
         continue_with=_continue_with(run_dir, experiment, checkpoint_steps, metrics) if state == "stopped" else "",
     )
@@ -158,6 +161,9 @@ def status_table(statuses: list[RunStatus]) -> str:
     lines = ["  ".join(cell.ljust(width) for cell, width in zip(row, widths)).rstrip() for row in rows]
     counts = {state: sum(status.state == state for status in statuses) for state in STATES}
     lines.append(f"\n{len(statuses)} run(s): " + ", ".join(f"{count} {state}" for state, count in counts.items() if count))
+    if any(status.killed for status in statuses):
+        lines.append("killed: its process ended without giving back its lock, as no exit of Python does (SIGKILL, the "
+                     "out-of-memory killer, a machine that went down)")
     commands = list(dict.fromkeys(status.continue_with for status in statuses if status.continue_with))
     if commands:
         lines.append("to continue the stopped runs:")
@@ -170,9 +176,9 @@ def _row(status: RunStatus) -> tuple[str, ...]:
     if status.state == "unreadable":
         return (status.path, "", "", "", "", "unreadable", "", "", "", "")
     number = lambda value: "—" if value is None else f"{value:.1f}"
+    checkpoint = f"checkpoint {status.checkpoint_steps:,}" if status.checkpoint_steps else "no checkpoint"
     state = {"running": f"running ({status.holder})",
-             "stopped": f"stopped (checkpoint {status.checkpoint_steps:,})" if status.checkpoint_steps
-             else "stopped (no checkpoint)"}.get(status.state, status.state)
+             "stopped": f"stopped ({'killed; ' * status.killed}{checkpoint})"}.get(status.state, status.state)
     return (status.path, status.env, status.mode, str(status.seed), f"{status.scored_steps:,} / {status.planned_steps:,}",
             state, number(status.min_score), number(status.clean_score),
             "—" if status.seconds_since_scoring is None else f"{duration_text(status.seconds_since_scoring)} ago",

@@ -727,6 +727,9 @@ def check_where_runs_stand(tmp_path, straight, paused_dir: str, capsys) -> None:
         file.write("".join(json.dumps({"env_steps": 500, "env_steps_per_s": rate, "score_seconds": 0.0}) + "\n"
                            for rate in (1, 2, 3, 4, 5, 6)))
     shutil.copytree(paused_dir, copied, ignore=shutil.ignore_patterns("checkpoints"))
+    gone = subprocess.Popen(["true"])
+    gone.wait()  # as a killed run's process: the lock it held is left, naming a pid no longer running
+    (copied / LOCK_NAME).write_text(json.dumps({"pid": gone.pid, "host": os.uname().nodename}))
     unscored.mkdir()
     shutil.copy(os.path.join(paused_dir, "config.yaml"), unscored)
     shutil.copytree(unscored, broken)
@@ -755,8 +758,11 @@ def check_where_runs_stand(tmp_path, straight, paused_dir: str, capsys) -> None:
     assert "500 / 2,000    stopped (checkpoint 500)" in rows[paused_dir] and rows[paused_dir].endswith(" s")
     assert f"running (process 1 on {os.uname().nodename})" in rows[str(running)]
     assert "0 / 2,000      stopped (no checkpoint)" in rows[str(unscored)] and rows[str(broken)].endswith("unreadable")
+    assert "500 / 2,000    stopped (killed; no checkpoint)" in rows[str(copied)]
     assert table.endswith(
-        "\n7 run(s): 1 running, 1 finished, 4 stopped, 1 unreadable\nto continue the stopped runs:\n"
+        "\n7 run(s): 1 running, 1 finished, 4 stopped, 1 unreadable\nkilled: its process ended without giving back its "
+        "lock, as no exit of Python does (SIGKILL, the out-of-memory killer, a machine that went down)\n"
+        "to continue the stopped runs:\n"
         f"  python -m admissable_jax.train resume=true out={paused_dir}\n"
         f"  python -m admissable_jax.train resume=true fast_forward=true out={copied}\n"
         f"  python -m admissable_jax.experiment resume=true out={stand / 'experiment'}\n"
@@ -768,6 +774,7 @@ def check_where_runs_stand(tmp_path, straight, paused_dir: str, capsys) -> None:
     assert [(row["path"], row["state"]) for row in listed] == [
         (str(broken), "unreadable"), (str(copied), "stopped"), (str(pair), "stopped"), (str(unscored), "stopped")]
     assert listed[2]["experiment"] == str(stand / "experiment") and listed[2]["checkpoint_steps"] == 500
+    assert [row["killed"] for row in listed] == [False, True, False, False]  # a clean stop gives its lock back
     for argv, said in (([str(stand), "state=paused"], "state=paused: 'paused' is no state; the states are running, "
                                                         "finished, stopped, unreadable"),
                        ([os.path.join(paused_dir, "config.yaml")], f"{os.path.join(paused_dir, 'config.yaml')} is a file: "
