@@ -21,6 +21,7 @@ from typing import Any, Callable, NoReturn, TypeVar
 
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
+from tqdm import auto as tqdm_auto
 from tqdm.auto import tqdm
 
 from admissable_jax.errors import INTERRUPTED, USAGE_ERROR, RunFailed
@@ -395,6 +396,38 @@ def fail(message: str) -> None:
 def report(message: str) -> None:
     """A status line on stderr, with or without a progress bar."""
     tqdm.write(message, file=sys.stderr)
+
+
+class LogLines(tqdm):
+    """The training's progress where stderr is no terminal (a batch job's log file, a pipe):
+    not a bar redrawn in place, whose carriage returns would make a long run's log one line of
+    megabytes, but a line of its own each time the scores are set (every scoring): the env
+    steps, the time spent and left at this command's pace, and the scores."""
+
+    LINE = "{n:,} of {total:,} env steps ({percentage:.0f}%), {elapsed} elapsed, about {remaining} left at {rate_fmt}{postfix}"
+
+    def __init__(self, **kwargs):
+        super().__init__(bar_format=self.LINE, **kwargs)
+        self.sp = None  # nothing is drawn, so close() has nothing to finish off
+
+    def display(self, msg: str | None = None, pos: int | None = None) -> bool:
+        return True
+
+    def clear(self, nolock: bool = False) -> None:
+        """Nothing is drawn, so nothing to clear (``tqdm.write`` clears every bar first: a '\\r' in the log)."""
+
+    def set_postfix(self, ordered_dict=None, refresh: bool = True, **kwargs) -> None:
+        super().set_postfix(ordered_dict, refresh=False, **kwargs)
+        if not self.disable:
+            self.fp.write(f"{self}\n")
+            self.fp.flush()
+
+
+def progress_bar(**kwargs) -> tqdm:
+    """A bar for long work (``tqdm``'s keywords): tqdm's, redrawn in place, on a terminal and
+    in a notebook's widget; elsewhere :class:`LogLines`."""
+    drawn_in_place = sys.stderr.isatty() or tqdm_auto.notebook_tqdm is not tqdm_auto.std_tqdm
+    return (tqdm if drawn_in_place else LogLines)(**kwargs)
 
 
 @contextlib.contextmanager

@@ -85,7 +85,7 @@ class RunSettings:
                                         "start, where there is none) to the run's last recorded scoring, each p_miss "
                                         "read from scores.jsonl, checked bit for bit against metrics.jsonl; for runs "
                                         "whose checkpoints stayed on another machine")
-    progress: bool = setting(True, "show a progress bar")
+    progress: bool = setting(True, "show a progress bar (where stderr is no terminal, a log file: a line per scoring)")
     logger: str = setting("none", "also log every scores/metrics row to: none | tensorboard (<run dir>/tensorboard) | "
                                      "wandb (the wandb extra; $WANDB_PROJECT, WANDB_MODE=offline) | tensorboard,wandb")
     time_limit: float = setting(0.0, "wall seconds this invocation may train (0 = no limit): it checkpoints and stops "

@@ -27,7 +27,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from admissable_jax.checkpointing import CheckpointError, Checkpoints
-from admissable_jax.cli import in_background, report, reporting, stop_at_next_boundary, ticking
+from admissable_jax.cli import in_background, progress_bar, report, reporting, stop_at_next_boundary, ticking
 from admissable_jax.config import TrainConfig, curve_names, setting_warnings
 from admissable_jax.envs import make_env
 from admissable_jax.errors import Interrupted, RunFailed
@@ -244,8 +244,8 @@ class TrainingLoop:
         invocation = invocation_record(start_step, records_kept_to if config.fast_forward else None, budget.device,
                                        self.num_devices, self.trainer.env.physics_name, self.num_runs)
         # smoothing=0: the rate (and the time left) over this invocation, scorings included.
-        bar = tqdm(total=config.planned_steps, initial=start_step, unit="step", disable=not config.progress,
-                   dynamic_ncols=True, smoothing=0)
+        bar = progress_bar(total=config.planned_steps, initial=start_step, unit="step", disable=not config.progress,
+                           dynamic_ncols=True, smoothing=0)
         with stop_at_next_boundary("at the end of this scoring interval, with a checkpoint") as stop, ticking(bar):
             try:
                 for scoring in range(first_scoring, num_scorings):

@@ -23,10 +23,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from tqdm.auto import tqdm
 
 from admissable_jax import TrainConfig, host_loop, train_fn
 from admissable_jax.checkpointing import CheckpointError, _reason
-from admissable_jax.cli import run_from_cli, ticking
+from admissable_jax.cli import LogLines, progress_bar, run_from_cli, ticking
 from admissable_jax.errors import INTERRUPTED
 from admissable_jax.host_loop import TrainingLoop, interval_pieces
 from admissable_jax.locks import LOCK_NAME, RunDirectoryLocked, RunLock
@@ -284,15 +285,17 @@ def test_settings_that_would_train_nonsense_are_refused_before_anything_is_writt
     assert not out.exists()
 
 
-def test_the_bar_moves_within_an_interval_and_names_what_runs(tmp_path, monkeypatch):
+def test_the_bar_moves_within_an_interval_and_names_what_runs(tmp_path, monkeypatch, capsys):
     """On a CPU one scoring interval can take many minutes. Its training runs as up to 10
     calls, and the bar advances after each one. The bar names the phase (training, scoring,
     saving: every checkpoint_every scorings and at the end), and its clock keeps running
-    through calls that advance nothing. The metrics still cover the whole interval."""
+    through calls that advance nothing. The metrics still cover the whole interval. Where
+    stderr is no terminal (a job's log file), the bar is a line per scoring, not a bar redrawn
+    in place."""
     assert [interval_pieces(n) for n in (1, 7, 10, 40, 125, 625, 1249)] == [1, 7, 10, 10, 5, 5, 1]
     said = []
 
-    class RecordingBar(host_loop.tqdm):
+    class RecordingBar(LogLines):
         def update(self, n=1):
             said.append(n)
             return super().update(n)
@@ -301,12 +304,23 @@ def test_the_bar_moves_within_an_interval_and_names_what_runs(tmp_path, monkeypa
             said.append(desc)
             return super().set_description_str(desc, refresh)
 
-    monkeypatch.setattr(host_loop, "tqdm", RecordingBar)
+    assert progress_bar(disable=True).__class__ is LogLines  # pytest's stderr is no terminal
+    with monkeypatch.context() as patched:
+        patched.setattr(sys.stderr, "isatty", lambda: True)
+        assert progress_bar(disable=True).__class__ is tqdm
+    monkeypatch.setattr(host_loop, "progress_bar", RecordingBar)
     result = train_fn(dataclasses.replace(RUN, total_steps=1500, checkpoint_every=2, progress=True, out=str(tmp_path / "r")))
     # 500 env steps per interval over 4 envs: 125 iterations, as 5 calls of 100 env steps;
     # saved after the second scoring (checkpoint_every=2) and the third (the last).
     interval = ["training", *[100] * 5, "scoring"]
     assert said == [*interval, "", *interval, "saving", "", *interval, "saving", ""]
+    logged = capsys.readouterr().err
+    lines = [line for line in logged.splitlines() if " env steps (" in line]
+    assert "\r" not in logged and len(lines) == 3, logged
+    for line, steps, share, row in zip(lines, ("500", "1,000", "1,500"), (33, 67, 100), result.scores):
+        assert re.fullmatch(rf"{steps} of 1,500 env steps \({share}%\), 00:\d\d elapsed, about 00:\d\d left at "
+                            rf"[\d.]+step/s, min_a_u={row['min_score']:.1f}, clean={row['clean_score']:.1f}, "
+                            r"train_sps=\d+", line), line
     assert sorted(os.listdir(os.path.join(result.run_dir, "checkpoints"))) == ["1000", "1500"]
     with open(os.path.join(result.run_dir, "metrics.jsonl")) as file:
         rows = [json.loads(line) for line in file]
