@@ -399,16 +399,19 @@ def report(message: str) -> None:
 
 
 class LogLines(tqdm):
-    """The training's progress where stderr is no terminal (a batch job's log file, a pipe):
-    not a bar redrawn in place, whose carriage returns would make a long run's log one line of
-    megabytes, but a line of its own each time the scores are set (every scoring): the env
-    steps, the time spent and left at this command's pace, and the scores."""
+    """Progress where stderr is no terminal (a batch job's log file, a pipe): not a bar
+    redrawn in place, whose carriage returns would make a long run's log one line of
+    megabytes, but a line of its own each time the scores are set (training: every scoring)
+    and, with ``every`` > 0, as it moves, at most once per ``every`` seconds and once at its
+    end (an audit's episodes): how far, the time spent and left at this command's pace, and
+    the scores."""
 
-    LINE = "{n:,} of {total:,} env steps ({percentage:.0f}%), {elapsed} elapsed, about {remaining} left at {rate_fmt}{postfix}"
+    LINE = "{{n:,}} of {{total:,}} {what} ({{percentage:.0f}}%), {{elapsed}} elapsed, about {{remaining}} left at {{rate_fmt}}{{postfix}}"
 
-    def __init__(self, **kwargs):
-        super().__init__(bar_format=self.LINE, **kwargs)
+    def __init__(self, what: str, every: float = 0.0, **kwargs):
+        super().__init__(bar_format=self.LINE.format(what=what), **kwargs)
         self.sp = None  # nothing is drawn, so close() has nothing to finish off
+        self.every, self.lined_at, self.lined_n = every, time.monotonic(), self.n
 
     def display(self, msg: str | None = None, pos: int | None = None) -> bool:
         return True
@@ -416,18 +419,33 @@ class LogLines(tqdm):
     def clear(self, nolock: bool = False) -> None:
         """Nothing is drawn, so nothing to clear (``tqdm.write`` clears every bar first: a '\\r' in the log)."""
 
+    def update(self, n: float = 1) -> bool | None:
+        moved = super().update(n)
+        if self.every and time.monotonic() - self.lined_at >= self.every:
+            self.write_line()
+        return moved
+
     def set_postfix(self, ordered_dict=None, refresh: bool = True, **kwargs) -> None:
         super().set_postfix(ordered_dict, refresh=False, **kwargs)
+        self.write_line()
+
+    def close(self) -> None:
+        if self.every and self.n != self.lined_n:
+            self.write_line()
+        super().close()
+
+    def write_line(self) -> None:
         if not self.disable:
             self.fp.write(f"{self}\n")
             self.fp.flush()
+            self.lined_at, self.lined_n = time.monotonic(), self.n
 
 
-def progress_bar(**kwargs) -> tqdm:
-    """A bar for long work (``tqdm``'s keywords): tqdm's, redrawn in place, on a terminal and
-    in a notebook's widget; elsewhere :class:`LogLines`."""
+def progress_bar(what: str, every: float = 0.0, **kwargs) -> tqdm:
+    """A bar for long work over ``what`` (tqdm's keywords): tqdm's, redrawn in place, on a
+    terminal and in a notebook's widget; elsewhere :class:`LogLines`."""
     drawn_in_place = sys.stderr.isatty() or tqdm_auto.notebook_tqdm is not tqdm_auto.std_tqdm
-    return (tqdm if drawn_in_place else LogLines)(**kwargs)
+    return tqdm(**kwargs) if drawn_in_place else LogLines(what, every, **kwargs)
 
 
 @contextlib.contextmanager

@@ -244,8 +244,8 @@ class TrainingLoop:
         invocation = invocation_record(start_step, records_kept_to if config.fast_forward else None, budget.device,
                                        self.num_devices, self.trainer.env.physics_name, self.num_runs)
         # smoothing=0: the rate (and the time left) over this invocation, scorings included.
-        bar = progress_bar(total=config.planned_steps, initial=start_step, unit="step", disable=not config.progress,
-                           dynamic_ncols=True, smoothing=0)
+        bar = progress_bar("env steps", total=config.planned_steps, initial=start_step, unit="step",
+                           disable=not config.progress, dynamic_ncols=True, smoothing=0)
         with stop_at_next_boundary("at the end of this scoring interval, with a checkpoint") as stop, ticking(bar):
             try:
                 for scoring in range(first_scoring, num_scorings):

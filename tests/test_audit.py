@@ -572,11 +572,11 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
     captured = capsys.readouterr()
     printed = captured.out
     # The long part (compile and rollouts) is announced, then timed, as training's compile is;
-    # between the two, a bar over the rollout's episodes: (4 + 6 sets, the 5 more of the 16
-    # coalitions, clean) × 6.
+    # between the two, the progress over the rollout's episodes: (4 + 6 sets, the 5 more of the
+    # 16 coalitions, clean) × 6, here (stderr no terminal, as a job's log) a line at its end.
     assert re.fullmatch(r"(auditing checkpoint \d+ of point_mass for k=1,2 \(exact search, 6 episodes per set, jax "
-                        r"physics on cpu; compiling included\))\.\.\.\n[^\n]*\r100%[^\n]* 96/96 [^\n]*\n\1: done in "
-                        r"\d+\.\d s\n", captured.err), captured.err
+                        r"physics on cpu; compiling included\))\.\.\.\n96 of 96 episodes \(100%\), 00:\d\d elapsed, "
+                        r"about 00:00 left at [\d.]+episode/s\n\1: done in \d+\.\d s\n", captured.err), captured.err
     assert sorted(os.listdir(out)) == ["audit.json", "pairs_k2.png", "report.md", "scores_k1.png", "shapley.png",
                                        "worst_by_k.png"]
     with open(os.path.join(out, "audit.json")) as file:

@@ -304,10 +304,19 @@ def test_the_bar_moves_within_an_interval_and_names_what_runs(tmp_path, monkeypa
             said.append(desc)
             return super().set_description_str(desc, refresh)
 
-    assert progress_bar(disable=True).__class__ is LogLines  # pytest's stderr is no terminal
+    assert progress_bar("env steps", disable=True).__class__ is LogLines  # pytest's stderr is no terminal
     with monkeypatch.context() as patched:
         patched.setattr(sys.stderr, "isatty", lambda: True)
-        assert progress_bar(disable=True).__class__ is tqdm
+        assert progress_bar("env steps", disable=True).__class__ is tqdm
+    # An audit's episodes in a log: a line at most once per `every` seconds as they finish, and at the end.
+    log = io.StringIO()
+    episodes = LogLines("episodes", every=3600, total=40, unit="episode", file=log, smoothing=0)
+    episodes.update(10)  # within the hour: no line
+    episodes.lined_at -= 3600  # an hour on
+    episodes.update(10)
+    episodes.update(10)
+    episodes.close()
+    assert [line.split(" (")[0] for line in log.getvalue().splitlines()] == ["20 of 40 episodes", "30 of 40 episodes"]
     monkeypatch.setattr(host_loop, "progress_bar", RecordingBar)
     result = train_fn(dataclasses.replace(RUN, total_steps=1500, checkpoint_every=2, progress=True, out=str(tmp_path / "r")))
     # 500 env steps per interval over 4 envs: 125 iterations, as 5 calls of 100 env steps;

@@ -22,9 +22,9 @@ import logging
 import threading
 from typing import Any, Callable
 
-from tqdm.auto import tqdm
+from admissable_jax.cli import in_background, progress_bar
 
-from admissable_jax.cli import in_background
+LOG_LINE_SECONDS = 60.0  # a line this often where stderr is no terminal (a job's log file), and one at the end
 
 
 class RolloutStopped(Exception):
@@ -44,7 +44,8 @@ class _Watch:
             raise RolloutStopped
         if self.draw:
             if self.bar is None:  # smoothing=0: the rate and time left over the audit so far, not its last burst
-                self.bar = tqdm(total=self.total, unit="episode", dynamic_ncols=True, smoothing=0)
+                self.bar = progress_bar("episodes", every=LOG_LINE_SECONDS, total=self.total, unit="episode",
+                                        dynamic_ncols=True, smoothing=0)
             self.bar.update(max(0, finished - self.bar.n))
 
     def close(self) -> None:
