@@ -8,8 +8,8 @@ return, how long ago that scoring was written, and the wall time the rest takes 
 the run's own records measured (its last few scoring intervals: training and scoring). The
 states (:data:`STATES`):
 
-- ``running``: a live process holds the run's lock (its pid and host are named; a lock
-  taken on another host is taken to be live, as ``train`` takes it);
+- ``running``: a live process holds the run's lock (its pid and host are named; one of
+  another host while it renews the lock, as ``train`` takes it: :mod:`admissable_jax.locks`);
 - ``finished``: a checkpoint at the planned env steps;
 - ``stopped``: anything else that a command can continue (paused at ``time_limit``,
   interrupted, killed, crashed, refused a checkpoint by a full disk; *killed* where its

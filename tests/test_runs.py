@@ -30,6 +30,7 @@ from admissable_jax.checkpointing import CheckpointError, _reason
 from admissable_jax.cli import LogLines, progress_bar, run_from_cli, ticking
 from admissable_jax.errors import INTERRUPTED
 from admissable_jax.host_loop import TrainingLoop, interval_pieces
+from admissable_jax import locks
 from admissable_jax.locks import LOCK_NAME, RunDirectoryLocked, RunLock
 from admissable_jax.memory import MemoryBudgetExceeded
 from admissable_jax.run_directory import read_run_file
@@ -72,14 +73,31 @@ def test_a_run_directory_has_one_owner_and_a_stale_lock_is_taken_over(tmp_path, 
     finally:
         owner.kill()
         owner.wait()
-    # A lock from another host is never taken over (its owner cannot be asked from here),
-    # though this host has no such process.
+    # A lock from another host that its owner does not renew (as before 2026-12-06) is never
+    # taken over (its owner cannot be asked from here), though this host has no such process.
     (out / LOCK_NAME).write_text(json.dumps({"pid": owner.pid, "host": "another-host"}))
+    eleven_minutes_ago = time.time() - 660
+    os.utime(out / LOCK_NAME, (eleven_minutes_ago, eleven_minutes_ago))  # however long ago
     refused = RunLock(str(out))
     with pytest.raises(RunDirectoryLocked, match=f"in use by process {owner.pid} on another-host"):
         refused.acquire()
     refused.release()  # a clean-up's release of a lock it never took leaves the owner's
     assert json.loads((out / LOCK_NAME).read_text())["host"] == "another-host"
+    # A run renews its lock while it holds it, so another host's lock that has gone unrenewed
+    # for 10 minutes is a dead owner's (a cluster job killed on one node, continued on another).
+    (out / LOCK_NAME).write_text(json.dumps({"pid": owner.pid, "host": "another-host", "renewed_every": 30.0}))
+    with pytest.raises(RunDirectoryLocked, match="in use by process"):
+        RunLock(str(out)).acquire()
+    os.utime(out / LOCK_NAME, (eleven_minutes_ago, eleven_minutes_ago))
+    monkeypatch.setattr(locks, "RENEW_SECONDS", 0.02)
+    renewing = RunLock(str(out))
+    renewing.acquire()
+    assert json.loads((out / LOCK_NAME).read_text())["pid"] == os.getpid()
+    os.utime(out / LOCK_NAME, (eleven_minutes_ago, eleven_minutes_ago))
+    time.sleep(0.3)
+    assert time.time() - os.path.getmtime(out / LOCK_NAME) < 60  # renewed
+    renewing.release()
+    (out / LOCK_NAME).write_text(json.dumps({"pid": owner.pid, "host": "another-host"}))  # as before
     # A lock holding this very process's pid is stale too: no run of this process holds it
     # (in a container, a run killed in the one before often had the pid this one has now).
     (out / LOCK_NAME).write_text(json.dumps({"pid": os.getpid(), "host": os.uname().nodename}))
