@@ -63,7 +63,7 @@ def experiment_of(run_dir: str) -> str | None:
     """The folder of the experiment whose pair the run in ``run_dir`` is (a run without
     checkpoints of its own in a folder that holds an experiment, whose checkpoints hold
     every pair), as spelt from ``run_dir``; None for a run of its own."""
-    parent = os.path.dirname(os.path.normpath(run_dir)) or "."
+    parent = os.path.normpath(os.path.join(run_dir, os.pardir))
     if Checkpoints.steps_in(os.path.join(run_dir, "checkpoints")) or not is_experiment(parent):
         return None
     return parent

@@ -73,8 +73,8 @@ def run_status(run_dir: str) -> RunStatus:
     try:
         config = load_config(run_config_path(run_dir), TrainConfig)
         scores, metrics = (read_run_file(run_dir, name, torn="drop") for name in ("scores.jsonl", "metrics.jsonl"))
-    except (OSError, ValueError) as error:
-        return RunStatus(run_dir, "unreadable", problem=str(error))
+    except (OSError, ValueError, KeyError) as error:  # KeyError: OmegaConf's, a key TrainConfig does not know
+        return RunStatus(run_dir, "unreadable", problem=str(error).strip().splitlines()[0])
     experiment = experiment_of(run_dir) or ""
     checkpoint_steps = max(Checkpoints.steps_in(os.path.join(experiment or run_dir, "checkpoints")), default=0)
     holder = live_holder(run_dir)

@@ -775,6 +775,10 @@ def check_where_runs_stand(tmp_path, straight, paused_dir: str, capsys) -> None:
     shutil.copy(os.path.join(paused_dir, "config.yaml"), unscored)
     shutil.copytree(unscored, broken)
     (broken / "config.yaml").write_text("env: [point_mass\n")
+    newer = stand / "newer"  # settings of a key this version does not know (a newer version's run)
+    shutil.copytree(unscored, newer)
+    with open(newer / "config.yaml", "a") as file:
+        file.write("a_newer_key: 1\n")
     pair = stand / "experiment" / "adversarial-s0"  # a pair: the experiment's checkpoints hold it
     shutil.copytree(paused_dir, pair, ignore=shutil.ignore_patterns("checkpoints"))
     shutil.copytree(os.path.join(paused_dir, "checkpoints"), stand / "experiment" / "checkpoints")
@@ -793,7 +797,7 @@ def check_where_runs_stand(tmp_path, straight, paused_dir: str, capsys) -> None:
     assert run_status(str(copied)).seconds_left == pytest.approx(4 * pace)  # from the start: no checkpoint
     assert status_main([straight.run_dir, paused_dir, str(stand)]) == 0
     table = capsys.readouterr().out
-    rows = {line.split()[0]: line for line in table.splitlines()[1:8]}
+    rows = {line.split()[0]: line for line in table.split("\n\n")[0].splitlines()[1:]}
     assert re.search(r"point_mass  adversarial  0     2,000 / 2,000  finished +\d+\.\d +\d+\.\d +\d+ s ago$",
                      rows[straight.run_dir]), table
     assert "500 / 2,000    stopped (checkpoint 500)" in rows[paused_dir] and rows[paused_dir].endswith(" s")
@@ -801,21 +805,23 @@ def check_where_runs_stand(tmp_path, straight, paused_dir: str, capsys) -> None:
     assert "0 / 2,000      stopped (no checkpoint)" in rows[str(unscored)] and rows[str(broken)].endswith("unreadable")
     assert "500 / 2,000    stopped (killed; no checkpoint)" in rows[str(copied)]
     assert table.endswith(
-        "\n7 run(s): 1 running, 1 finished, 4 stopped, 1 unreadable\nkilled: its process ended without giving back its "
+        "\n8 run(s): 1 running, 1 finished, 4 stopped, 2 unreadable\nkilled: its process ended without giving back its "
         "lock, as no exit of Python does (SIGKILL, the out-of-memory killer, a machine that went down)\n"
         "to continue the stopped runs:\n"
         f"  python -m admissable_jax.train resume=true out={paused_dir}\n"
         f"  python -m admissable_jax.train resume=true fast_forward=true out={copied}\n"
         f"  python -m admissable_jax.experiment resume=true out={stand / 'experiment'}\n"
         f"  python -m admissable_jax.train config={unscored / 'config.yaml'} out={unscored}\n"
-        f"{broken}: {broken / 'config.yaml'} is not valid YAML (line 2): did not find expected ',' or ']'\n"), table
+        f"{broken}: {broken / 'config.yaml'} is not valid YAML (line 2): did not find expected ',' or ']'\n"
+        f"{newer}: Key 'a_newer_key' not in 'TrainConfig'\n"), table
     # For scripts: one JSON object per run, of the states asked for.
     assert status_main([str(stand), "state=stopped,unreadable", "format=jsonl"]) == 0
     listed = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
     assert [(row["path"], row["state"]) for row in listed] == [
-        (str(broken), "unreadable"), (str(copied), "stopped"), (str(pair), "stopped"), (str(unscored), "stopped")]
+        (str(broken), "unreadable"), (str(copied), "stopped"), (str(pair), "stopped"), (str(newer), "unreadable"),
+        (str(unscored), "stopped")]
     assert listed[2]["experiment"] == str(stand / "experiment") and listed[2]["checkpoint_steps"] == 500
-    assert [row["killed"] for row in listed] == [False, True, False, False]  # a clean stop gives its lock back
+    assert [row["killed"] for row in listed] == [False, True, False, False, False]  # a clean stop gives its lock back
     for argv, said in (([str(stand), "state=paused"], "state=paused: 'paused' is no state; the states are running, "
                                                         "finished, stopped, unreadable"),
                        ([os.path.join(paused_dir, "config.yaml")], f"{os.path.join(paused_dir, 'config.yaml')} is a file: "
