@@ -194,11 +194,17 @@ class StatusConfig:
                                    "jsonl (one JSON object per run, for scripts)")
 
 
-def check_status_config(config: StatusConfig) -> None:
-    states = [state.strip() for state in config.state.split(",") if state.strip()]
+def requested_states(config: StatusConfig) -> list[str]:
+    """The states ``state=`` lists (every state for ''); ValueError naming one that is none."""
+    states = [state.strip() for state in config.state.split(",") if state.strip()] or list(STATES)
     unknown = [state for state in states if state not in STATES]
     if unknown:
         raise ValueError(f"state={config.state}: {unknown[0]!r} is no state; the states are {', '.join(STATES)}")
+    return states
+
+
+def check_status_config(config: StatusConfig) -> None:
+    requested_states(config)
     if config.format not in ("table", "jsonl"):
         raise ValueError(f"format={config.format}: give table or jsonl")
 
@@ -211,7 +217,7 @@ def main(argv: list[str]) -> int:
         statuses = [run_status(path) for path in find_run_folders(paths or ["runs"])]
     except (ValueError, FileNotFoundError) as error:
         fail(f"{error}{'' if paths else ' (give the folder your runs are in)'}")
-    states = [state.strip() for state in config.state.split(",") if state.strip()] or STATES
+    states = requested_states(config)
     statuses = [status for status in statuses if status.state in states]
     if config.format == "jsonl":
         print("\n".join(json.dumps(dataclasses.asdict(status)) for status in statuses))
