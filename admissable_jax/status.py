@@ -10,7 +10,9 @@ states (:data:`STATES`):
 
 - ``running``: a live process holds the run's lock (its pid and host are named; one of
   another host while it renews the lock, as ``train`` takes it: :mod:`admissable_jax.locks`);
-- ``finished``: a checkpoint at the planned env steps;
+- ``finished``: its records (or a checkpoint) reach the planned env steps (a run copied
+  without its checkpoints, as the GPU campaign brings its runs back, is finished too: its
+  row names the checkpoint it lacks);
 - ``stopped``: anything else that a command can continue (paused at ``time_limit``,
   interrupted, killed, crashed, refused a checkpoint by a full disk; *killed* where its
   process ended without giving back its lock, as no exit of Python does: SIGKILL, the
@@ -79,14 +81,14 @@ def run_status(run_dir: str) -> RunStatus:
     checkpoint_steps = max(Checkpoints.steps_in(os.path.join(experiment or run_dir, "checkpoints")), default=0)
     holder = live_holder(run_dir)
     planned = config.planned_steps
+    last = scores[-1] if scores else {}
+    scored = last.get("env_steps", 0)
     if holder is not None:
         state = "running"
-    elif checkpoint_steps >= planned:
+    elif max(checkpoint_steps, scored) >= planned:  # its records complete, though its checkpoints may be elsewhere
         state = "finished"
     else:
         state = "stopped"
-    last = scores[-1] if scores else {}
-    scored = last.get("env_steps", 0)
     interval = _interval_seconds(metrics, config.score_every)
     start = scored if state == "running" else checkpoint_steps
     return RunStatus(
@@ -178,7 +180,9 @@ def _row(status: RunStatus) -> tuple[str, ...]:
     number = lambda value: "—" if value is None else f"{value:.1f}"
     checkpoint = f"checkpoint {status.checkpoint_steps:,}" if status.checkpoint_steps else "no checkpoint"
     state = {"running": f"running ({status.holder})",
-             "stopped": f"stopped ({'killed; ' * status.killed}{checkpoint})"}.get(status.state, status.state)
+             "stopped": f"stopped ({'killed; ' * status.killed}{checkpoint})",
+             "finished": "finished" if status.checkpoint_steps >= status.planned_steps else f"finished ({checkpoint})",
+             }.get(status.state, status.state)
     return (status.path, status.env, status.mode, str(status.seed), f"{status.scored_steps:,} / {status.planned_steps:,}",
             state, number(status.min_score), number(status.clean_score),
             "—" if status.seconds_since_scoring is None else f"{duration_text(status.seconds_since_scoring)} ago",

@@ -779,6 +779,8 @@ def check_where_runs_stand(tmp_path, straight, paused_dir: str, capsys) -> None:
     shutil.copytree(unscored, newer)
     with open(newer / "config.yaml", "a") as file:
         file.write("a_newer_key: 1\n")
+    archived = stand / "archived"  # a finished run brought back without its checkpoints (as the GPU campaign's are)
+    shutil.copytree(straight.run_dir, archived, ignore=shutil.ignore_patterns("checkpoints"))
     pair = stand / "experiment" / "adversarial-s0"  # a pair: the experiment's checkpoints hold it
     shutil.copytree(paused_dir, pair, ignore=shutil.ignore_patterns("checkpoints"))
     shutil.copytree(os.path.join(paused_dir, "checkpoints"), stand / "experiment" / "checkpoints")
@@ -804,8 +806,9 @@ def check_where_runs_stand(tmp_path, straight, paused_dir: str, capsys) -> None:
     assert f"running (process 1 on {os.uname().nodename})" in rows[str(running)]
     assert "0 / 2,000      stopped (no checkpoint)" in rows[str(unscored)] and rows[str(broken)].endswith("unreadable")
     assert "500 / 2,000    stopped (killed; no checkpoint)" in rows[str(copied)]
+    assert "2,000 / 2,000  finished (no checkpoint)" in rows[str(archived)] and rows[str(archived)].endswith(" ago")
     assert table.endswith(
-        "\n8 run(s): 1 running, 1 finished, 4 stopped, 2 unreadable\nkilled: its process ended without giving back its "
+        "\n9 run(s): 1 running, 2 finished, 4 stopped, 2 unreadable\nkilled: its process ended without giving back its "
         "lock, as no exit of Python does (SIGKILL, the out-of-memory killer, a machine that went down)\n"
         "to continue the stopped runs:\n"
         f"  python -m admissable_jax.train resume=true out={paused_dir}\n"
