@@ -406,7 +406,8 @@ class LogLines(tqdm):
     end (an audit's episodes): how far, the time spent and left at this command's pace, and
     the scores."""
 
-    LINE = "{{n:,}} of {{total:,}} {what} ({{percentage:.0f}}%), {{elapsed}} elapsed, about {{remaining}} left at {{rate_fmt}}{{postfix}}"
+    LINE = ("{{n:,}} of {{total:,}} {what} ({{percentage:.0f}}%), {{elapsed}} elapsed, about {{remaining}} left at "
+            "{{rate_fmt}}{{postfix}}")
 
     def __init__(self, what: str, every: float = 0.0, **kwargs):
         super().__init__(bar_format=self.LINE.format(what=what), **kwargs)

@@ -22,7 +22,7 @@ from admissable_jax.errors import UnusableDirectory
 
 LOCK_NAME = ".lock"
 RENEW_SECONDS = 30.0  # how often a held lock's time is renewed
-STALE_AFTER_SECONDS = 600.0  # a renewed lock of another host left this long is a dead owner's (clocks may differ a little)
+STALE_AFTER_SECONDS = 600.0  # another host's renewed lock left this long is a dead owner's (clocks may differ a bit)
 
 
 class RunDirectoryLocked(UnusableDirectory):

@@ -16,9 +16,10 @@ states (:data:`STATES`):
 - ``stopped``: anything else that a command can continue (paused at ``time_limit``,
   interrupted, killed, crashed, refused a checkpoint by a full disk; *killed* where its
   process ended without giving back its lock, as no exit of Python does: SIGKILL, the
-  out-of-memory killer, a machine that went down): the command that continues it is printed (``resume=true`` from the latest checkpoint; ``fast_forward=true``
-  where the checkpoints are gone but the records can rebuild the run; the run's own
-  settings again where it stopped before its first scoring);
+  out-of-memory killer, a machine that went down). The command that continues it is
+  printed: ``resume=true`` from the latest checkpoint; ``fast_forward=true`` where the
+  checkpoints are gone but the records can rebuild the run; the run's own settings again
+  where it stopped before its first scoring;
 - ``unreadable``: its ``config.yaml`` or records cannot be read (the reason is printed).
 
 It only reads files (no JAX program is built), so it is safe beside running runs, on a
@@ -118,7 +119,10 @@ def _continue_with(run_dir: str, experiment: str, checkpoint_steps: int, metrics
     records where the checkpoints are gone but its rows hold state fingerprints (a run
     copied without them, or a crash before the first); else its own settings again (it
     stopped before its first checkpoint, and a new start sets the earlier rows aside)."""
-    command, out, settings = ("experiment", experiment, "experiment.yaml") if experiment else ("train", run_dir, "config.yaml")
+    if experiment:
+        command, out, settings = "experiment", experiment, "experiment.yaml"
+    else:
+        command, out, settings = "train", run_dir, "config.yaml"
     if checkpoint_steps:
         items = ["resume=true"]
     elif any(FINGERPRINT in row for row in metrics):
@@ -162,7 +166,8 @@ def status_table(statuses: list[RunStatus]) -> str:
     widths = [max(len(row[column]) for row in rows) for column in range(len(header))]
     lines = ["  ".join(cell.ljust(width) for cell, width in zip(row, widths)).rstrip() for row in rows]
     counts = {state: sum(status.state == state for status in statuses) for state in STATES}
-    lines.append(f"\n{len(statuses)} run(s): " + ", ".join(f"{count} {state}" for state, count in counts.items() if count))
+    lines.append(f"\n{len(statuses)} run(s): "
+                 + ", ".join(f"{count} {state}" for state, count in counts.items() if count))
     if any(status.killed for status in statuses):
         lines.append("killed: its process ended without giving back its lock, as no exit of Python does (SIGKILL, the "
                      "out-of-memory killer, a machine that went down)")
@@ -183,7 +188,8 @@ def _row(status: RunStatus) -> tuple[str, ...]:
              "stopped": f"stopped ({'killed; ' * status.killed}{checkpoint})",
              "finished": "finished" if status.checkpoint_steps >= status.planned_steps else f"finished ({checkpoint})",
              }.get(status.state, status.state)
-    return (status.path, status.env, status.mode, str(status.seed), f"{status.scored_steps:,} / {status.planned_steps:,}",
+    return (status.path, status.env, status.mode, str(status.seed),
+            f"{status.scored_steps:,} / {status.planned_steps:,}",
             state, number(status.min_score), number(status.clean_score),
             "—" if status.seconds_since_scoring is None else f"{duration_text(status.seconds_since_scoring)} ago",
             "" if status.state == "finished" else
