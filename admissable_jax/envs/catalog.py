@@ -182,8 +182,7 @@ def canonical_env_name(name: str) -> str:
         raise TypeError(f"env name must be a string, got {type(name).__name__}")
     if is_external(name):
         return _external(name)[0].name
-    key = name.lower()
-    key = _ALIASES.get(key, key)
+    key = _catalog_key(name)
     if key not in ENV_SPECS:
         valid = ", ".join([*ENV_SPECS, *(spec.gymnasium_id for spec in ENV_SPECS.values() if spec.gymnasium_id)])
         raise ValueError(f"unknown env {name!r}; valid names: {valid}, or package.module:Class for an env of "
@@ -191,10 +190,17 @@ def canonical_env_name(name: str) -> str:
     return key
 
 
+def _catalog_key(name: str) -> str:
+    """The key of ``ENV_SPECS`` that ``name`` would be, in any case or as its Gymnasium id
+    (``Hopper-v5`` → ``hopper``); not checked to be there."""
+    key = name.lower()
+    return _ALIASES.get(key, key)
+
+
 def gymnasium_env_id(name: str) -> str:
     """The Gymnasium id of one of our envs named as ``env=`` names it (``hopper`` →
     ``Hopper-v5``); any other name as it is, a Gymnasium id for Gymnasium to read."""
-    spec = ENV_SPECS.get(_ALIASES.get(name.lower(), name.lower()))
+    spec = ENV_SPECS.get(_catalog_key(name))
     return spec.gymnasium_id if spec is not None and spec.gymnasium_id else name
 
 
