@@ -46,11 +46,13 @@ class ConfigFile:
     (``out``, ``resume``, another command's own keys) and are left out, in one line; any
     other key in the file is an error. ``resumed`` names the settings file of the run a
     ``resume=true`` command continues (its ``config.yaml``), read as ``config=`` is when the
-    command gives none, less :data:`PER_INVOCATION`."""
+    command gives none, less :data:`PER_INVOCATION`; ``holds_checkpoint``, whether that run
+    has a checkpoint to continue from, decides ``resume=auto``."""
 
     taken: frozenset[str]
     skipped: frozenset[str]
     resumed: Callable[[Any], str] | None = None
+    holds_checkpoint: Callable[[Any], bool] | None = None
 
 
 def help_text(config_cls: type, program: str, summary: str, config_file: ConfigFile | None = None) -> str:
@@ -125,6 +127,7 @@ def parse_args(
             fail(f"config= given {len(files)} times; give one file and override its keys with key=value")
         if files:
             schema = _with_config_file(schema, files[0], config_file, int_keys)
+        argv = _decide_auto_resume(schema, argv, int_keys, config_file)
     config = _config_of(schema, argv, int_keys)
     resumed = None if files or config_file is None else _resumed_settings(config, config_file)
     if resumed is not None:
@@ -139,6 +142,26 @@ def parse_args(
         except (ValueError, TypeError) as error:
             fail(str(error))
     return config
+
+
+def _decide_auto_resume(schema: Any, argv: list[str], int_keys: set[str], config_file: ConfigFile) -> list[str]:
+    """``argv`` with a last ``resume=auto`` decided: ``resume=true`` where the run the command
+    names (its ``out``) holds a checkpoint, else ``resume=false``, said in one line. So a job
+    that a scheduler starts again after a time limit or a preemption is one unchanging command:
+    the first start trains from scratch, every later one continues (a run that stopped before
+    its first checkpoint starts over, its rows set aside)."""
+    resumes = [arg.split("=", 1)[1] for arg in argv if arg.split("=", 1)[0] == "resume"]
+    if not resumes or resumes[-1] != "auto" or config_file.holds_checkpoint is None:
+        return argv
+    rest = [arg for arg in argv if arg.split("=", 1)[0] != "resume"]
+    config = _config_of(schema, rest, int_keys)
+    try:
+        run, continues = os.path.dirname(config_file.resumed(config)), config_file.holds_checkpoint(config)
+    except ValueError:  # no run to find (an unknown env): left for validate to say
+        return [*rest, "resume=false"]
+    report(f"resume=auto: {run} {'holds a checkpoint' if continues else 'holds no checkpoint'}: "
+           f"resume={str(continues).lower()}")
+    return [*rest, f"resume={str(continues).lower()}"]
 
 
 def _resumed_settings(config: Any, config_file: ConfigFile) -> str | None:

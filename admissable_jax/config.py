@@ -79,7 +79,9 @@ class RunSettings:
     keep_checkpoints: int = setting(2, "the newest checkpoints kept on disk (each holds the replay buffer); more let "
                                        "audit steps= look back over training")
     resume: bool = setting(False, "continue the run in 'out' from its last checkpoint, with the settings in its "
-                                  "config.yaml (an experiment's experiment.yaml); keys given override them")
+                                  "config.yaml (an experiment's experiment.yaml); keys given override them. On the "
+                                  "command line also auto: true where 'out' holds a checkpoint, else false (one "
+                                  "command for a job that is started again)")
     resume_step: int = setting(-1, "with resume=true: the checkpoint (env step) to continue from; -1 = the latest")
     fast_forward: bool = setting(False, "with resume=true: re-train, without scoring, from that checkpoint (or from the "
                                         "start, where there is none) to the run's last recorded scoring, each p_miss "
@@ -253,13 +255,20 @@ def config_file_of(cls: type) -> ConfigFile:
     ``resume``, ``resume_step``, ``fast_forward``) and the other command's own keys (a train run's
     ``missingness`` and ``seed`` given to ``experiment``; an experiment's ``seeds`` and
     ``modes`` given to ``train``). A resumed run's own settings: its ``config.yaml``, an
-    experiment's ``experiment.yaml``."""
+    experiment's ``experiment.yaml``; ``resume=auto`` continues it where its ``checkpoints/``
+    holds one."""
     own = {field.name for field in dataclasses.fields(cls)}
     every = own | {field.name for command in (TrainConfig, ExperimentConfig) for field in dataclasses.fields(command)}
-    resumed = {TrainConfig: lambda config: os.path.join(run_out(config), "config.yaml"),
-               ExperimentConfig: lambda config: os.path.join(experiment_out(config), "experiment.yaml")}[cls]
+    out = {TrainConfig: run_out, ExperimentConfig: experiment_out}[cls]
+    settings = {TrainConfig: "config.yaml", ExperimentConfig: "experiment.yaml"}[cls]
+
+    def holds_checkpoint(config) -> bool:
+        from admissable_jax.checkpointing import Checkpoints  # orbax: imported where a command asks
+
+        return bool(Checkpoints.steps_in(os.path.join(out(config), "checkpoints")))
+
     return ConfigFile(taken=frozenset(own - set(RUN_LOCATION)), skipped=frozenset((every - own) | set(RUN_LOCATION)),
-                      resumed=resumed)
+                      resumed=lambda config: os.path.join(out(config), settings), holds_checkpoint=holds_checkpoint)
 
 
 def default_num_envs(score_every: int) -> int:

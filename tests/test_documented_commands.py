@@ -20,7 +20,7 @@ import pytest
 
 from admissable_jax.audit.command import AuditConfig
 from admissable_jax.cli import parse_args
-from admissable_jax.config import ExperimentConfig, TrainConfig
+from admissable_jax.config import ExperimentConfig, TrainConfig, config_file_of
 from admissable_jax.plot import PlotConfig
 from admissable_jax.rollout import RolloutConfig
 from admissable_jax.status import StatusConfig
@@ -93,13 +93,15 @@ def problem_of(command: str, words: list[str]) -> str | None:
         said = io.StringIO()
         try:
             with contextlib.redirect_stderr(said):
-                parse_args(COMMANDS[command], given, command, "")
+                parse_args(COMMANDS[command], given, command, "", config_file=(
+                    config_file_of(COMMANDS[command]) if command in ("train", "experiment") else None))
         except SystemExit:
             return said.getvalue().strip()
     return None
 
 
-def test_every_documented_command_line_parses():
+def test_every_documented_command_line_parses(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # relative outs (resume=auto, resume=true read them) name no run of one's own
     commands = [(document, command, words) for document, command, words in documented_commands()
                 if command not in PATHS_ONLY]
     assert {"train", "experiment", "plot", "audit", "video", "rollout", "status", "campaign", "figure1", "scoring_round"} <= {

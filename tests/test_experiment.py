@@ -158,10 +158,12 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
     assert sorted(os.listdir(pair_folder)) == before  # and nothing was made in it
     elsewhere = str(tmp_path / "elsewhere")  # the records alone, as a lent machine's pack brings them back
     shutil.copytree(resumed_root, elsewhere, ignore=shutil.ignore_patterns("checkpoints"))
-    # resume=true out=DIR needs no other key: the experiment's own experiment.yaml gives them.
-    assert experiment_main(["total_steps=3000", f"out={resumed_root}", "resume=true", "progress=false"]) == 0
+    # resume=true out=DIR needs no other key: the experiment's own experiment.yaml gives them;
+    # resume=auto is resume=true where the experiment holds a checkpoint, as here.
+    assert experiment_main(["total_steps=3000", f"out={resumed_root}", "resume=auto", "progress=false"]) == 0
     assert _scores(resumed_root) == _scores(str(tmp_path / "straight"))
     said, stderr = capsys.readouterr()
+    assert f"resume=auto: {resumed_root} holds a checkpoint: resume=true\n" in stderr
     assert f"resume=true: the run's settings from {resumed_root}/experiment.yaml; keys given here override" in stderr
     status = experiment_main(["total_steps=3000", f"out={resumed_root}", "resume=true", "seeds=3"])
     assert (status, capsys.readouterr().err.strip().splitlines()[-1]) == (2, (

@@ -27,7 +27,8 @@ from tqdm.auto import tqdm
 
 from admissable_jax import TrainConfig, host_loop, train_fn
 from admissable_jax.checkpointing import CheckpointError, _reason
-from admissable_jax.cli import LogLines, progress_bar, run_from_cli, ticking
+from admissable_jax.cli import LogLines, parse_args, progress_bar, run_from_cli, ticking
+from admissable_jax.config import config_file_of
 from admissable_jax.errors import INTERRUPTED
 from admissable_jax.host_loop import TrainingLoop, interval_pieces
 from admissable_jax import locks
@@ -54,6 +55,12 @@ def _cli(module: str, *args: str, subprocess_run: bool = False) -> subprocess.Co
         except SystemExit as exit_info:
             status = exit_info.code
     return subprocess.CompletedProcess(args, status, "", stderr.getvalue())
+
+
+def _items(config: TrainConfig) -> list[str]:
+    """``config`` as a command line's ``key=value`` items: those that differ from the defaults."""
+    return [f"{field.name}={getattr(config, field.name)}" for field in dataclasses.fields(config)
+            if getattr(config, field.name) != field.default]
 
 
 def _steps(run_dir: str) -> list[int]:
@@ -200,6 +207,12 @@ def test_cli_edge_cases_are_one_line(tmp_path):
     assert resumed.returncode == 1 and "nothing to resume" in resumed.stderr
     assert len(resumed.stderr.strip().splitlines()) == 1
     assert not missing.exists()  # a failed resume leaves nothing behind
+    # resume=auto is decided by the folder (here: no checkpoint), and, as for every key, the
+    # last item given wins.
+    for items, resume in ((["resume=auto", "resume=true"], True), (["resume=true", "resume=auto"], False)):
+        config = parse_args(TrainConfig, ["env=point_mass", f"out={missing}", *items], "admissable_jax.train", "",
+                            config_file=config_file_of(TrainConfig))
+        assert config.resume is resume, items
 
 
 def test_a_wandb_logger_that_cannot_start_is_one_line(tmp_path, monkeypatch):
@@ -675,9 +688,13 @@ def test_faults_of_long_runs_cost_nothing_finished(tmp_path, monkeypatch, capsys
         assert status == INTERRUPTED
         assert capsys.readouterr().err.strip().splitlines()[-1] == f"interrupted: {said}; the runs are untouched"
         assert (tmp_path / "stopped").exists() == (where == "write_tables")
-    resumed = train_fn(dataclasses.replace(RUN, out=paused_dir, resume=True))
-    assert resumed.finished and resumed.scores == straight.scores
-    assert f"dropped the cut-off last line of {os.path.join(paused_dir, 'scores.jsonl')}" in capsys.readouterr().err
+    # A job that a scheduler starts again runs one unchanging command: resume=auto continues
+    # where its folder holds a checkpoint (a run without one starts over: below).
+    resumed = _cli("admissable_jax.train", *_items(RUN), f"out={paused_dir}", "resume=auto")
+    assert resumed.returncode == 0, resumed.stderr
+    assert f"resume=auto: {paused_dir} holds a checkpoint: resume=true\n" in resumed.stderr
+    assert read_run_file(paused_dir, "scores.jsonl") == straight.scores
+    assert f"dropped the cut-off last line of {os.path.join(paused_dir, 'scores.jsonl')}" in resumed.stderr
 
     # Each command that trained here says so in invocations.jsonl, from the step it started at;
     # one that found nothing left to train (below) adds nothing.
@@ -708,8 +725,10 @@ def test_faults_of_long_runs_cost_nothing_finished(tmp_path, monkeypatch, capsys
         with pytest.raises(MemoryBudgetExceeded):
             train_fn(dataclasses.replace(RUN, out=str(unsaved), total_steps=500))
     assert (unsaved / "scores.jsonl").read_text() == "" and (unsaved / "metrics.jsonl").read_text() == ""
-    fresh = train_fn(dataclasses.replace(RUN, out=str(unsaved), total_steps=500))
-    assert _steps(str(unsaved)) == [500] and fresh.scores == straight.scores[:1]
+    fresh = _cli("admissable_jax.train", *_items(dataclasses.replace(RUN, total_steps=500)), f"out={unsaved}",
+                 "resume=auto")
+    assert fresh.returncode == 0 and f"resume=auto: {unsaved} holds no checkpoint: resume=false\n" in fresh.stderr
+    assert _steps(str(unsaved)) == [500] and read_run_file(str(unsaved), "scores.jsonl") == straight.scores[:1]
     for name, earlier in (("scores", straight.scores), ("metrics", straight.metrics)):
         kept = [json.loads(line) for line in (unsaved / f"{name}-superseded.jsonl").read_text().splitlines()]
         assert [{key: value for key, value in row.items() if key != "set_aside_at"} for row in kept] == earlier
