@@ -26,6 +26,7 @@ import jax
 import numpy as np
 from tqdm.auto import tqdm
 
+from admissable_jax.best_policy import KeptPolicy, write_best_policy
 from admissable_jax.checkpointing import CheckpointError, Checkpoints
 from admissable_jax.cli import in_background, progress_bar, report, reporting, stop_at_next_boundary, ticking
 from admissable_jax.config import TrainConfig, curve_names, setting_warnings
@@ -326,7 +327,20 @@ class TrainingLoop:
             run.append("scores.jsonl", rows[-1])
             run.append("metrics.jsonl", metrics_row(env_steps, int(pick(grad_steps)), pick(chunk_metrics), train_seconds,
                                                     score_seconds, self.config, self.num_runs, int(pick(fingerprint))))
+        self._keep_best_policies(state, env_steps, rows)
         return state, rows
+
+    def _keep_best_policies(self, state: TrainState, env_steps: int, rows: list[dict]) -> None:
+        """Write the networks of each run whose scoring ``rows`` beat its earlier ones to its
+        ``best_policy.npz``; fetched from the device only where one did."""
+        improved = [index for index, (run, row) in enumerate(zip(self.runs, rows)) if run.beats_best(row)]
+        if not improved:
+            return
+        actor, critic = self.host_rows((state.sac.actor_params, state.sac.critic_params))
+        for index in improved:
+            write_best_policy(self.runs[index].path, KeptPolicy(env_steps, rows[index]["min_score"],
+                                                                self.select_pair(actor, index),
+                                                                self.select_pair(critic, index)))
 
     def _recorded_scorings(self, start_step: int) -> list[list[RecordedScoring]]:
         """Each run's recorded rounds after ``start_step`` (:func:`~admissable_jax.fast_forward.recorded_scorings`),

@@ -1,4 +1,5 @@
-"""Trained policies outside the trainer: ``load_policy(run_dir, step=None)``.
+"""Trained policies outside the trainer: ``load_policy(run_dir, step=None)`` (``step="best"``:
+the policy a run kept at its best scoring).
 
 The returned :class:`TrainedPolicy` maps a Gymnasium observation (or a batch) and a hidden
 set u to the trainer's deterministic action, in NumPy: the policy that scoring evaluates,
@@ -17,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from admissable_jax.best_policy import read_best_policy
 from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.config import TrainConfig
 from admissable_jax.config import ExperimentConfig, pair_configs
@@ -25,6 +27,8 @@ from admissable_jax.method import hidden_row
 from admissable_jax.missingness import mask_observation
 from admissable_jax.run_directory import load_config, run_config_path
 from admissable_jax.training import Trainer
+
+BEST = "best"  # load_policy's step for the policy a run kept at its best scoring
 
 
 @dataclasses.dataclass
@@ -42,6 +46,7 @@ class TrainedPolicy:
     actor_params: object
     step: int
     critic_params: object  # the twin critic at the same checkpoint (score estimates)
+    best_min_score: float | None = None  # kept as the run's best: the min_u a_u of the scoring that picked it
 
     def __post_init__(self):
         self._act = jax.jit(jax.vmap(self.trainer.policy, in_axes=(None, 0)))
@@ -49,7 +54,8 @@ class TrainedPolicy:
     def __repr__(self) -> str:
         """Which policy, not its parameters (a notebook showing one printed thousands of lines)."""
         train = self.config
-        return (f"<TrainedPolicy of {train.env} {train.missingness} seed {train.seed} at env step {self.step} "
+        best = "" if self.best_min_score is None else f", its best scoring (min_u a_u {self.best_min_score:.1f})"
+        return (f"<TrainedPolicy of {train.env} {train.missingness} seed {train.seed} at env step {self.step}{best} "
                 f"({train.out}): {self.observation_size} features in, {self.trainer.env.action_size} actions out>")
 
     @property
@@ -87,13 +93,21 @@ def checkpoint_steps(run_dir: str) -> list[int]:
     return Checkpoints.steps_in(_checkpoint_dir(run_dir))
 
 
-def load_policy(run_dir: str, step: int | None = None) -> TrainedPolicy:
+def load_policy(run_dir: str, step: int | str | None = None) -> TrainedPolicy:
     """The deterministic policy of the run in ``run_dir`` at checkpoint ``step`` (default:
-    the latest). FileNotFoundError/CheckpointError with one line when there is none. Only
-    the networks are read from the checkpoint, not the replay buffers beside them."""
-    if step is not None and not isinstance(step, (int, np.integer)):
-        raise TypeError(f"step must be an env step (an int) or None for the latest, got {step!r}")
+    the latest), or, for ``step="best"``, the one it kept at its scoring with the highest
+    min_u a_u (:mod:`admissable_jax.best_policy`). FileNotFoundError/CheckpointError with one
+    line when there is none. Only the networks are read from a checkpoint, not the replay
+    buffers beside them."""
+    best = isinstance(step, str) and step == BEST
+    if step is not None and not best and not isinstance(step, (int, np.integer)):
+        raise TypeError(f"step must be an env step (an int), {BEST!r} or None for the latest, got {step!r}")
     config = load_config(run_config_path(run_dir), TrainConfig).resolved()
+    if best:  # a pair's own networks, as a run of its own has them
+        trainer = make_trainer(config)
+        sac = jax.eval_shape(lambda: trainer.init(*init_arguments(config))).sac
+        kept = read_best_policy(run_dir, sac.actor_params, sac.critic_params)
+        return TrainedPolicy(config, trainer, kept.actor_params, kept.env_steps, kept.critic_params, kept.min_score)
     checkpoint_dir = _checkpoint_dir(run_dir)
     experiment_yaml = os.path.join(os.path.dirname(os.path.abspath(run_dir)), "experiment.yaml")
     if checkpoint_dir == os.path.join(run_dir, "checkpoints"):  # its own

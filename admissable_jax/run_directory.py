@@ -13,6 +13,7 @@ import dataclasses
 import datetime
 import glob
 import json
+import math
 import os
 from typing import Any
 
@@ -20,6 +21,7 @@ import numpy as np
 import yaml
 from omegaconf import OmegaConf
 
+from admissable_jax.best_policy import BEST_POLICY, best_kept
 from admissable_jax.checkpointing import CheckpointError, Checkpoints
 from admissable_jax.cli import report, yaml_problem
 from admissable_jax.config import TrainConfig
@@ -224,6 +226,7 @@ class RunDirectory:
 
     def __init__(self, config: TrainConfig, checkpoint_dir: str):
         self.path, self.config = config.out, config
+        self._best_score: float | None = None  # the highest min_u a_u scored so far (beats_best)
         config_path = os.path.join(self.path, "config.yaml")
         if config.resume and not os.path.exists(config_path):  # checked before anything is created
             raise CheckpointError(f"nothing to resume: {config_path} does not exist")
@@ -330,4 +333,22 @@ class RunDirectory:
             counts = " and ".join(f"{count} row(s) of {name}" for name, count in moved.items())
             notes.append(f"set aside {counts} from after env step {step} in {self.path} (*-superseded.jsonl): "
                          f"this run writes those steps again")
+        best = best_kept(self.path)
+        if best is not None and best[0] > step:  # the best of rows set aside: no longer the best of those kept
+            aside = os.path.join(self.path, f"best_policy-superseded-step{best[0]}.npz")
+            os.replace(os.path.join(self.path, BEST_POLICY), aside)
+            notes.append(f"set aside the best policy of env step {best[0]} as {aside}")
         return notes
+
+    def beats_best(self, row: dict[str, Any]) -> bool:
+        """Whether the scoring ``row`` (the last appended) has a higher min_u a_u than every
+        earlier scoring of the run, whose policy is then the one to keep
+        (:mod:`admissable_jax.best_policy`). The earlier scorings are read from
+        ``scores.jsonl`` once per command, then followed."""
+        if self._best_score is None:
+            earlier = [kept["min_score"] for kept in self.read("scores.jsonl") if kept["env_steps"] < row["env_steps"]]
+            self._best_score = max(earlier, default=-math.inf)
+        if row["min_score"] > self._best_score:
+            self._best_score = row["min_score"]
+            return True
+        return False

@@ -40,8 +40,10 @@ class VideoConfig:
     run_dir: str = setting("", "a train run directory or an experiment pair's (may be given first, without run_dir=)")
     hidden: str = setting("worst", "u: feature indices or names, comma separated (e.g. 2 or 'thigh joint angle'); "
                                    "worst = argmin_u a_u of the checkpoint's scoring")
-    out: str = setting("", "the .mp4 to write (default RUN_DIR/videos/step<STEP>-hidden<u>.mp4)")
+    out: str = setting("", "the .mp4 to write (default RUN_DIR/videos/step<STEP>-hidden<u>.mp4; best=true: "
+                           "best-step<STEP>-...)")
     step: int = setting(-1, "the checkpoint (env step); -1 = the latest")
+    best: bool = setting(False, "the policy the run kept at its best scoring (best_policy.npz) instead of a checkpoint")
     seed: int = setting(0, "reset seed of the start state both sides share")
     frames: int = setting(1000, "frames at most: the start, then one per env step (Gymnasium's episodes end at 1000 "
                                 "steps, or when the agent falls; the end is then held for a second)")
@@ -54,6 +56,8 @@ class RenderingUnavailable(RunFailed):
 def check_video_config(config: VideoConfig) -> None:
     if not config.run_dir:
         raise ValueError("give the run directory: python -m admissable_jax.video RUN_DIR [hidden=...] [out=FILE.mp4]")
+    if config.best and config.step >= 0:
+        raise ValueError(f"best=true shows the policy the run kept at its best scoring: give no step= (got {config.step})")
     if config.frames < 1:
         raise ValueError(f"frames must be at least 1, got {config.frames}")
     if config.seed < 0:  # (Gymnasium's reset takes none below 0)
@@ -123,17 +127,19 @@ def render_video(config: VideoConfig) -> Video:
     import gymnasium
     import imageio.v2 as imageio
 
-    from admissable_jax.policies import load_policy
+    from admissable_jax.policies import BEST, load_policy
 
     check_video_config(config)
-    policy = load_policy(config.run_dir, None if config.step < 0 else config.step)
+    policy = load_policy(config.run_dir, BEST if config.best else None if config.step < 0 else config.step)
     train = policy.config
     if policy.trainer.env.gymnasium_id is None:
         raise ValueError(f"{train.env} has no Gymnasium env to render")
     scorings = read_jsonl(os.path.join(config.run_dir, "scores.jsonl"), required=SCORING_KEYS)
     hidden = resolve_hidden(config.hidden, train.env, scorings, policy.step)
     names = tuple(observation_names(train.env)[i] for i in hidden)
-    out = config.out or os.path.join(config.run_dir, "videos", f"step{policy.step}-hidden{'-'.join(map(str, hidden)) or 'none'}.mp4")
+    best = "best-" * (policy.best_min_score is not None)
+    out = config.out or os.path.join(config.run_dir, "videos",
+                                     f"{best}step{policy.step}-hidden{'-'.join(map(str, hidden)) or 'none'}.mp4")
     make_directory(os.path.dirname(os.path.abspath(out)), "video folder")
 
     sides = [(), hidden]

@@ -719,8 +719,27 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
                             f"of {worth['full'] - worth['blind']:.1f} |"), row
     assert "step 200: k=1: worst" in capsys.readouterr().out
 
+    # The best policy: the networks of the scoring with the highest min_u a_u, kept beside the
+    # records (here also in a checkpoint, as every one is kept); best=true audits it, into a
+    # folder named for it, with the same numbers as the audit of that checkpoint above.
+    best_row = max(short_run.scores, key=lambda row: row["min_score"])
+    best = load_policy(short_run.run_dir, "best")
+    assert (best.step, best.best_min_score) == (best_row["env_steps"], best_row["min_score"])
+    saved = load_policy(short_run.run_dir, best.step)
+    for kept, checkpointed in zip(jax.tree.leaves((best.actor_params, best.critic_params)),
+                                  jax.tree.leaves((saved.actor_params, saved.critic_params))):
+        np.testing.assert_array_equal(kept, checkpointed)
+    assert audit_main([short_run.run_dir, "best=true", "k=1,2", "episodes=6", "seed=4"]) == 0
+    best_out = os.path.join(short_run.run_dir, f"audit-best-step{best.step}")
+    best_record = json.loads(open(os.path.join(best_out, "audit.json")).read())
+    shutil.rmtree(best_out)
+    assert best_record["source"]["kept as"] == f"its best scoring (training's min_u a_u {best_row['min_score']:.1f})"
+    assert best_record["sets"] == json.loads((over / f"step{best.step}" / "audit.json").read_text())["sets"]
+    assert f"auditing the best policy (env step {best.step}) of point_mass" in capsys.readouterr().err
+
     # Bad input: one line, exit status 2.
     for args, message in [(["steps=all", "step=200"], "steps= audits several checkpoints of one run"),
+                          (["best=true", "step=200"], "best=true audits the policy one run kept at its best scoring"),
                           (["steps=300"], "no checkpoint at 300 in "), (["steps=two"], "steps must be 'all'"),
                           (["step=300", f"out={tmp_path / 'at300'}"], "no checkpoint 300 in "),
                           (["k=1", "episodes=20000", "shapley=exact", f"out={tmp_path / 'big'}"],  # 4 + 16 sets

@@ -27,7 +27,7 @@ from admissable_jax.memory import MemoryBudgetExceeded
 from admissable_jax.method import inverse_score_p_miss, parse_set
 from admissable_jax.audit import AuditConfig, audit_experiment, audit_run
 from admissable_jax.audit import main as audit_main  # the command line, in this process
-from admissable_jax.policies import load_policy
+from admissable_jax.policies import checkpoint_steps, load_policy
 
 EXPERIMENT = dict(
     env="point_mass", seeds=2, modes="adversarial,uniform", score_every=1000, num_envs=4,
@@ -49,8 +49,8 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
     assert [(r.config.missingness, r.config.seed) for r in straight] == [
         ("adversarial", 0), ("adversarial", 1), ("uniform", 0), ("uniform", 1)]
     for result in straight:
-        assert sorted(os.listdir(result.run_dir)) == [
-            "config.yaml", "invocations.jsonl", "metrics.jsonl", "observation_names.json", "scores.jsonl"]
+        assert sorted(os.listdir(result.run_dir)) == ["best_policy.npz", "config.yaml", "invocations.jsonl",
+                                                      "metrics.jsonl", "observation_names.json", "scores.jsonl"]
         (invocation,) = [json.loads(line) for line in open(os.path.join(result.run_dir, "invocations.jsonl"))]
         assert invocation["runs_in_program"] == 4 and invocation["from_env_steps"] == 0
         assert [row["env_steps"] for row in result.scores] == [1000, 2000, 3000]
@@ -63,6 +63,18 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
     assert straight[0].scores[-1]["scores"] != straight[1].scores[-1]["scores"]
     # A pair's policy outside the trainer: the experiment's checkpoint, that pair's part.
     policy = load_policy(straight[2].run_dir)
+    # Each pair keeps its own best policy: that pair's networks at its best scoring, as the
+    # experiment's checkpoint holds them where one was kept at that step.
+    compared = 0
+    for result in straight:
+        best_row = max(result.scores, key=lambda row: row["min_score"])
+        best = load_policy(result.run_dir, "best")
+        assert (best.step, best.best_min_score) == (best_row["env_steps"], best_row["min_score"])
+        if best.step in checkpoint_steps(result.run_dir):
+            at_checkpoint, compared = load_policy(result.run_dir, best.step), compared + 1
+            for kept, saved in zip(jax.tree.leaves(best.actor_params), jax.tree.leaves(at_checkpoint.actor_params)):
+                np.testing.assert_array_equal(kept, saved)
+    assert compared >= 2, compared  # (of 4 pairs, those whose best came at a kept checkpoint, 2000 or 3000)
     root = os.path.dirname(straight[2].run_dir)  # the experiment's folder is none of its runs: one line naming one
     with pytest.raises(FileNotFoundError, match=rf"^{root} is not a run directory \(no config.yaml\); the runs under "
                                                 rf"it are its folders, like {root}/adversarial-s0$"):

@@ -331,14 +331,18 @@ def test_video_of_the_trained_hopper_beside_its_worst_set(jax_run, tmp_path, cap
     assert made.clean_return != made.hidden_return
     # With nothing hidden on either side, the two sides run one episode: the same start state
     # (returns compared in full: the command's line rounds them to 0.1, which hides other starts).
-    same = video.render_video(video.VideoConfig(run_dir=jax_run.run_dir, hidden="", frames=5,
+    # Here of the policy the run kept at its best scoring (best=true).
+    same = video.render_video(video.VideoConfig(run_dir=jax_run.run_dir, hidden="", frames=5, best=True,
                                                 out=str(tmp_path / "both-clean.mp4")))
     assert same.hidden == () and (same.clean_return, same.clean_length) == (same.hidden_return, same.hidden_length)
+    assert same.step == max(jax_run.scores, key=lambda row: row["min_score"])["env_steps"]
 
     for hidden in ("elbow", "11"):  # Hopper's features are 0 to 10
         assert video.main([jax_run.run_dir, f"hidden={hidden}", f"out={tmp_path}/bad.mp4"]) == 2
         assert f"'{hidden}' is neither a feature index below 11 nor a feature name of hopper" in capsys.readouterr().err
     for args, message in ((["frames=0"], "frames must be at least 1, got 0"), (["seed=-1"], "seed must be >= 0, got -1"),
+                          (["best=true", "step=80"], "best=true shows the policy the run kept at its best scoring: give "
+                                                     "no step= (got 80)"),
                           ([f"out={tmp_path}/hopper.gif"], f"out must be an .mp4 file, got '{tmp_path}/hopper.gif'")):
         with pytest.raises(SystemExit) as refused:
             video.main([jax_run.run_dir, *args])

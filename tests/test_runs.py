@@ -26,6 +26,7 @@ import pytest
 from tqdm.auto import tqdm
 
 from admissable_jax import TrainConfig, host_loop, train_fn
+from admissable_jax.best_policy import KeptPolicy, best_kept, write_best_policy
 from admissable_jax.checkpointing import CheckpointError, _reason
 from admissable_jax.cli import LogLines, parse_args, progress_bar, run_from_cli, ticking
 from admissable_jax.config import config_file_of
@@ -34,6 +35,7 @@ from admissable_jax.host_loop import TrainingLoop, interval_pieces
 from admissable_jax import locks
 from admissable_jax.locks import LOCK_NAME, RunDirectoryLocked, RunLock
 from admissable_jax.memory import MemoryBudgetExceeded
+from admissable_jax.policies import load_policy
 from admissable_jax.run_directory import read_run_file
 
 RUN = TrainConfig(
@@ -61,6 +63,12 @@ def _items(config: TrainConfig) -> list[str]:
     """``config`` as a command line's ``key=value`` items: those that differ from the defaults."""
     return [f"{field.name}={getattr(config, field.name)}" for field in dataclasses.fields(config)
             if getattr(config, field.name) != field.default]
+
+
+def _best_of(rows: list[dict]) -> tuple[int, float]:
+    """(env step, min_u a_u) of the first of ``rows`` with the highest min_u a_u."""
+    best = max(rows, key=lambda row: row["min_score"])
+    return best["env_steps"], best["min_score"]
 
 
 def _steps(run_dir: str) -> list[int]:
@@ -545,8 +553,18 @@ def test_resume_rules_corrupt_checkpoints_and_moved_directories(tmp_path, capsys
     with pytest.raises(CheckpointError, match="checkpoint 2500 .* is corrupt .*; checkpoint 2000 is intact: resume with resume_step=2000") as error:
         train_fn(dataclasses.replace(RUN, out=moved, resume=True, total_steps=2500))
     assert "\n" not in str(error.value)
+    # The best policy kept, made here to read highest of all at 2500, goes aside with the rows
+    # of that branch; a policy is kept again only for a scoring that beats every one kept (the
+    # best of those, if before 2000, had been replaced by the made one: none is kept then).
+    best = _best_of(grown.scores)
+    assert best_kept(moved) == best
+    branch = load_policy(moved, "best")
+    write_best_policy(moved, KeptPolicy(2500, 1e9, branch.actor_params, branch.critic_params))
     again = train_fn(dataclasses.replace(RUN, out=moved, resume=True, total_steps=2500, resume_step=2000))
     assert again.scores == grown.scores
+    assert best_kept(moved) == (best if best[0] > 2000 else None)
+    with np.load(os.path.join(moved, "best_policy-superseded-step2500.npz")) as aside:
+        assert float(aside["min_score"]) == 1e9
     assert os.listdir(checkpoints + "-superseded") == ["2500"]  # set aside, not deleted
     with open(os.path.join(moved, "scores-superseded.jsonl")) as file:  # and so is what it had scored
         assert [{key: value for key, value in json.loads(line).items() if key != "set_aside_at"}

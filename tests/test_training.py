@@ -29,6 +29,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from admissable_jax import TrainConfig, candidate_sets, make_env, mask_observation, score_missingness, train_fn
+from admissable_jax.best_policy import KeptPolicy, write_best_policy
 from admissable_jax.branching import while_any
 from admissable_jax.checkpointing import CheckpointError, Checkpoints, OtherStateLayout
 from admissable_jax.envs import observation_names
@@ -83,9 +84,9 @@ def test_sac_learns_point_mass(point_mass_run):
 
 def test_run_directory_contents(point_mass_run, tmp_path):
     run_dir = point_mass_run.run_dir
-    assert sorted(os.listdir(run_dir)) == ["checkpoints", "config.yaml", "invocations.jsonl", "metrics.jsonl",
-                                           "observation_names.json", "scores.jsonl", "tensorboard", "wandb",
-                                           "wandb_run_id"]
+    assert sorted(os.listdir(run_dir)) == ["best_policy.npz", "checkpoints", "config.yaml", "invocations.jsonl",
+                                           "metrics.jsonl", "observation_names.json", "scores.jsonl", "tensorboard",
+                                           "wandb", "wandb_run_id"]
     with open(os.path.join(run_dir, "observation_names.json")) as file:
         assert json.load(file) == observation_names("point_mass")
     assert recorded_observation_names(run_dir) == observation_names("point_mass")  # what plots and audits label with
@@ -216,7 +217,7 @@ def test_loggers_mirror_the_jsonl_rows(point_mass_run, tmp_path, capsys, monkeyp
         assert glob.glob(os.path.join(point_mass_run.run_dir, "wandb", f"offline-run-*-{file.read().strip()}"))
 
 
-def test_load_policy_is_the_trainers_deterministic_policy(point_mass_run, monkeypatch):
+def test_load_policy_is_the_trainers_deterministic_policy(point_mass_run, monkeypatch, tmp_path):
     """load_policy reads a run's checkpoint without touching it, only its networks (not
     the replay buffer beside them: GBs in a long run), and acts as scoring does."""
     import orbax.checkpoint as ocp
@@ -244,10 +245,18 @@ def test_load_policy_is_the_trainers_deterministic_policy(point_mass_run, monkey
     assert sorted(os.listdir(os.path.join(run_dir, "checkpoints"))) == before
     with pytest.raises(CheckpointError, match="no checkpoint 10 in .*; saved: \\[6000\\]"):
         load_policy(run_dir, step=10)
-    with pytest.raises(TypeError, match="^step must be an env step \\(an int\\) or None for the latest, got '6000'$"):
+    with pytest.raises(TypeError, match="^step must be an env step \\(an int\\), 'best' or None for the latest, got '6000'$"):
         load_policy(run_dir, step="6000")  # (it said "no checkpoint 6000 ...; saved: [6000]")
     with pytest.raises(ValueError, match=r"hidden features must be in \[0, 4\)"):
         policy(obs, hidden=[4])
+    # The best policy: where a run keeps none (copied without it) or another run's, one line.
+    copied = tmp_path / "copied"
+    shutil.copytree(run_dir, copied, ignore=shutil.ignore_patterns("checkpoints", "best_policy.npz"))
+    with pytest.raises(FileNotFoundError, match=f"^{copied} keeps no best_policy.npz: a run writes it at each scoring"):
+        load_policy(str(copied), "best")
+    write_best_policy(str(copied), KeptPolicy(500, 1.0, {"params": {"Dense_0": np.zeros(3)}}, {}))
+    with pytest.raises(ValueError, match=f"^{copied}/best_policy.npz does not hold the networks of the run in {copied} "):
+        load_policy(str(copied), "best")
     with pytest.raises(ValueError, match=r"^expected a batch of masked observations \(n, 2·d = 8\), got shape \(7, 4\)$"):
         policy.masked(obs)  # unmasked rows (it said Flax's "ScopeParamShapeError ...")
 

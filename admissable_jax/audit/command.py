@@ -39,6 +39,8 @@ class AuditConfig:
     episodes: int = setting(50, "N: deterministic episodes per set (the CI narrows as 1/sqrt(N))")
     out: str = setting("", "where the report goes (default RUN_DIR/audit-step<STEP>)")
     step: int = setting(-1, "the checkpoint (env step) to audit; -1 = the latest")
+    best: bool = setting(False, "audit the policy the run kept at its best scoring (best_policy.npz: training's "
+                                "highest min_u a_u, an estimate that reads high) instead of a checkpoint")
     seed: int = setting(0, "seed of the N start states")
     top: int = setting(10, "worst sets listed per k in report.md")
     slots: int = setting(0, "envs stepped at once, each starting the next episode as its own ends (0 = as training "
@@ -94,6 +96,9 @@ def check_audit_config(config: AuditConfig) -> None:
     if config.steps and (config.step >= 0 or config.policy or is_experiment(config.run_dir)):
         raise ValueError("steps= audits several checkpoints of one run (a train run or one pair of an experiment), "
                          "without step= or policy=")
+    if config.best and (config.step >= 0 or config.steps or config.policy or is_experiment(config.run_dir)):
+        raise ValueError("best=true audits the policy one run kept at its best scoring (a train run or one pair of an "
+                         "experiment), without step=, steps= or policy=")
     _ks(config.k)
     if config.top < 1:
         raise ValueError(f"top must be at least 1, got {config.top}")
@@ -179,9 +184,9 @@ def _episodes_asked(config: AuditConfig) -> str:
 def audit_run(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     """Audit the run in ``config.run_dir`` at ``config.step``; write the report."""
     check_audit_config(config)
-    from admissable_jax.policies import load_policy
+    from admissable_jax.policies import BEST, load_policy
 
-    policy = load_policy(config.run_dir, None if config.step < 0 else config.step)
+    policy = load_policy(config.run_dir, BEST if config.best else None if config.step < 0 else config.step)
     return _audit_policy(config, policy, _audit_env(config, policy), policy.trainer)
 
 
@@ -233,18 +238,22 @@ def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
 
     from admissable_jax.envs import observation_names
 
-    out = config.out or os.path.join(config.run_dir, f"audit-step{policy.step}")
+    best = policy.best_min_score is not None
+    out = config.out or os.path.join(config.run_dir, f"audit-{'best-' * best}step{policy.step}")
     train = policy.config
     d = policy.observation_size
     ks = audit_sizes(_ks(config.k, train), d)  # before the audit starts
     check_audit_size(train.env, d, ks, config.episodes, config.search, config.beam_width, _plan(config, d))
     with _audit_folder(out):
-        with reporting(f"auditing checkpoint {policy.step} of {train.env} for k={_sizes(ks)} ({config.search} search, "
+        which = f"the best policy (env step {policy.step})" if best else f"checkpoint {policy.step}"
+        with reporting(f"auditing {which} of {train.env} for k={_sizes(ks)} ({config.search} search, "
                        f"{_episodes_asked(config)}, {env.physics_name} physics on {jax.default_backend()}; "
                        f"compiling included)"):
             result = audit(env, trainer.policy, policy.actor_params, ks, config.episodes, config.seed,
                            _slots(config, policy), observation_names(train.env),
                            {"run": os.path.abspath(config.run_dir), "checkpoint (env step)": policy.step,
+                            **({"kept as": f"its best scoring (training's min_u a_u {policy.best_min_score:.1f})"}
+                               if best else {}),
                             "mode": train.missingness, "seed": train.seed,
                             **({"lower_bound": train.lower_bound} if train.missingness == "adversarial" else {})},
                            config.score_estimator, trainer.critic_values, policy.critic_params,
