@@ -1183,7 +1183,7 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                             'Checkpoints.steps_in(os.path.join(out(config), "checkpoints"))',
                                             "Checkpoints.steps_in(out(config))", "test_experiment.py"),
     "best_policy_kept_at_every_scoring": ("admissable_jax/run_directory.py", '        if row["min_score"] > self._best_score:',
-                                          "        if True:", "test_audit.py"),
+                                          "        if True:", "test_runs.py"),
     "best_policy_baseline_of_this_command_only": ("admissable_jax/run_directory.py",
                                                   '            self._best_score = max(earlier, default=-math.inf)',
                                                   "            self._best_score = -math.inf", "test_runs.py"),

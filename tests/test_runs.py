@@ -36,7 +36,7 @@ from admissable_jax import locks
 from admissable_jax.locks import LOCK_NAME, RunDirectoryLocked, RunLock
 from admissable_jax.memory import MemoryBudgetExceeded
 from admissable_jax.policies import load_policy
-from admissable_jax.run_directory import read_run_file
+from admissable_jax.run_directory import RunDirectory, read_run_file
 
 RUN = TrainConfig(
     env="point_mass", total_steps=2000, score_every=500, num_envs=4, learning_starts=500, episode_length=50,
@@ -526,6 +526,8 @@ def test_resume_rules_corrupt_checkpoints_and_moved_directories(tmp_path, capsys
     first = str(tmp_path / "first")
     straight = train_fn(dataclasses.replace(RUN, out=first))
     assert _steps(first) == [500, 1000, 1500, 2000]
+    # The policy kept as the best: its best scoring's (here before its last: not simply the last).
+    assert best_kept(first) == _best_of(straight.scores) and _best_of(straight.scores)[0] < 2000
 
     # A shorter total than the run reached is refused; config.yaml keeps the truth.
     with open(os.path.join(first, "config.yaml")) as file:
@@ -565,6 +567,15 @@ def test_resume_rules_corrupt_checkpoints_and_moved_directories(tmp_path, capsys
     assert best_kept(moved) == (best if best[0] > 2000 else None)
     with np.load(os.path.join(moved, "best_policy-superseded-step2500.npz")) as aside:
         assert float(aside["min_score"]) == 1e9
+    # A command that continues a run weighs each new scoring against all the run's records.
+    run = RunDirectory(dataclasses.replace(RUN, out=moved, resume=True, total_steps=2500).resolved(),
+                       os.path.join(moved, "checkpoints"))
+    try:
+        recorded_best = _best_of(again.scores)[1]
+        assert not run.beats_best({"env_steps": 3000, "min_score": recorded_best})
+        assert run.beats_best({"env_steps": 3000, "min_score": recorded_best + 1})
+    finally:
+        run.close()
     assert os.listdir(checkpoints + "-superseded") == ["2500"]  # set aside, not deleted
     with open(os.path.join(moved, "scores-superseded.jsonl")) as file:  # and so is what it had scored
         assert [{key: value for key, value in json.loads(line).items() if key != "set_aside_at"}
