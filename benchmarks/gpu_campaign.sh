@@ -36,7 +36,9 @@
 # and a run is compiled once and never checkpointed for the next call. A call starts the
 # step's worker (unless it runs already), prints the worker's log as it grows for at most
 # CAMPAIGN_CALL_SECONDS, and packs what exists so far (run jsonl files, configs, logs,
-# benchmark records) into $OUT/campaign-STEP.tar.gz (at most 16 MiB) for the trip back.
+# benchmark records) into $OUT/campaign-STEP.tar.gz (at most 16 MiB) for the trip back, and
+# each run's best policy (best_policy.npz) into $OUT/campaign-STEP-policies.tar.gz (15 Hopper
+# runs: about 13 MB), which load_policy(run, "best"), audit best=true and video best=true read.
 #
 # Exit status of a call: 0 the step is complete; 75 call again (the same command, at once: a
 # machine idle for ~30 s is given back, its worker with it); 3 refused (a run that cannot
@@ -55,7 +57,9 @@
 #   run(command="bash benchmarks/gpu_campaign.sh speed")  # while it exits 75
 # Run directories live in runs/campaign/ (ignored; kept while the machine stays warm).
 # Step 5 runs here, on the CPU, from the tarballs that came back: unpack each into
-# benchmarks/results/ and run `python benchmarks/figure1.py hopper=DIR walker2d=DIR ant=DIR`.
+# benchmarks/results/ and run `python benchmarks/figure1.py hopper=DIR walker2d=DIR ant=DIR`
+# (and campaign-STEP-policies.tar.gz into the same folder, beside the records, to audit the runs'
+# best policies in Gymnasium's own env: benchmarks/sim_to_sim.py).
 #
 # Settings (environment; a value the script cannot read is refused at once: one line, exit 2):
 #   CAMPAIGN_DEADLINE       device seconds this step may use, from its worker's start (needed to
@@ -383,6 +387,13 @@ pack() {  # what exists so far, for the trip back: jsonl, yaml, the runs' featur
   local bytes; bytes=$(stat -c %s "$tarball")
   echo "packed $(tar -tzf "$tarball" | wc -l) files, $bytes bytes, into $tarball; $(cat "$dir/warp-kernels.log")"
   [ "$bytes" -le 16777216 ] || echo "warning: $tarball is over 16 MiB and will not come back" >&2
+  # Each run's best policy (best_policy.npz, about 1 MB: the networks without the replay
+  # buffer), in a file of its own, so that the records come back whatever its size.
+  local policies=$out/campaign-$step-policies.tar.gz
+  (cd "$dir" && find . -name best_policy.npz -not -path './out/*' -print0 | tar --null -czf "$policies" -T -)
+  bytes=$(stat -c %s "$policies")
+  echo "packed $(tar -tzf "$policies" | wc -l) best policies, $bytes bytes, into $policies"
+  [ "$bytes" -le 16777216 ] || echo "warning: $policies is over 16 MiB and will not come back" >&2
 }
 
 kernel_report() {  # how many Warp modules came prebuilt and how many this machine compiled

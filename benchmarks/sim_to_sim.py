@@ -1,6 +1,6 @@
 """The sim-to-sim gap: a trained run's a_u in our MJX env and in Gymnasium's own C-MuJoCo env.
 
-    python benchmarks/sim_to_sim.py run=runs/hopper-adversarial-s0 n_episodes=10 [step=-1] [num_envs=8]
+    python benchmarks/sim_to_sim.py run=runs/hopper-adversarial-s0 n_episodes=10 [step=-1 | best=true] [num_envs=8]
 
 Loads the run's deterministic policy (``load_policy``), scores every u of the run's k on
 both simulators with the same policy, the same sets and the same N: ours with
@@ -21,7 +21,7 @@ import numpy as np
 
 from admissable_jax.cli import parse_args
 from admissable_jax.missingness import describe_set
-from admissable_jax.policies import load_policy
+from admissable_jax.policies import BEST, load_policy
 from admissable_jax.scoring import score_missingness
 from admissable_jax.wrappers import score_policy
 from common import append_record, run_benchmark
@@ -31,6 +31,8 @@ from common import append_record, run_benchmark
 class SimToSimConfig:
     run: str = dataclasses.field(default="", metadata={"help": "a train run directory or an experiment pair's"})
     step: int = dataclasses.field(default=-1, metadata={"help": "checkpoint (env step); -1 = the latest"})
+    best: bool = dataclasses.field(default=False, metadata={"help": "the policy the run kept at its best scoring "
+                                                                    "(best_policy.npz) instead of a checkpoint"})
     n_episodes: int = dataclasses.field(default=10, metadata={"help": "N: episodes per set on each simulator"})
     num_envs: int = dataclasses.field(default=8, metadata={"help": "Gymnasium vector envs"})
     seed: int = dataclasses.field(default=0, metadata={"help": "seed of both simulators' episode starts"})
@@ -41,11 +43,13 @@ def _validate(config: SimToSimConfig) -> None:
         raise ValueError("run= is required (a run directory)")
     if config.n_episodes < 1 or config.num_envs < 1:
         raise ValueError("n_episodes and num_envs must be >= 1")
+    if config.best and config.step >= 0:
+        raise ValueError("best=true scores the policy the run kept at its best scoring: give no step=")
 
 
 def main(argv: list[str]) -> None:
     config = parse_args(SimToSimConfig, argv, "benchmarks/sim_to_sim.py", __doc__.strip().splitlines()[0], _validate)
-    policy = load_policy(config.run, None if config.step < 0 else config.step)
+    policy = load_policy(config.run, BEST if config.best else None if config.step < 0 else config.step)
     trainer, run = policy.trainer, policy.config
     ours = score_missingness(trainer.env, trainer.policy, policy.actor_params, jax.random.key(config.seed),
                              trainer.hidden_sets, config.n_episodes, None, run.score_envs)
@@ -55,7 +59,8 @@ def main(argv: list[str]) -> None:
     names = [describe_set(row) for row in np.asarray(trainer.hidden_sets)]
     ours_scores, theirs_scores = np.asarray(ours.scores), theirs.scores
     spread = np.maximum(np.asarray(ours.returns).std(axis=1), theirs.returns.std(axis=1))
-    print(f"{trainer.env.gymnasium_id}, {config.run} at env step {policy.step}, N = {config.n_episodes}")
+    kept = " (its best scoring's policy)" if config.best else ""
+    print(f"{trainer.env.gymnasium_id}, {config.run} at env step {policy.step}{kept}, N = {config.n_episodes}")
     print("| u | MJX a_u | Gymnasium a_u | gap | larger std of the N returns |")
     print("|---|---|---|---|---|")
     for name, a, b, s in zip([*names, "clean"], [*ours_scores, float(ours.clean_score)],
@@ -63,6 +68,7 @@ def main(argv: list[str]) -> None:
         print(f"| {name} | {a:.1f} | {b:.1f} | {a - b:+.1f} | {s:.1f} |")
     record = {
         "run": config.run, "env": trainer.env.gymnasium_id, "physics": trainer.env.physics_name, "step": policy.step,
+        "best_policy": policy.best_min_score is not None,
         "n_episodes": config.n_episodes, "sets": names, "mjx_scores": ours_scores.tolist(),
         "gymnasium_scores": theirs_scores.tolist(), "mjx_clean": float(ours.clean_score),
         "gymnasium_clean": float(theirs.clean_score), "mjx_min": float(ours_scores.min()),

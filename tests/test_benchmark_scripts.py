@@ -37,6 +37,8 @@ REFUSALS = [
     ("sharding_scaling.py", ["num_envs=0"], "num_envs must be >= 1, got 0"),
     ("sharding_scaling.py", ["pairs=0"], "pairs must be >= 1, got 0"),
     ("sim_to_sim.py", [], "run= is required (a run directory)"),
+    ("sim_to_sim.py", ["run=r", "best=true", "step=5"], "best=true scores the policy the run kept at its best scoring: "
+                                                        "give no step="),
     ("startup_time.py", ["repeats=0"], "repeats must be >= 1, got 0"),
     ("step_compile.py", ["steps=0"], "batch and steps must be >= 1"),
     ("stop_latency.py", ["seeds=0"], "seeds must be >= 1, got 0"),

@@ -27,6 +27,7 @@ import numpy as np
 import pytest
 
 from admissable_jax import TrainConfig, make_env
+from admissable_jax.best_policy import best_kept
 from admissable_jax.experiment import ExperimentConfig, run_experiment
 from admissable_jax.host_loop import PhysicsCapacityExceeded
 from admissable_jax.train import train_fn
@@ -261,6 +262,13 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     assert f"Clean SAC (mode `none`, 1 seed): final clean return {clean:.1f} against" in text
     assert "not comparable yet" in text
     assert (tmp_path / "back" / "hopper" / "figures" / "min_score.png").exists()
+    # ...and, packed apart, each run's best policy: that of its records' best scoring.
+    with tarfile.open(os.path.join(directory, "out", "campaign-hopper-policies.tar.gz")) as tar:
+        tar.extractall(tmp_path / "back", filter="data")
+    for pair in ("adversarial-s0", "uniform-s0", "none-s0"):
+        rows = [json.loads(line) for line in packed[f"./hopper/{pair}/scores.jsonl"].splitlines()]
+        best = max(rows, key=lambda row: row["min_score"])
+        assert best_kept(str(tmp_path / "back" / "hopper" / pair)) == (best["env_steps"], best["min_score"])
     # The chain's Python processes (a call's worker, its plan, the runs: five at least) ran
     # without those modules: each logs its blocker's start.
     with open(directory + "-without-modules.log") as file:

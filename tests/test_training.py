@@ -254,7 +254,8 @@ def test_load_policy_is_the_trainers_deterministic_policy(point_mass_run, monkey
     shutil.copytree(run_dir, copied, ignore=shutil.ignore_patterns("checkpoints", "best_policy.npz"))
     with pytest.raises(FileNotFoundError, match=f"^{copied} keeps no best_policy.npz: a run writes it at each scoring"):
         load_policy(str(copied), "best")
-    write_best_policy(str(copied), KeptPolicy(500, 1.0, {"params": {"Dense_0": np.zeros(3)}}, {}))
+    other_shape = lambda params: jax.tree.map(lambda leaf: np.zeros((2, *leaf.shape), np.float32), params)
+    write_best_policy(str(copied), KeptPolicy(500, 1.0, other_shape(policy.actor_params), policy.critic_params))
     with pytest.raises(ValueError, match=f"^{copied}/best_policy.npz does not hold the networks of the run in {copied} "):
         load_policy(str(copied), "best")
     with pytest.raises(ValueError, match=r"^expected a batch of masked observations \(n, 2·d = 8\), got shape \(7, 4\)$"):
