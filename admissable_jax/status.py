@@ -4,7 +4,8 @@
 
 One row per run under the folders given (an experiment's pairs each): env, mode, seed, the
 env steps scored of those planned, the run's state, the last scoring's min_u a_u and clean
-return, how long ago that scoring was written, and the wall time the rest takes at the pace
+return, the best min_u a_u of its scorings and its env step (whose policy ``best_policy.npz``
+keeps), how long ago the last scoring was written, and the wall time the rest takes at the pace
 the run's own records measured (its last few scoring intervals: training and scoring). The
 states (:data:`STATES`):
 
@@ -35,6 +36,7 @@ import shlex
 import sys
 import time
 
+from admissable_jax.best_policy import best_kept
 from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.cli import exit_with, fail, parse_args, setting
 from admissable_jax.config import TrainConfig
@@ -61,6 +63,9 @@ class RunStatus:
     checkpoint_steps: int = 0  # the latest checkpoint's env step, where a resume starts (0: none)
     min_score: float | None = None  # the last scoring's min_u a_u
     clean_score: float | None = None  # the last scoring's clean return
+    best_score: float | None = None  # the highest min_u a_u of its scorings
+    best_steps: int = 0  # the env step of that scoring (0: none yet)
+    best_policy_kept: bool = False  # best_policy.npz holds that scoring's policy (load_policy(run, "best"))
     seconds_since_scoring: float | None = None  # since the last scoring row was written
     seconds_left: float | None = None  # the steps left (from the checkpoint, for a stopped run) at the records' pace
     holder: str = ""  # running: "process <pid> on <host>"
@@ -84,6 +89,7 @@ def run_status(run_dir: str) -> RunStatus:
     planned = config.planned_steps
     last = scores[-1] if scores else {}
     scored = last.get("env_steps", 0)
+    best = max(scores, key=lambda row: row["min_score"]) if scores else {}
     if holder is not None:
         state = "running"
     elif max(checkpoint_steps, scored) >= planned:  # its records complete, though its checkpoints may be elsewhere
@@ -95,7 +101,8 @@ def run_status(run_dir: str) -> RunStatus:
     return RunStatus(
         path=run_dir, state=state, env=config.env, mode=config.missingness, seed=config.seed, planned_steps=planned,
         scored_steps=scored, checkpoint_steps=checkpoint_steps, min_score=last.get("min_score"),
-        clean_score=last.get("clean_score"),
+        clean_score=last.get("clean_score"), best_score=best.get("min_score"), best_steps=best.get("env_steps", 0),
+        best_policy_kept=bool(best) and best_kept(run_dir) == (best["env_steps"], best["min_score"]),
         seconds_since_scoring=time.time() - os.path.getmtime(os.path.join(run_dir, "scores.jsonl")) if scores else None,
         seconds_left=(planned - start) / config.score_every * interval if interval and state != "finished" else None,
         holder=f"process {holder.get('pid')} on {holder.get('host')}" if holder is not None else "",
@@ -161,13 +168,17 @@ def status_table(statuses: list[RunStatus]) -> str:
     """One aligned row per run, then how many are in each state, then the command that
     continues each stopped run (an experiment's once, for all its pairs) and why each
     unreadable one is."""
-    header = ("run", "env", "mode", "seed", "env steps", "state", "min_u a_u", "clean", "last scoring", "time left")
+    header = ("run", "env", "mode", "seed", "env steps", "state", "min_u a_u", "clean", "best min_u a_u", "last scoring",
+              "time left")
     rows = [header] + [_row(status) for status in statuses]
     widths = [max(len(row[column]) for row in rows) for column in range(len(header))]
     lines = ["  ".join(cell.ljust(width) for cell, width in zip(row, widths)).rstrip() for row in rows]
     counts = {state: sum(status.state == state for status in statuses) for state in STATES}
     lines.append(f"\n{len(statuses)} run(s): "
                  + ", ".join(f"{count} {state}" for state, count in counts.items() if count))
+    if any(status.best_score is not None and not status.best_policy_kept for status in statuses):
+        lines.append("*: best_policy.npz does not hold that scoring's policy (a run of an older version, records copied "
+                     "without it, or a run resumed from a checkpoint before its best scoring)")
     if any(status.killed for status in statuses):
         lines.append("killed: its process ended without giving back its lock, as no exit of Python does (SIGKILL, the "
                      "out-of-memory killer, a machine that went down)")
@@ -181,7 +192,7 @@ def status_table(statuses: list[RunStatus]) -> str:
 
 def _row(status: RunStatus) -> tuple[str, ...]:
     if status.state == "unreadable":
-        return (status.path, "", "", "", "", "unreadable", "", "", "", "")
+        return (status.path, "", "", "", "", "unreadable", "", "", "", "", "")
     number = lambda value: "—" if value is None else f"{value:.1f}"
     checkpoint = f"checkpoint {status.checkpoint_steps:,}" if status.checkpoint_steps else "no checkpoint"
     state = {"running": f"running ({status.holder})",
@@ -191,6 +202,8 @@ def _row(status: RunStatus) -> tuple[str, ...]:
     return (status.path, status.env, status.mode, str(status.seed),
             f"{status.scored_steps:,} / {status.planned_steps:,}",
             state, number(status.min_score), number(status.clean_score),
+            "—" if status.best_score is None else
+            f"{status.best_score:.1f} at {status.best_steps:,}{'' if status.best_policy_kept else ' *'}",
             "—" if status.seconds_since_scoring is None else f"{duration_text(status.seconds_since_scoring)} ago",
             "" if status.state == "finished" else
             "—" if status.seconds_left is None else f"about {duration_text(status.seconds_left)}")

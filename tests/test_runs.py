@@ -828,7 +828,7 @@ def check_where_runs_stand(tmp_path, straight, paused_dir: str, capsys) -> None:
     with open(newer / "config.yaml", "a") as file:
         file.write("a_newer_key: 1\n")
     archived = stand / "archived"  # a finished run brought back without its checkpoints (as the GPU campaign's are)
-    shutil.copytree(straight.run_dir, archived, ignore=shutil.ignore_patterns("checkpoints"))
+    shutil.copytree(straight.run_dir, archived, ignore=shutil.ignore_patterns("checkpoints", "best_policy.npz"))
     pair = stand / "experiment" / "adversarial-s0"  # a pair: the experiment's checkpoints hold it
     shutil.copytree(paused_dir, pair, ignore=shutil.ignore_patterns("checkpoints"))
     shutil.copytree(os.path.join(paused_dir, "checkpoints"), stand / "experiment" / "checkpoints")
@@ -840,7 +840,11 @@ def check_where_runs_stand(tmp_path, straight, paused_dir: str, capsys) -> None:
     assert (stopped.state, stopped.scored_steps, stopped.checkpoint_steps, stopped.planned_steps) == ("stopped", 500, 500, 2000)
     assert stopped.seconds_left == pytest.approx(3 * pace) and stopped.min_score == straight.scores[0]["min_score"]
     assert 0 <= stopped.seconds_since_scoring < 600
-    assert run_status(straight.run_dir).state == "finished" and run_status(straight.run_dir).seconds_left is None
+    finished = run_status(straight.run_dir)
+    assert finished.state == "finished" and finished.seconds_left is None
+    # Its best scoring, whose policy it keeps; one copied without that policy says so.
+    assert (finished.best_steps, finished.best_score, finished.best_policy_kept) == (*_best_of(straight.scores), True)
+    assert not run_status(str(archived)).best_policy_kept
     live = run_status(str(running))
     assert live.holder == f"process 1 on {os.uname().nodename}" and live.scored_steps == 500
     assert live.seconds_left == pytest.approx(3 * sum(500 / rate for rate in (2, 3, 4, 5, 6)) / 5)
@@ -848,15 +852,18 @@ def check_where_runs_stand(tmp_path, straight, paused_dir: str, capsys) -> None:
     assert status_main([straight.run_dir, paused_dir, str(stand)]) == 0
     table = capsys.readouterr().out
     rows = {line.split()[0]: line for line in table.split("\n\n")[0].splitlines()[1:]}
-    assert re.search(r"point_mass  adversarial  0     2,000 / 2,000  finished +\d+\.\d +\d+\.\d +\d+ s ago$",
-                     rows[straight.run_dir]), table
+    assert re.search(rf"point_mass  adversarial  0     2,000 / 2,000  finished +\d+\.\d +\d+\.\d +"
+                     rf"{finished.best_score:.1f} at {finished.best_steps:,} +\d+ s ago$", rows[straight.run_dir]), table
     assert "500 / 2,000    stopped (checkpoint 500)" in rows[paused_dir] and rows[paused_dir].endswith(" s")
     assert f"running (process 1 on {os.uname().nodename})" in rows[str(running)]
     assert "0 / 2,000      stopped (no checkpoint)" in rows[str(unscored)] and rows[str(broken)].endswith("unreadable")
     assert "500 / 2,000    stopped (killed; no checkpoint)" in rows[str(copied)]
     assert "2,000 / 2,000  finished (no checkpoint)" in rows[str(archived)] and rows[str(archived)].endswith(" ago")
+    assert f"{finished.best_score:.1f} at {finished.best_steps:,} *  " in rows[str(archived)]
     assert table.endswith(
-        "\n9 run(s): 1 running, 2 finished, 4 stopped, 2 unreadable\nkilled: its process ended without giving back its "
+        "\n9 run(s): 1 running, 2 finished, 4 stopped, 2 unreadable\n*: best_policy.npz does not hold that scoring's "
+        "policy (a run of an older version, records copied without it, or a run resumed from a checkpoint before its "
+        "best scoring)\nkilled: its process ended without giving back its "
         "lock, as no exit of Python does (SIGKILL, the out-of-memory killer, a machine that went down)\n"
         "to continue the stopped runs:\n"
         f"  python -m admissable_jax.train resume=true out={paused_dir}\n"

@@ -29,7 +29,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from admissable_jax import TrainConfig, candidate_sets, make_env, mask_observation, score_missingness, train_fn
-from admissable_jax.best_policy import KeptPolicy, write_best_policy
+from admissable_jax.best_policy import BestPolicyNotWritten, KeptPolicy, best_kept, write_best_policy
 from admissable_jax.branching import while_any
 from admissable_jax.checkpointing import CheckpointError, Checkpoints, OtherStateLayout
 from admissable_jax.envs import observation_names
@@ -254,6 +254,23 @@ def test_load_policy_is_the_trainers_deterministic_policy(point_mass_run, monkey
     shutil.copytree(run_dir, copied, ignore=shutil.ignore_patterns("checkpoints", "best_policy.npz"))
     with pytest.raises(FileNotFoundError, match=f"^{copied} keeps no best_policy.npz: a run writes it at each scoring"):
         load_policy(str(copied), "best")
+    # A write that fails (a full disk) removes what it wrote, keeps the earlier best and says so in one line.
+    import errno
+
+    kept = KeptPolicy(500, 1.0, policy.actor_params, policy.critic_params)
+    write_best_policy(str(copied), kept)
+
+    def disk_full(file, **arrays):
+        file.write(b"part of it")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(np, "savez", disk_full)
+    with pytest.raises(BestPolicyNotWritten, match=f"^cannot write the best policy of env step 600 in {copied}: No space "
+                                                   f"left on device; the partial write was removed; free space, then "
+                                                   f"continue with resume=true$"):
+        write_best_policy(str(copied), dataclasses.replace(kept, env_steps=600))
+    monkeypatch.undo()
+    assert "best_policy.npz.partial" not in os.listdir(copied) and best_kept(str(copied)) == (500, 1.0)
     other_shape = lambda params: jax.tree.map(lambda leaf: np.zeros((2, *leaf.shape), np.float32), params)
     write_best_policy(str(copied), KeptPolicy(500, 1.0, other_shape(policy.actor_params), policy.critic_params))
     with pytest.raises(ValueError, match=f"^{copied}/best_policy.npz does not hold the networks of the run in {copied} "):
