@@ -46,7 +46,7 @@ from admissable_jax.results import check_is_folder, distinct_directories, paths_
 from admissable_jax.run_directory import experiment_of, load_config, read_run_file, run_config_path
 
 STATES = ("running", "finished", "stopped", "unreadable")
-PACE_INTERVALS = 5  # the last scoring intervals whose wall time gives a run's pace
+PACE_INTERVALS = 5  # the last scoring intervals (of SAC's training, after the warm-up) whose wall time gives a run's pace
 
 
 @dataclasses.dataclass(frozen=True)
@@ -96,7 +96,7 @@ def run_status(run_dir: str) -> RunStatus:
         state = "finished"
     else:
         state = "stopped"
-    interval = _interval_seconds(metrics, config.score_every)
+    interval = _interval_seconds(metrics, config.score_every, config.learning_starts)
     start = scored if state == "running" else checkpoint_steps
     return RunStatus(
         path=run_dir, state=state, env=config.env, mode=config.missingness, seed=config.seed, planned_steps=planned,
@@ -112,10 +112,15 @@ def run_status(run_dir: str) -> RunStatus:
     )
 
 
-def _interval_seconds(metrics: list[dict], score_every: int) -> float | None:
-    """The mean wall time of the run's last scoring intervals (training, then scoring), from
-    its ``metrics.jsonl``; None where it records none."""
-    recent = [row for row in metrics[-PACE_INTERVALS:] if row.get("env_steps_per_s") and "score_seconds" in row]
+def _interval_seconds(metrics: list[dict], score_every: int, learning_starts: int) -> float | None:
+    """The mean wall time of the run's last scoring intervals (training, then scoring) that
+    trained SAC, from its ``metrics.jsonl``; None where it records none. The intervals of the
+    random-action warm-up (up to ``learning_starts``) take no gradient step, so they run far
+    faster than the rest (the point mass: 40,000 env steps/s, then 24) and would promise a
+    run's end far too soon."""
+    trained = [row for row in metrics if row.get("env_steps_per_s") and "score_seconds" in row
+               and row["env_steps"] > learning_starts]
+    recent = trained[-PACE_INTERVALS:]
     if not recent:
         return None
     return sum(score_every / row["env_steps_per_s"] + row["score_seconds"] for row in recent) / len(recent)
