@@ -7,8 +7,9 @@ gone. After each scoring whose min_u a_u beats every earlier scoring of the run 
 megabyte) are written to ``<run>/best_policy.npz`` with that env step and score, in place
 of the earlier best. So the file always holds the policy of the row of ``scores.jsonl`` with
 the highest min_u a_u, or is absent where that row's policy was never seen by this version
-(older runs, records copied without it). ``load_policy(run, "best")``, ``audit RUN
-best=true`` and ``video RUN best=true`` read it.
+(older runs, records copied without it) or was set aside with the rows after a checkpoint a
+resume continues from (until a scoring beats the rows kept). ``load_policy(run, "best")``,
+``audit RUN best=true`` and ``video RUN best=true`` read it.
 
 The score that picked it is the training's own estimate of N episodes, the highest of many
 noisy ones, so it reads high: audit the policy with fresh start states for an honest score.
@@ -84,7 +85,8 @@ def read_best_policy(run_dir: str, actor_like: Any, critic_like: Any) -> KeptPol
     path = os.path.join(run_dir, BEST_POLICY)
     if not os.path.isfile(path):
         raise FileNotFoundError(f"{run_dir} keeps no {BEST_POLICY}: a run writes it at each scoring that beats its "
-                                f"earlier ones, so a run of an older version, or records copied without it, have none")
+                                f"earlier ones, so a run of an older version, records copied without it, or a run resumed "
+                                f"from before its best scoring (until a scoring beats it) have none")
     with np.load(path) as data:
 
         def rebuilt(prefix: str, like: Any) -> Any:
