@@ -145,23 +145,30 @@ def parse_args(
 
 
 def _decide_auto_resume(schema: Any, argv: list[str], int_keys: set[str], config_file: ConfigFile) -> list[str]:
-    """``argv`` with a last ``resume=auto`` decided: ``resume=true`` where the run the command
-    names (its ``out``) holds a checkpoint, else ``resume=false``, said in one line. So a job
-    that a scheduler starts again after a time limit or a preemption is one unchanging command:
-    the first start trains from scratch, every later one continues (a run that stopped before
-    its first checkpoint starts over, its rows set aside)."""
+    """``argv`` with a last ``resume=auto`` decided, said in one line: ``resume=true`` where the
+    run the command names (its ``out``) holds a checkpoint; with ``fast_forward=true`` also where
+    it holds only its records (its settings file: checkpoints on a node's own disk, lost when
+    the job moved), which the run is rebuilt from; else ``resume=false`` (and no fast-forward:
+    nothing to rebuild). So a job that a scheduler starts again after a time limit or a
+    preemption is one unchanging command: the first start trains from scratch, every later one
+    continues (a run that stopped before its first checkpoint starts over, its rows set aside)."""
     resumes = [arg.split("=", 1)[1] for arg in argv if arg.split("=", 1)[0] == "resume"]
     if not resumes or resumes[-1] != "auto" or config_file.holds_checkpoint is None:
         return argv
     rest = [arg for arg in argv if arg.split("=", 1)[0] != "resume"]
     config = _config_of(schema, rest, int_keys)
     try:
-        run, continues = os.path.dirname(config_file.resumed(config)), config_file.holds_checkpoint(config)
+        settings, checkpointed = config_file.resumed(config), config_file.holds_checkpoint(config)
     except ValueError:  # no run to find (an unknown env): left for validate to say
         return [*rest, "resume=false"]
-    report(f"resume=auto: {run} {'holds a checkpoint' if continues else 'holds no checkpoint'}: "
-           f"resume={str(continues).lower()}")
-    return [*rest, f"resume={str(continues).lower()}"]
+    rebuilt = not checkpointed and config.fast_forward and os.path.isfile(settings)
+    run = os.path.dirname(settings)
+    if checkpointed or rebuilt:
+        report(f"resume=auto: {run} holds {'a checkpoint' if checkpointed else 'records and no checkpoint'}: resume=true")
+        return [*rest, "resume=true"]
+    report(f"resume=auto: {run} holds no checkpoint{' and no records' * config.fast_forward}: resume=false"
+           + " (fast_forward=false: nothing to rebuild)" * config.fast_forward)
+    return [*rest, "resume=false", "fast_forward=false"]
 
 
 def _resumed_settings(config: Any, config_file: ConfigFile) -> str | None:

@@ -184,9 +184,13 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
         "uniform-s2 (keep seeds, first_seed, modes and lower_bounds)"))
     # Fast-forwarded from them, the four pairs re-train 2,000 env steps without scoring, each
     # pair's rounds put in place from its own records, and go on as the uninterrupted run.
-    assert experiment_main([*argv, "total_steps=3000", f"out={elsewhere}", "resume=true", "fast_forward=true"]) == 0
+    # (resume=auto with fast_forward=true: records and no checkpoint, as where the checkpoints
+    # stayed on another node's disk, are rebuilt from.)
+    assert experiment_main([*argv, "total_steps=3000", f"out={elsewhere}", "resume=auto", "fast_forward=true"]) == 0
     assert _scores(elsewhere) == _scores(str(tmp_path / "straight"))
-    assert "fast-forward: re-training env steps 0 to 2000 from the start" in capsys.readouterr().err
+    rebuilt = capsys.readouterr().err
+    assert f"resume=auto: {elsewhere} holds records and no checkpoint: resume=true\n" in rebuilt
+    assert "fast-forward: re-training env steps 0 to 2000 from the start" in rebuilt
     final_min = {mode: np.array([r.scores[-1]["min_score"] for r in straight if r.config.missingness == mode])
                  for mode in ("adversarial", "uniform")}
     features = observation_names("point_mass")

@@ -221,6 +221,10 @@ def test_cli_edge_cases_are_one_line(tmp_path):
         config = parse_args(TrainConfig, ["env=point_mass", f"out={missing}", *items], "admissable_jax.train", "",
                             config_file=config_file_of(TrainConfig))
         assert config.resume is resume, items
+    # With fast_forward=true and nothing to rebuild, a new run: no fast-forward either.
+    config = parse_args(TrainConfig, ["env=point_mass", f"out={missing}", "resume=auto", "fast_forward=true"],
+                        "admissable_jax.train", "", config_file=config_file_of(TrainConfig))
+    assert (config.resume, config.fast_forward) == (False, False)
 
 
 def test_a_wandb_logger_that_cannot_start_is_one_line(tmp_path, monkeypatch):
