@@ -739,7 +739,7 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
 
     # Bad input: one line, exit status 2.
     for args, message in [(["steps=all", "step=200"], "steps= audits several checkpoints of one run"),
-                          (["best=true", "step=200"], "best=true audits the policy one run kept at its best scoring"),
+                          (["best=true", "step=200"], "best=true audits the policy a run kept at its best scoring"),
                           (["steps=300"], "no checkpoint at 300 in "), (["steps=two"], "steps must be 'all'"),
                           (["step=300", f"out={tmp_path / 'at300'}"], "no checkpoint 300 in "),
                           (["k=1", "episodes=20000", "shapley=exact", f"out={tmp_path / 'big'}"],  # 4 + 16 sets

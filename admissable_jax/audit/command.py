@@ -40,7 +40,8 @@ class AuditConfig:
     out: str = setting("", "where the report goes (default RUN_DIR/audit-step<STEP>)")
     step: int = setting(-1, "the checkpoint (env step) to audit; -1 = the latest")
     best: bool = setting(False, "audit the policy the run kept at its best scoring (best_policy.npz: training's "
-                                "highest min_u a_u, an estimate that reads high) instead of a checkpoint")
+                                "highest min_u a_u, an estimate that reads high) instead of a checkpoint; an "
+                                "experiment: each pair's, into audit-best/")
     seed: int = setting(0, "seed of the N start states")
     top: int = setting(10, "worst sets listed per k in report.md")
     slots: int = setting(0, "envs stepped at once, each starting the next episode as its own ends (0 = as training "
@@ -96,9 +97,9 @@ def check_audit_config(config: AuditConfig) -> None:
     if config.steps and (config.step >= 0 or config.policy or is_experiment(config.run_dir)):
         raise ValueError("steps= audits several checkpoints of one run (a train run or one pair of an experiment), "
                          "without step= or policy=")
-    if config.best and (config.step >= 0 or config.steps or config.policy or is_experiment(config.run_dir)):
-        raise ValueError("best=true audits the policy one run kept at its best scoring (a train run or one pair of an "
-                         "experiment), without step=, steps= or policy=")
+    if config.best and (config.step >= 0 or config.steps or config.policy):
+        raise ValueError("best=true audits the policy a run kept at its best scoring (an experiment: each pair's), "
+                         "without step=, steps= or policy=")
     _ks(config.k)
     if config.top < 1:
         raise ValueError(f"top must be at least 1, got {config.top}")
@@ -292,8 +293,8 @@ def audit_over_training(config: AuditConfig) -> tuple[list[AuditResult], list[st
     return results, written
 
 
-def _audit_each(jobs: list[tuple[AuditConfig, int | None]]) -> tuple[list[AuditResult], list[str]]:
-    """Audit each (config, checkpoint step; None = the latest) of ``jobs`` into its folder,
+def _audit_each(jobs: list[tuple[AuditConfig, int | str | None]]) -> tuple[list[AuditResult], list[str]]:
+    """Audit each (config, checkpoint step; None = the latest, "best" = the best scoring's) of ``jobs`` into its folder,
     all with the first one's env and policy function (an experiment's pairs, or one run's
     checkpoints, share the env and the network shapes), so the rollout compiles once."""
     from admissable_jax.policies import load_policy
@@ -311,22 +312,26 @@ def _audit_each(jobs: list[tuple[AuditConfig, int | None]]) -> tuple[list[AuditR
 
 def audit_experiment(config: AuditConfig) -> tuple[list[AuditResult], list[str]]:
     """Audit every (seed, mode) pair of the experiment in ``config.run_dir`` at the same
-    checkpoint, each into its own folder as :func:`audit_run` does (under ``out`` if given),
+    checkpoint (``best=true``: each at its own best scoring, into ``audit-best``), each into its
+    own folder as :func:`audit_run` does (under ``out`` if given),
     then compare the modes in ``comparison.md``: per k, each pair's worst a_u and its mean
     a_u over the sets, mean ± 95% t-interval over seeds per mode, and adversarial − uniform
     on both with Welch's interval. It
     answers what the paper's Figure 1 cannot: does training against one missing feature
     also protect against two?"""
     check_audit_config(config)
+    from admissable_jax.policies import BEST
+
     root = config.run_dir
     pairs = sorted(name for name in os.listdir(root) if os.path.isfile(os.path.join(root, name, "config.yaml")))
     if not pairs:
         raise FileNotFoundError(f"{root} holds an experiment.yaml but no pair directories")
-    step = None if config.step < 0 else config.step
+    step = BEST if config.best else None if config.step < 0 else config.step
     pair_out = lambda name: os.path.join(config.out, name) if config.out else ""
     results, written = _audit_each([(dataclasses.replace(config, run_dir=os.path.join(root, name), out=pair_out(name)),
                                      step) for name in pairs])
-    out = config.out or os.path.join(root, f"audit-step{results[0].source['checkpoint (env step)']}")
+    out = config.out or os.path.join(root, "audit-best" if config.best else
+                                     f"audit-step{results[0].source['checkpoint (env step)']}")
     make_directory(out, "audit folder")
     written.append(comparison_chart(results, os.path.join(out, "comparison.png")))
     written.append(os.path.join(out, "comparison.md"))

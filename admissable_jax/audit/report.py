@@ -376,13 +376,22 @@ def comparison_chart(results: list[AuditResult], path: str) -> str:
             ax.plot(np.full(len(worst[mode][k]), position), worst[mode][k], "o", color=color, markersize=3)
     ax.set_xticks(range(len(ks)), [f"k = {k}" for k in ks])
     ax.set_ylabel("worst $a_u$ over the sets of size k")
-    ax.set_title(f"{results[0].env}, checkpoint {results[0].source['checkpoint (env step)']}: "
+    ax.set_title(f"{results[0].env}, {audited_policies(results)}: "
                  f"the worst hidden set per pair (bars: mean, 95% CI; dots: pairs)", fontsize=9)
     ax.legend()
     ax.grid(alpha=0.3, axis="y")
     figure.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(figure)
     return path
+
+
+def audited_policies(results: list[AuditResult]) -> str:
+    """Which policy of each pair was audited: one checkpoint, or each pair's best scoring's
+    (``audit best=true``: the pairs' own env steps)."""
+    steps = sorted({result.source["checkpoint (env step)"] for result in results})
+    if not any("kept as" in result.source for result in results):
+        return f"checkpoint {steps[0]}"
+    return f"each pair's best scoring (env steps {', '.join(f'{step:,}' for step in steps)})"
 
 
 def compare_modes(results: list[AuditResult]) -> str:
@@ -396,7 +405,7 @@ def compare_modes(results: list[AuditResult]) -> str:
     for result, curve in zip(results, pair_curves(results)):
         by_mode.setdefault(curve, []).append(result)
     first = results[0]
-    lines = [f"# Robustness audit of an experiment: {first.env}, checkpoint {first.source['checkpoint (env step)']}", "",
+    lines = [f"# Robustness audit of an experiment: {first.env}, {audited_policies(results)}", "",
              f"Each pair audited as its own report says ({episodes_per_set(results)}, `{first.estimator}`); "
              "here, per pair, the worst a_u over the sets of each size and the mean a_u over them (the average case, "
              "u drawn uniformly), then mean ± 95% t-interval over the seeds of a mode. Where a k was searched "
