@@ -5,8 +5,10 @@ policy of its scoring with the highest min_u a_u (the paper's headline metric) i
 gone. After each scoring whose min_u a_u beats every earlier scoring of the run (its
 ``scores.jsonl``), the actor's and the critic's parameters (not the replay buffer: about a
 megabyte) are written to ``<run>/best_policy.npz`` with that env step and score, in place
-of the earlier best. So the file always holds the policy of the row of ``scores.jsonl`` with
-the highest min_u a_u, or is absent where that row's policy was never seen by this version
+of the earlier best. Only scorings after ``learning_starts`` count: before it the actor is its
+random initialisation (``run_directory.trained_at``). So the file always holds the policy of
+the row of ``scores.jsonl`` with the highest min_u a_u of those, or is absent where that row's
+policy was never seen by this version
 (older runs, records copied without it) or was set aside with the rows after a checkpoint a
 resume continues from (until a scoring beats the rows kept). ``load_policy(run, "best")``,
 ``audit RUN best=true`` and ``video RUN best=true`` read it.

@@ -219,6 +219,14 @@ def metrics_row(env_steps, grad_steps, chunk, train_seconds, score_seconds, conf
     return row
 
 
+def trained_at(row: dict[str, Any], config: TrainConfig) -> bool:
+    """Whether the scoring ``row`` scored a policy SAC had trained: one after ``learning_starts``.
+    Before it the actor is its random initialisation, which may score high without being any
+    product of training (Ant's stands still and earns about 990 of healthy reward with every
+    feature hidden, more than its runs' trained policies reached at 120k env steps)."""
+    return row["env_steps"] > config.learning_starts
+
+
 class RunDirectory:
     """A run's folder: config.yaml, observation_names.json, scores.jsonl, metrics.jsonl
     (checkpoints are kept by whoever drives the run: the run's own ``checkpoints/`` or the
@@ -342,11 +350,14 @@ class RunDirectory:
 
     def beats_best(self, row: dict[str, Any]) -> bool:
         """Whether the scoring ``row`` (the last appended) has a higher min_u a_u than every
-        earlier scoring of the run, whose policy is then the one to keep
-        (:mod:`admissable_jax.best_policy`). The earlier scorings are read from
+        earlier scoring of the run that followed SAC's training, whose policy is then the one
+        to keep (:mod:`admissable_jax.best_policy`). The earlier scorings are read from
         ``scores.jsonl`` once per command, then followed."""
+        if not trained_at(row, self.config):
+            return False
         if self._best_score is None:
-            earlier = [kept["min_score"] for kept in self.read("scores.jsonl") if kept["env_steps"] < row["env_steps"]]
+            earlier = [kept["min_score"] for kept in self.read("scores.jsonl")
+                       if kept["env_steps"] < row["env_steps"] and trained_at(kept, self.config)]
             self._best_score = max(earlier, default=-math.inf)
         if row["min_score"] > self._best_score:
             self._best_score = row["min_score"]

@@ -43,7 +43,7 @@ from admissable_jax.config import TrainConfig
 from admissable_jax.locks import LOCK_NAME, live_holder
 from admissable_jax.loggers import FINGERPRINT
 from admissable_jax.results import check_is_folder, distinct_directories, paths_of
-from admissable_jax.run_directory import experiment_of, load_config, read_run_file, run_config_path
+from admissable_jax.run_directory import experiment_of, load_config, read_run_file, run_config_path, trained_at
 
 STATES = ("running", "finished", "stopped", "unreadable")
 PACE_INTERVALS = 5  # the last scoring intervals (of SAC's training, after the warm-up) whose wall time gives a run's pace
@@ -63,7 +63,7 @@ class RunStatus:
     checkpoint_steps: int = 0  # the latest checkpoint's env step, where a resume starts (0: none)
     min_score: float | None = None  # the last scoring's min_u a_u
     clean_score: float | None = None  # the last scoring's clean return
-    best_score: float | None = None  # the highest min_u a_u of its scorings
+    best_score: float | None = None  # the highest min_u a_u of its scorings after learning_starts
     best_steps: int = 0  # the env step of that scoring (0: none yet)
     best_policy_kept: bool = False  # best_policy.npz holds that scoring's policy (load_policy(run, "best"))
     seconds_since_scoring: float | None = None  # since the last scoring row was written
@@ -89,7 +89,8 @@ def run_status(run_dir: str) -> RunStatus:
     planned = config.planned_steps
     last = scores[-1] if scores else {}
     scored = last.get("env_steps", 0)
-    best = max(scores, key=lambda row: row["min_score"]) if scores else {}
+    trained = [row for row in scores if trained_at(row, config)]
+    best = max(trained, key=lambda row: row["min_score"]) if trained else {}
     if holder is not None:
         state = "running"
     elif max(checkpoint_steps, scored) >= planned:  # its records complete, though its checkpoints may be elsewhere

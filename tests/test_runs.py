@@ -66,8 +66,9 @@ def _items(config: TrainConfig) -> list[str]:
 
 
 def _best_of(rows: list[dict]) -> tuple[int, float]:
-    """(env step, min_u a_u) of the first of ``rows`` with the highest min_u a_u."""
-    best = max(rows, key=lambda row: row["min_score"])
+    """(env step, min_u a_u) of the first of ``RUN``'s ``rows`` with the highest min_u a_u after
+    ``learning_starts`` (before it the actor is untrained)."""
+    best = max((row for row in rows if row["env_steps"] > RUN.learning_starts), key=lambda row: row["min_score"])
     return best["env_steps"], best["min_score"]
 
 
@@ -576,6 +577,7 @@ def test_resume_rules_corrupt_checkpoints_and_moved_directories(tmp_path, capsys
                        os.path.join(moved, "checkpoints"))
     try:
         recorded_best = _best_of(again.scores)[1]
+        assert not run.beats_best({"env_steps": RUN.learning_starts, "min_score": 1e9})  # an untrained actor's
         assert not run.beats_best({"env_steps": 3000, "min_score": recorded_best})
         assert run.beats_best({"env_steps": 3000, "min_score": recorded_best + 1})
     finally:
@@ -833,7 +835,8 @@ def check_where_runs_stand(tmp_path, straight, paused_dir: str, capsys) -> None:
         file.write("a_newer_key: 1\n")
     archived = stand / "archived"  # a finished run brought back without its checkpoints (as the GPU campaign's are)
     shutil.copytree(straight.run_dir, archived, ignore=shutil.ignore_patterns("checkpoints", "best_policy.npz"))
-    shutil.copy(os.path.join(paused_dir, "best_policy.npz"), archived)  # another scoring's policy (env step 500)
+    with np.load(os.path.join(straight.run_dir, "best_policy.npz")) as kept:  # another scoring's policy
+        np.savez(archived / "best_policy.npz", **{**kept, "env_steps": np.int64(1500)})
     pair = stand / "experiment" / "adversarial-s0"  # a pair: the experiment's checkpoints hold it
     shutil.copytree(paused_dir, pair, ignore=shutil.ignore_patterns("checkpoints"))
     shutil.copytree(os.path.join(paused_dir, "checkpoints"), stand / "experiment" / "checkpoints")
@@ -846,6 +849,7 @@ def check_where_runs_stand(tmp_path, straight, paused_dir: str, capsys) -> None:
     stopped = run_status(paused_dir)
     assert (stopped.state, stopped.scored_steps, stopped.checkpoint_steps, stopped.planned_steps) == ("stopped", 500, 500, 2000)
     assert stopped.seconds_left is None and stopped.min_score == straight.scores[0]["min_score"]
+    assert stopped.best_score is None and not os.path.exists(os.path.join(paused_dir, "best_policy.npz"))  # untrained
     assert 0 <= stopped.seconds_since_scoring < 600
     finished = run_status(straight.run_dir)
     assert finished.state == "finished" and finished.seconds_left is None
