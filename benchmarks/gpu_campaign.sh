@@ -38,7 +38,8 @@
 # CAMPAIGN_CALL_SECONDS, and packs what exists so far (run jsonl files, configs, logs,
 # benchmark records) into $OUT/campaign-STEP.tar.gz (at most 16 MiB) for the trip back, and
 # each run's best policy (best_policy.npz) into $OUT/campaign-STEP-policies.tar.gz (15 Hopper
-# runs: about 13 MB), which load_policy(run, "best"), audit best=true and video best=true read.
+# runs: about 13 MB, computed from the networks' sizes), which load_policy(run, "best"), audit
+# best=true and video best=true read.
 #
 # Exit status of a call: 0 the step is complete; 75 call again (the same command, at once: a
 # machine idle for ~30 s is given back, its worker with it); 3 refused (a run that cannot
