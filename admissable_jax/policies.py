@@ -26,9 +26,14 @@ from admissable_jax.host_loop import init_arguments, make_trainer, stacked_init_
 from admissable_jax.method import hidden_row
 from admissable_jax.missingness import mask_observation
 from admissable_jax.run_directory import load_config, run_config_path
-from admissable_jax.training import Trainer
+from admissable_jax.training import Trainer, TrainState
 
 BEST = "best"  # load_policy's step for the policy a run kept at its best scoring
+
+
+def requested_step(step: int, best: bool) -> int | str | None:
+    """``load_policy``'s step for a command's ``step=`` (-1: the latest) and ``best=`` keys."""
+    return BEST if best else None if step < 0 else step
 
 
 @dataclasses.dataclass
@@ -93,6 +98,12 @@ def checkpoint_steps(run_dir: str) -> list[int]:
     return Checkpoints.steps_in(_checkpoint_dir(run_dir))
 
 
+def _own_state_shapes(config: TrainConfig) -> tuple[Trainer, TrainState]:
+    """A run's trainer and the shapes of its training state (nothing allocated)."""
+    trainer = make_trainer(config)
+    return trainer, jax.eval_shape(lambda: trainer.init(*init_arguments(config)))
+
+
 def load_policy(run_dir: str, step: int | str | None = None) -> TrainedPolicy:
     """The deterministic policy of the run in ``run_dir`` at checkpoint ``step`` (default:
     the latest), or, for ``step="best"``, the one it kept at its scoring with the highest
@@ -104,15 +115,13 @@ def load_policy(run_dir: str, step: int | str | None = None) -> TrainedPolicy:
         raise TypeError(f"step must be an env step (an int), {BEST!r} or None for the latest, got {step!r}")
     config = load_config(run_config_path(run_dir), TrainConfig).resolved()
     if best:  # a pair's own networks, as a run of its own has them
-        trainer = make_trainer(config)
-        sac = jax.eval_shape(lambda: trainer.init(*init_arguments(config))).sac
-        kept = read_best_policy(run_dir, sac.actor_params, sac.critic_params)
+        trainer, like = _own_state_shapes(config)
+        kept = read_best_policy(run_dir, like.sac.actor_params, like.sac.critic_params)
         return TrainedPolicy(config, trainer, kept.actor_params, kept.env_steps, kept.critic_params, kept.min_score)
     checkpoint_dir = _checkpoint_dir(run_dir)
     experiment_yaml = os.path.join(os.path.dirname(os.path.abspath(run_dir)), "experiment.yaml")
     if checkpoint_dir == os.path.join(run_dir, "checkpoints"):  # its own
-        trainer = make_trainer(config)
-        like = jax.eval_shape(lambda: trainer.init(*init_arguments(config)))
+        trainer, like = _own_state_shapes(config)
         pick = None
     elif os.path.isfile(experiment_yaml):
         experiment = load_config(experiment_yaml, ExperimentConfig)

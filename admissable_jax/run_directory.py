@@ -227,6 +227,14 @@ def trained_at(row: dict[str, Any], config: TrainConfig) -> bool:
     return row["env_steps"] > config.learning_starts
 
 
+def best_scoring(rows: list[dict[str, Any]], config: TrainConfig) -> dict[str, Any] | None:
+    """The first of the scoring ``rows`` with the highest min_u a_u among those SAC had trained
+    (:func:`trained_at`); None where there is none: the scoring whose policy
+    ``best_policy.npz`` keeps."""
+    trained = [row for row in rows if trained_at(row, config)]
+    return max(trained, key=lambda row: row["min_score"]) if trained else None
+
+
 class RunDirectory:
     """A run's folder: config.yaml, observation_names.json, scores.jsonl, metrics.jsonl
     (checkpoints are kept by whoever drives the run: the run's own ``checkpoints/`` or the
@@ -356,9 +364,9 @@ class RunDirectory:
         if not trained_at(row, self.config):
             return False
         if self._best_score is None:
-            earlier = [kept["min_score"] for kept in self.read("scores.jsonl")
-                       if kept["env_steps"] < row["env_steps"] and trained_at(kept, self.config)]
-            self._best_score = max(earlier, default=-math.inf)
+            earlier = best_scoring([kept for kept in self.read("scores.jsonl") if kept["env_steps"] < row["env_steps"]],
+                                   self.config)
+            self._best_score = -math.inf if earlier is None else earlier["min_score"]
         if row["min_score"] > self._best_score:
             self._best_score = row["min_score"]
             return True

@@ -43,7 +43,8 @@ from admissable_jax.config import TrainConfig
 from admissable_jax.locks import LOCK_NAME, live_holder
 from admissable_jax.loggers import FINGERPRINT
 from admissable_jax.results import check_is_folder, distinct_directories, paths_of
-from admissable_jax.run_directory import experiment_of, load_config, read_run_file, run_config_path, trained_at
+from admissable_jax.run_directory import (best_scoring, experiment_of, load_config, read_run_file, run_config_path,
+                                          trained_at)
 
 STATES = ("running", "finished", "stopped", "unreadable")
 PACE_INTERVALS = 5  # the last scoring intervals (of SAC's training, after the warm-up) whose wall time gives a run's pace
@@ -89,15 +90,14 @@ def run_status(run_dir: str) -> RunStatus:
     planned = config.planned_steps
     last = scores[-1] if scores else {}
     scored = last.get("env_steps", 0)
-    trained = [row for row in scores if trained_at(row, config)]
-    best = max(trained, key=lambda row: row["min_score"]) if trained else {}
+    best = best_scoring(scores, config) or {}
     if holder is not None:
         state = "running"
     elif max(checkpoint_steps, scored) >= planned:  # its records complete, though its checkpoints may be elsewhere
         state = "finished"
     else:
         state = "stopped"
-    interval = _interval_seconds(metrics, config.score_every, config.learning_starts)
+    interval = _interval_seconds(metrics, config)
     start = scored if state == "running" else checkpoint_steps
     return RunStatus(
         path=run_dir, state=state, env=config.env, mode=config.missingness, seed=config.seed, planned_steps=planned,
@@ -113,18 +113,18 @@ def run_status(run_dir: str) -> RunStatus:
     )
 
 
-def _interval_seconds(metrics: list[dict], score_every: int, learning_starts: int) -> float | None:
+def _interval_seconds(metrics: list[dict], config: TrainConfig) -> float | None:
     """The mean wall time of the run's last scoring intervals (training, then scoring) that
     trained SAC, from its ``metrics.jsonl``; None where it records none. The intervals of the
     random-action warm-up (up to ``learning_starts``) take no gradient step, so they run far
     faster than the rest (the point mass: 40,000 env steps/s, then 24) and would promise a
     run's end far too soon."""
     trained = [row for row in metrics if row.get("env_steps_per_s") and "score_seconds" in row
-               and row["env_steps"] > learning_starts]
+               and trained_at(row, config)]
     recent = trained[-PACE_INTERVALS:]
     if not recent:
         return None
-    return sum(score_every / row["env_steps_per_s"] + row["score_seconds"] for row in recent) / len(recent)
+    return sum(config.score_every / row["env_steps_per_s"] + row["score_seconds"] for row in recent) / len(recent)
 
 
 def _continue_with(run_dir: str, experiment: str, checkpoint_steps: int, metrics: list[dict]) -> str:

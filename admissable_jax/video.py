@@ -127,10 +127,10 @@ def render_video(config: VideoConfig) -> Video:
     import gymnasium
     import imageio.v2 as imageio
 
-    from admissable_jax.policies import BEST, load_policy
+    from admissable_jax.policies import load_policy, requested_step
 
     check_video_config(config)
-    policy = load_policy(config.run_dir, BEST if config.best else None if config.step < 0 else config.step)
+    policy = load_policy(config.run_dir, requested_step(config.step, config.best))
     train = policy.config
     if policy.trainer.env.gymnasium_id is None:
         raise ValueError(f"{train.env} has no Gymnasium env to render")

@@ -21,7 +21,7 @@ import numpy as np
 
 from admissable_jax.cli import parse_args
 from admissable_jax.missingness import describe_set
-from admissable_jax.policies import BEST, load_policy
+from admissable_jax.policies import load_policy, requested_step
 from admissable_jax.scoring import score_missingness
 from admissable_jax.wrappers import score_policy
 from common import append_record, run_benchmark
@@ -49,7 +49,7 @@ def _validate(config: SimToSimConfig) -> None:
 
 def main(argv: list[str]) -> None:
     config = parse_args(SimToSimConfig, argv, "benchmarks/sim_to_sim.py", __doc__.strip().splitlines()[0], _validate)
-    policy = load_policy(config.run, BEST if config.best else None if config.step < 0 else config.step)
+    policy = load_policy(config.run, requested_step(config.step, config.best))
     trainer, run = policy.trainer, policy.config
     ours = score_missingness(trainer.env, trainer.policy, policy.actor_params, jax.random.key(config.seed),
                              trainer.hidden_sets, config.n_episodes, None, run.score_envs)

@@ -185,9 +185,9 @@ def _episodes_asked(config: AuditConfig) -> str:
 def audit_run(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     """Audit the run in ``config.run_dir`` at ``config.step``; write the report."""
     check_audit_config(config)
-    from admissable_jax.policies import BEST, load_policy
+    from admissable_jax.policies import load_policy, requested_step
 
-    policy = load_policy(config.run_dir, BEST if config.best else None if config.step < 0 else config.step)
+    policy = load_policy(config.run_dir, requested_step(config.step, config.best))
     return _audit_policy(config, policy, _audit_env(config, policy), policy.trainer)
 
 
@@ -320,13 +320,13 @@ def audit_experiment(config: AuditConfig) -> tuple[list[AuditResult], list[str]]
     answers what the paper's Figure 1 cannot: does training against one missing feature
     also protect against two?"""
     check_audit_config(config)
-    from admissable_jax.policies import BEST
+    from admissable_jax.policies import requested_step
 
     root = config.run_dir
     pairs = sorted(name for name in os.listdir(root) if os.path.isfile(os.path.join(root, name, "config.yaml")))
     if not pairs:
         raise FileNotFoundError(f"{root} holds an experiment.yaml but no pair directories")
-    step = BEST if config.best else None if config.step < 0 else config.step
+    step = requested_step(config.step, config.best)
     pair_out = lambda name: os.path.join(config.out, name) if config.out else ""
     results, written = _audit_each([(dataclasses.replace(config, run_dir=os.path.join(root, name), out=pair_out(name)),
                                      step) for name in pairs])
