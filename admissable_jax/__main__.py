@@ -17,7 +17,7 @@ import sys
 from admissable_jax.errors import USAGE_ERROR
 from admissable_jax.provenance import package_versions, source_commit
 
-COMMANDS = ("train", "experiment", "plot", "audit", "video", "rollout", "status")
+COMMANDS = ("train", "experiment", "plot", "audit", "video", "export", "rollout", "status")
 
 
 def summary(command: str) -> str:

@@ -211,6 +211,26 @@ def mask_observation(obs, hidden):
     return xp.concat([obs * (1 - hidden), hidden], axis=-1)
 
 
+def check_masked_batch(masked_obs: np.ndarray, num_features: int) -> None:
+    """ValueError in one line unless ``masked_obs`` is a batch of masked observations (n, 2·d),
+    as a policy's ``masked`` takes them (an unmasked batch would fail deep in the network)."""
+    if np.ndim(masked_obs) != 2 or np.shape(masked_obs)[1] != 2 * num_features:
+        raise ValueError(f"expected a batch of masked observations (n, 2·d = {2 * num_features}), "
+                         f"got shape {np.shape(masked_obs)}")
+
+
+def act_with_hidden(masked_policy, obs, hidden, num_features: int) -> np.ndarray:
+    """``masked_policy`` (a batch (n, 2·d) of masked observations -> actions (n, A)) on
+    Gymnasium observations, (d,) or (n, d), with u (feature indices or a 0/1 row) hidden:
+    the action(s) in ``obs``'s leading shape. ValueError for observations of another d."""
+    obs = np.asarray(obs, np.float32)
+    if obs.shape[-1:] != (num_features,):
+        raise ValueError(f"expected observations of {num_features} features, got shape {obs.shape}")
+    batch = obs.reshape(-1, num_features)
+    actions = np.asarray(masked_policy(mask_observation(batch, hidden_row(hidden, num_features))))
+    return actions.reshape(*obs.shape[:-1], -1)
+
+
 def inverse_score_p_miss(scores, lower_bound: float, epsilon: float):
     """p_miss(u) ∝ 1 / (max(a_u, l) − l + ε) (paper §3): the sets the agent handles worst
     are drawn most.

@@ -6,6 +6,8 @@ set u to the trainer's deterministic action, in NumPy: the policy that scoring e
 for Gymnasium's own C-MuJoCo envs (:func:`admissable_jax.wrappers.score_policy`), SB3-style
 evaluation code, or a video. It reads a ``train`` run directory (``RUN/checkpoints``) or
 one pair of an ``experiment`` (the pair's directory; the checkpoints are the experiment's).
+``policy.exported()`` gives the same policy as NumPy arrays, to save and run without JAX
+(:mod:`admissable_jax.exported_policy`, ``python -m admissable_jax.export``).
 """
 
 from __future__ import annotations
@@ -22,9 +24,10 @@ from admissable_jax.best_policy import read_best_policy
 from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.config import TrainConfig
 from admissable_jax.config import ExperimentConfig, pair_configs
+from admissable_jax.envs import observation_names
+from admissable_jax.exported_policy import ExportedPolicy
 from admissable_jax.host_loop import init_arguments, make_trainer, stacked_init_arguments, take_pair
-from admissable_jax.method import hidden_row
-from admissable_jax.missingness import mask_observation
+from admissable_jax.method import act_with_hidden, check_masked_batch
 from admissable_jax.run_directory import load_config, run_config_path
 from admissable_jax.training import Trainer, TrainState
 
@@ -68,19 +71,26 @@ class TrainedPolicy:
         return self.trainer.env.observation_size
 
     def __call__(self, obs: np.ndarray, hidden: Iterable[int] | np.ndarray = ()) -> np.ndarray:
-        obs = np.asarray(obs, np.float32)
-        if obs.shape[-1] != self.observation_size:
-            raise ValueError(f"expected observations of {self.observation_size} features, got shape {obs.shape}")
-        batch = obs.reshape(-1, self.observation_size)
-        actions = self.masked(np.asarray(mask_observation(batch, hidden_row(hidden, self.observation_size))))
-        return actions.reshape(*obs.shape[:-1], -1)
+        return act_with_hidden(self.masked, obs, hidden, self.observation_size)
 
     def masked(self, masked_obs: np.ndarray) -> np.ndarray:
-        masked_obs = jnp.asarray(masked_obs, jnp.float32)
-        if masked_obs.ndim != 2 or masked_obs.shape[1] != 2 * self.observation_size:
-            raise ValueError(f"expected a batch of masked observations (n, 2·d = {2 * self.observation_size}), "
-                             f"got shape {masked_obs.shape}")
-        return np.asarray(self._act(self.actor_params, masked_obs))
+        check_masked_batch(masked_obs, self.observation_size)
+        return np.asarray(self._act(self.actor_params, jnp.asarray(masked_obs, jnp.float32)))
+
+    def exported(self) -> ExportedPolicy:
+        """This policy as NumPy arrays (:mod:`admissable_jax.exported_policy`): the actor's
+        hidden layers and mean head (not its log-std head, which only exploration reads), the
+        action bounds, the feature names and where it came from; ``.save(path)`` writes it."""
+        layers = self.actor_params["params"]
+        order = sorted(layers, key=lambda name: int(name.rsplit("_", 1)[1]))[:-1]  # Dense_0.., the mean head; not log-std
+        train, env = self.config, self.trainer.env
+        source = {"run": os.path.abspath(train.out), "env": train.env, "gymnasium_id": env.gymnasium_id,
+                  "missingness": train.missingness, "seed": train.seed, "k": train.k, "up_to_k": train.up_to_k,
+                  "env_steps": self.step, "best_min_score": self.best_min_score}
+        return ExportedPolicy(tuple(np.asarray(layers[name]["kernel"], np.float32) for name in order),
+                              tuple(np.asarray(layers[name]["bias"], np.float32) for name in order),
+                              np.asarray(env.action_low, np.float32), np.asarray(env.action_high, np.float32),
+                              tuple(observation_names(train.env)), source)
 
 
 def _checkpoint_dir(run_dir: str) -> str:

@@ -21,6 +21,7 @@ import pytest
 from admissable_jax.audit.command import AuditConfig
 from admissable_jax.cli import parse_args
 from admissable_jax.config import ExperimentConfig, TrainConfig, config_file_of
+from admissable_jax.export import ExportConfig
 from admissable_jax.plot import PlotConfig
 from admissable_jax.rollout import RolloutConfig
 from admissable_jax.status import StatusConfig
@@ -29,7 +30,7 @@ from admissable_jax.video import VideoConfig
 ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
 DOCUMENTS = ("README.md", "benchmarks/README.md", "notebooks/quickstart.ipynb")
 COMMANDS = {"train": TrainConfig, "experiment": ExperimentConfig, "plot": PlotConfig, "audit": AuditConfig,
-            "video": VideoConfig, "rollout": RolloutConfig, "status": StatusConfig}
+            "video": VideoConfig, "export": ExportConfig, "rollout": RolloutConfig, "status": StatusConfig}
 PATHS_ONLY = ("compact_pngs", "load_policy_memory")  # scripts that take paths, no keys
 # A command line: `python -m admissable_jax.<command>` (or `python -m admissable_jax <command>`)
 # or `python benchmarks/<script>.py`, then its items up to the end of the line, a closing
@@ -104,7 +105,7 @@ def test_every_documented_command_line_parses(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # relative outs (resume=auto, resume=true read them) name no run of one's own
     commands = [(document, command, words) for document, command, words in documented_commands()
                 if command not in PATHS_ONLY]
-    assert {"train", "experiment", "plot", "audit", "video", "rollout", "status", "campaign", "figure1", "scoring_round"} <= {
+    assert {"train", "experiment", "plot", "audit", "video", "export", "rollout", "status", "campaign", "figure1", "scoring_round"} <= {
         command for _, command, _ in commands}
     assert len(commands) >= 120, len(commands)
     for document, command, words in commands:

@@ -27,6 +27,8 @@ from admissable_jax.memory import MemoryBudgetExceeded
 from admissable_jax.method import inverse_score_p_miss, parse_set
 from admissable_jax.audit import AuditConfig, audit_experiment, audit_run
 from admissable_jax.audit import main as audit_main  # the command line, in this process
+from admissable_jax.export import main as export_main
+from admissable_jax.exported_policy import ExportedPolicy
 from admissable_jax.policies import checkpoint_steps, load_policy
 
 EXPERIMENT = dict(
@@ -79,6 +81,21 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
     with pytest.raises(FileNotFoundError, match=rf"^{root} is not a run directory \(no config.yaml\); the runs under "
                                                 rf"it are its folders, like {root}/adversarial-s0$"):
         load_policy(root)
+    # Exported, each pair's best (python -m admissable_jax.export EXPERIMENT best=true): into its own folder.
+    assert export_main([root, "best=true"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == len(straight)
+    for result, line in zip(straight, lines):
+        best = load_policy(result.run_dir, "best")
+        path = os.path.join(result.run_dir, "exported", f"policy-best-step{best.step}.npz")
+        assert line.startswith(f"wrote {path}: point_mass {result.config.missingness} seed {result.config.seed} at env "
+                               f"step {best.step}, ")
+        exported = ExportedPolicy.load(path)
+        assert exported.source["best_min_score"] == best.best_min_score
+        masked = np.random.default_rng(1).normal(size=(5, 8)).astype(np.float32)
+        np.testing.assert_allclose(exported.masked(masked), best.masked(masked), rtol=1e-5, atol=1e-6)
+    assert export_main([root, "best=true", f"out={tmp_path / 'one.npz'}"]) == 2
+    assert capsys.readouterr().err.startswith(f"error: {root} is an experiment: each pair's policy goes into its own")
     # A train run into the experiment's folder, or continuing one of its pairs alone (whose
     # checkpoints are the experiment's), is refused, naming the command that continues it; so
     # is an experiment into a train run's folder (they said "already holds a run" or "no

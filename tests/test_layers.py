@@ -12,12 +12,12 @@ PACKAGE = pathlib.Path(__file__).resolve().parent.parent / "admissable_jax"
 # Bottom first. A module may import from its own layer (without a cycle) and from those below.
 LAYERS = [
     {"errors", "method", "cli", "provenance", "placement", "loggers", "locks", "memory", "checkpointing", "envs",
-     "replay", "sac_losses", "wrappers", "branching", "fingerprints", "best_policy"},  # the method, the physics, and helpers that know nothing of training
+     "replay", "sac_losses", "wrappers", "branching", "fingerprints", "best_policy", "exported_policy"},  # the method, the physics, and helpers that know nothing of training
     {"missingness", "adversary"},
     {"agent", "scoring", "config", "run_spec"},
     {"training"},  # the pure core
     {"run_directory", "fast_forward", "host_loop", "results"},  # a run's files written, and read back
-    {"train", "experiment", "policies", "plot", "audit", "video", "rollout", "status", "__main__"},  # the entry points
+    {"train", "experiment", "policies", "plot", "audit", "video", "export", "rollout", "status", "__main__"},  # the entry points
 ]
 FILE_KEEPERS = {"checkpointing", "run_directory", "host_loop", "locks", "loggers", "provenance", "cli", "best_policy"}
 PURE = {"training", "missingness", "adversary", "agent", "sac_losses", "replay", "scoring", "method", "branching",

@@ -276,7 +276,7 @@ def test_the_package_lists_its_commands(capsys):
     assert listed[3].endswith("Which sensors break a policy? A robustness audit over every set of k hidden features.")
     assert main(["env=ant"]) == 2  # a command given as a word runs: test_unwritable_out_is_one_line
     assert capsys.readouterr().err == ("error: 'env=ant' is no command: run one of train, experiment, plot, audit, "
-                                       "video, rollout, status, e.g. python -m admissable_jax train env=ant (python -m "
+                                       "video, export, rollout, status, e.g. python -m admissable_jax train env=ant (python -m "
                                        "admissable_jax lists them)\n")
     # --version: what a bug report needs, read from the installed metadata (no JAX imported).
     import importlib.metadata

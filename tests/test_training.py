@@ -33,6 +33,8 @@ from admissable_jax.best_policy import BestPolicyNotWritten, KeptPolicy, best_ke
 from admissable_jax.branching import while_any
 from admissable_jax.checkpointing import CheckpointError, Checkpoints, OtherStateLayout
 from admissable_jax.envs import observation_names
+from admissable_jax.export import main as export_main
+from admissable_jax.exported_policy import ExportedPolicy
 from admissable_jax.host_loop import TrainingDiverged, TrainingLoop
 from admissable_jax.method import inverse_score_p_miss
 from admissable_jax.policies import load_policy
@@ -217,7 +219,7 @@ def test_loggers_mirror_the_jsonl_rows(point_mass_run, tmp_path, capsys, monkeyp
         assert glob.glob(os.path.join(point_mass_run.run_dir, "wandb", f"offline-run-*-{file.read().strip()}"))
 
 
-def test_load_policy_is_the_trainers_deterministic_policy(point_mass_run, monkeypatch, tmp_path):
+def test_load_policy_is_the_trainers_deterministic_policy(point_mass_run, monkeypatch, tmp_path, capsys):
     """load_policy reads a run's checkpoint without touching it, only its networks (not
     the replay buffer beside them: GBs in a long run), and acts as scoring does."""
     import orbax.checkpoint as ocp
@@ -249,6 +251,36 @@ def test_load_policy_is_the_trainers_deterministic_policy(point_mass_run, monkey
         load_policy(run_dir, step="6000")  # (it said "no checkpoint 6000 ...; saved: [6000]")
     with pytest.raises(ValueError, match=r"hidden features must be in \[0, 4\)"):
         policy(obs, hidden=[4])
+    # Exported (python -m admissable_jax.export): the actor's layers in one .npz, and the same
+    # actions from NumPy alone, in a process that imports no JAX.
+    assert export_main([run_dir]) == 0
+    path = os.path.join(run_dir, "exported", "policy-step6000.npz")
+    assert capsys.readouterr().out == (f"wrote {path}: point_mass {point_mass_run.config.missingness} seed "
+                                       f"{point_mass_run.config.seed} at env step 6000, layers 8 -> 64 -> 64 -> 2; "
+                                       "ExportedPolicy.load(path) from admissable_jax.exported_policy runs it with "
+                                       "NumPy alone\n")
+    exported = ExportedPolicy.load(path)
+    assert repr(exported) == repr(policy).replace("TrainedPolicy", "ExportedPolicy").replace(f"({run_dir})",
+                                                                                            f"({os.path.abspath(run_dir)})")
+    np.testing.assert_allclose(exported(obs, hidden=[2]), expected, rtol=1e-5, atol=1e-6)
+    np.save(tmp_path / "obs.npy", obs)
+    code = ("import sys, numpy as np; from admissable_jax.exported_policy import ExportedPolicy; "
+            f"policy = ExportedPolicy.load({path!r}); np.save({str(tmp_path / 'acted.npy')!r}, "
+            f"policy(np.load({str(tmp_path / 'obs.npy')!r})[0], hidden=[0, 3])); assert 'jax' not in sys.modules")
+    subprocess.run([sys.executable, "-c", code], check=True)
+    np.testing.assert_allclose(np.load(tmp_path / "acted.npy"), policy(obs[0], hidden=[0, 3]), rtol=1e-5, atol=1e-6)
+    with pytest.raises(ValueError, match=r"^expected a batch of masked observations \(n, 2·d = 8\), got shape \(7, 4\)$"):
+        exported.masked(obs)
+    # Never written over: a file that is no exported policy (refused in one line, exit 2, left
+    # as it was); one that is, is replaced. Nor is such a file read as a policy.
+    stranger = tmp_path / "notes.npz"
+    stranger.write_text("my notes")
+    assert export_main([run_dir, f"out={stranger}"]) == 2
+    assert capsys.readouterr().err == (f"error: {stranger} exists and is no exported policy: it is left as it is; "
+                                       "give another out=\n") and stranger.read_text() == "my notes"
+    with pytest.raises(ValueError, match=f"^{stranger} is no exported policy of admissable_jax \\(python -m "):
+        ExportedPolicy.load(str(stranger))
+    assert export_main([run_dir, f"out={path}"]) == 0 and capsys.readouterr().out.startswith(f"wrote {path}: ")
     # The best policy: where a run keeps none (copied without it) or another run's, one line.
     copied = tmp_path / "copied"
     shutil.copytree(run_dir, copied, ignore=shutil.ignore_patterns("checkpoints", "best_policy.npz"))
