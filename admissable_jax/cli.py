@@ -24,7 +24,7 @@ from omegaconf.errors import OmegaConfBaseException
 from tqdm import auto as tqdm_auto
 from tqdm.auto import tqdm
 
-from admissable_jax.errors import INTERRUPTED, USAGE_ERROR, RunFailed
+from admissable_jax.errors import BROKEN_PIPE, INTERRUPTED, USAGE_ERROR, RunFailed
 
 ConfigT = TypeVar("ConfigT")
 T = TypeVar("T")
@@ -352,6 +352,19 @@ def exit_with(status: int) -> NoReturn:
         os._exit(status)
     gc.freeze()
     raise SystemExit(status)
+
+
+def run_main(main: Callable[[list[str]], int]) -> NoReturn:
+    """A command's ``python -m`` start: ``main`` on the process's arguments, ended by
+    :func:`exit_with`. Output piped into a reader that stopped early (``status runs | head``,
+    over 64 KB) ends the command quietly with the shell's SIGPIPE status, as Unix tools do,
+    not with a traceback; stdout then goes to the null device, where Python's exit flushes it."""
+    try:
+        status = main(sys.argv[1:])
+    except BrokenPipeError:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        status = BROKEN_PIPE
+    exit_with(status)
 
 
 @contextlib.contextmanager

@@ -10,6 +10,7 @@ import os
 USAGE_ERROR = 2  # a bad setting or an output folder that cannot be used
 RUN_FAILED = 1  # the run itself failed (its finished work is kept)
 INTERRUPTED = 130  # the shell's status for a program ended by SIGINT (Ctrl-C)
+BROKEN_PIPE = 141  # the shell's status for a program ended by SIGPIPE: its reader stopped (`| head`)
 
 
 class RunFailed(RuntimeError):

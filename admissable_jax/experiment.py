@@ -32,7 +32,7 @@ import jax
 from omegaconf import OmegaConf
 
 from admissable_jax.checkpointing import CheckpointError, Checkpoints
-from admissable_jax.cli import enable_compilation_cache, exit_with, parse_args, run_from_cli
+from admissable_jax.cli import enable_compilation_cache, parse_args, run_from_cli, run_main
 from admissable_jax.config import ExperimentConfig, TrainConfig, config_file_of, pair_configs
 from admissable_jax.errors import INTERRUPTED, make_directory, remove_if_unused
 from admissable_jax.host_loop import TrainingLoop, make_trainer, pairs_init
@@ -162,4 +162,4 @@ def scored_up_to(run_dir: str, env_steps: int) -> bool:
 
 
 if __name__ == "__main__":
-    exit_with(main(sys.argv[1:]))
+    run_main(main)

@@ -14,9 +14,8 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import sys
 
-from admissable_jax.cli import exit_with, parse_args, run_from_cli, setting
+from admissable_jax.cli import parse_args, run_from_cli, run_main, setting
 from admissable_jax.errors import make_directory
 from admissable_jax.exported_policy import ExportedPolicy, is_exported_policy
 
@@ -92,4 +91,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    exit_with(main(sys.argv[1:]))
+    run_main(main)

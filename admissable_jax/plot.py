@@ -62,7 +62,7 @@ from matplotlib.backend_bases import FigureCanvasBase  # noqa: E402
 from matplotlib.ticker import FuncFormatter  # noqa: E402
 import numpy as np  # noqa: E402
 
-from admissable_jax.cli import exit_with, fail, parse_args  # noqa: E402
+from admissable_jax.cli import fail, parse_args, run_main  # noqa: E402
 from admissable_jax.envs import ENV_SPECS  # noqa: E402
 from admissable_jax.errors import INTERRUPTED, UnusableDirectory, make_directory, remove_if_unused  # noqa: E402
 from admissable_jax.results import (  # noqa: E402
@@ -471,4 +471,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    exit_with(main(sys.argv[1:]))
+    run_main(main)

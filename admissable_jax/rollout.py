@@ -8,13 +8,12 @@ as one jitted ``lax.scan``, and prints compile time and env steps per second.
 from __future__ import annotations
 
 import dataclasses
-import sys
 import time
 
 import jax
 import jax.numpy as jnp
 
-from admissable_jax.cli import compiled_in_background, exit_with, parse_args, run_from_cli
+from admissable_jax.cli import compiled_in_background, parse_args, run_from_cli, run_main
 from admissable_jax.envs import MjxEnv, canonical_env_name, make_env, reset_where_done, resolve_physics
 
 
@@ -86,4 +85,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    exit_with(main(sys.argv[1:]))
+    run_main(main)

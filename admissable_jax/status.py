@@ -33,12 +33,11 @@ import dataclasses
 import json
 import os
 import shlex
-import sys
 import time
 
 from admissable_jax.best_policy import best_kept
 from admissable_jax.checkpointing import Checkpoints
-from admissable_jax.cli import exit_with, fail, parse_args, setting
+from admissable_jax.cli import fail, parse_args, run_main, setting
 from admissable_jax.config import TrainConfig
 from admissable_jax.locks import LOCK_NAME, live_holder
 from admissable_jax.loggers import FINGERPRINT
@@ -258,4 +257,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    exit_with(main(sys.argv[1:]))
+    run_main(main)

@@ -10,13 +10,12 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import sys
 from typing import Any
 
 import jax
 
 from admissable_jax.checkpointing import Checkpoints
-from admissable_jax.cli import enable_compilation_cache, exit_with, parse_args, run_from_cli
+from admissable_jax.cli import enable_compilation_cache, parse_args, run_from_cli, run_main
 from admissable_jax.config import TrainConfig, config_file_of, number_text
 from admissable_jax.host_loop import TrainingLoop, init_arguments, make_trainer
 from admissable_jax.run_directory import RunDirectory, check_folder_kind
@@ -104,4 +103,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    exit_with(main(sys.argv[1:]))
+    run_main(main)

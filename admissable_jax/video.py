@@ -20,13 +20,12 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # read by MuJoCo when it is first imp
 
 import contextlib  # noqa: E402
 import dataclasses  # noqa: E402
-import sys  # noqa: E402
 import warnings  # noqa: E402
 from typing import Iterator  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from admissable_jax.cli import exit_with, parse_args, run_from_cli, setting  # noqa: E402
+from admissable_jax.cli import parse_args, run_from_cli, run_main, setting  # noqa: E402
 from admissable_jax.envs import observation_names, settotalmass_warning_dropped  # noqa: E402
 from admissable_jax.errors import RunFailed, make_directory  # noqa: E402
 from admissable_jax.method import describe_set, parse_set  # noqa: E402
@@ -198,4 +197,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    exit_with(main(sys.argv[1:]))
+    run_main(main)

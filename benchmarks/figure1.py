@@ -35,7 +35,7 @@ import sys
 
 import numpy as np
 
-from admissable_jax.cli import exit_with, fail, parse_args
+from admissable_jax.cli import fail, parse_args, run_main
 from admissable_jax.errors import INTERRUPTED, UnusableDirectory, remove_if_unused
 from admissable_jax.plot import check_formats, new_folder, plot_envs_side_by_side, plot_runs
 from admissable_jax.results import (
@@ -250,4 +250,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    exit_with(main(sys.argv[1:]))
+    run_main(main)

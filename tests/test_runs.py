@@ -278,6 +278,20 @@ def test_the_package_lists_its_commands(capsys):
     assert capsys.readouterr().err == ("error: 'env=ant' is no command: run one of train, experiment, plot, audit, "
                                        "video, export, rollout, status, e.g. python -m admissable_jax train env=ant (python -m "
                                        "admissable_jax lists them)\n")
+    # Output piped into a reader that stops early (`status runs | head`, over the pipe's 64 KB)
+    # ends a command quietly with the shell's SIGPIPE status, not with a traceback; every
+    # command starts through run_main.
+    code = "from admissable_jax.cli import run_main; run_main(lambda argv: print('a row\\n' * 100_000) or 0)"
+    with subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) as shown:
+        assert shown.stdout.readline() == "a row\n"
+        shown.stdout.close()
+        assert shown.wait() == 141 and shown.stderr.read() == ""
+    import admissable_jax
+
+    for command in COMMANDS:
+        module = os.path.join(os.path.dirname(admissable_jax.__file__), command)
+        with open(f"{module}.py" if os.path.isfile(f"{module}.py") else os.path.join(module, "__main__.py")) as file:
+            assert file.read().rstrip().endswith("run_main(main)"), command
     # --version: what a bug report needs, read from the installed metadata (no JAX imported).
     import importlib.metadata
 
