@@ -14,6 +14,7 @@ from typing import Any
 
 import jax
 
+from admissable_jax.best_policy import BEST_POLICY, best_kept
 from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.cli import enable_compilation_cache, parse_args, run_from_cli, run_main
 from admissable_jax.config import TrainConfig, config_file_of, number_text
@@ -52,8 +53,9 @@ class TrainResult:
 
     def summary(self) -> str:
         """One line: how far the run got, its last min_u a_u (with a pool: the pool's lowest
-        a_u, an upper bound on min_u a_u) and clean return, where it is (an adversarial run's
-        l where it is not the paper's 0)."""
+        a_u, an upper bound on min_u a_u) and clean return, its best scoring's min_u a_u where
+        an earlier scoring's policy is kept as the best (``best_policy.npz``), and where it is
+        (an adversarial run's l where it is not the paper's 0)."""
         last = self.scores[-1]
         state = "done" if self.finished else f"paused ({self.config.planned_steps} planned; resume=true continues)"
         mode = self.config.missingness
@@ -63,8 +65,11 @@ class TrainResult:
         if self.config.pool_size:
             worst = (f"lowest a_u of the pool {last['min_score']:.1f} (u = {last['argmin_set']}; "
                      f"{self.config.pool_size} of {self.trainer.num_sets:,} sets scored)")
+        best = best_kept(self.run_dir)
+        earlier_best = "" if best is None or best[0] == last["env_steps"] else (
+            f"; its best {best[1]:.1f} at {best[0]} env steps, kept in {BEST_POLICY}")
         return (f"{state}: {self.config.env} {mode} seed {self.config.seed}, {last['env_steps']} env steps, {worst}, "
-                f"clean {last['clean_score']:.1f}; run in {self.run_dir}")
+                f"clean {last['clean_score']:.1f}{earlier_best}; run in {self.run_dir}")
 
 
 def train_fn(config: TrainConfig) -> TrainResult:

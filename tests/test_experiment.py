@@ -367,9 +367,13 @@ def test_one_program_sweeps_the_lower_bound_and_each_value_meets_the_one_uniform
         "done: point_mass adversarial", "done: point_mass adversarial (l = 15)", "done: point_mass uniform"]
     last = results[2].scores[-1]  # the whole line, as a run ends with it
     assert f"{last['clean_score']:.1f}" != f"{last['min_score']:.1f}"  # the line tells them apart
+    trained = [row for row in results[2].scores if row["env_steps"] > results[2].config.learning_starts]
+    best = max(trained, key=lambda row: row["min_score"])
+    assert best is not last  # its best scoring came earlier: the line names it, and the file that keeps it
     assert results[2].summary() == (
         f"done: point_mass uniform seed 0, 2000 env steps, min_u a_u {last['min_score']:.1f} (u = {last['argmin_set']}), "
-        f"clean {last['clean_score']:.1f}; run in {results[2].run_dir}")
+        f"clean {last['clean_score']:.1f}; its best {best['min_score']:.1f} at {best['env_steps']} env steps, kept in "
+        f"best_policy.npz; run in {results[2].run_dir}")
     for result in results[:2]:
         for row in result.scores:
             np.testing.assert_allclose(row["p_miss"], inverse_score_p_miss(

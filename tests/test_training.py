@@ -291,6 +291,10 @@ def test_load_policy_is_the_trainers_deterministic_policy(point_mass_run, monkey
 
     kept = KeptPolicy(500, 1.0, policy.actor_params, policy.critic_params)
     write_best_policy(str(copied), kept)
+    # The closing line names a best kept from before the last scoring (here: this one).
+    moved = dataclasses.replace(point_mass_run, config=dataclasses.replace(point_mass_run.config, out=str(copied)))
+    assert moved.summary().endswith(f"clean {point_mass_run.scores[-1]['clean_score']:.1f}; its best 1.0 at 500 env "
+                                    f"steps, kept in best_policy.npz; run in {copied}")
 
     def disk_full(file, **arrays):
         file.write(b"part of it")
