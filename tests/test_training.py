@@ -9,6 +9,7 @@ from __future__ import annotations
 import collections
 import csv
 import dataclasses
+import errno
 import glob
 import itertools
 import json
@@ -251,6 +252,11 @@ def test_load_policy_is_the_trainers_deterministic_policy(point_mass_run, monkey
         load_policy(run_dir, step="6000")  # (it said "no checkpoint 6000 ...; saved: [6000]")
     with pytest.raises(ValueError, match=r"hidden features must be in \[0, 4\)"):
         policy(obs, hidden=[4])
+
+    def disk_full(file, **arrays):
+        file.write(b"part of it")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
     # Exported (python -m admissable_jax.export): the actor's layers in one .npz, and the same
     # actions from NumPy alone, in a process that imports no JAX.
     assert export_main([run_dir]) == 0
@@ -281,25 +287,24 @@ def test_load_policy_is_the_trainers_deterministic_policy(point_mass_run, monkey
     with pytest.raises(ValueError, match=f"^{stranger} is no exported policy of admissable_jax \\(python -m "):
         ExportedPolicy.load(str(stranger))
     assert export_main([run_dir, f"out={path}"]) == 0 and capsys.readouterr().out.startswith(f"wrote {path}: ")
+    with monkeypatch.context() as patched:  # a write that fails (a full disk): nothing half-written, the file before kept
+        patched.setattr(np, "savez", disk_full)
+        assert export_main([run_dir, f"out={path}"]) == 1
+    assert capsys.readouterr().err == f"error: cannot write the exported policy {path}: No space left on device\n"
+    assert os.listdir(os.path.dirname(path)) == ["policy-step6000.npz"]
+    assert ExportedPolicy.load(path).source["env_steps"] == 6000
     # The best policy: where a run keeps none (copied without it) or another run's, one line.
     copied = tmp_path / "copied"
     shutil.copytree(run_dir, copied, ignore=shutil.ignore_patterns("checkpoints", "best_policy.npz"))
     with pytest.raises(FileNotFoundError, match=f"^{copied} keeps no best_policy.npz: a run writes it at each scoring"):
         load_policy(str(copied), "best")
     # A write that fails (a full disk) removes what it wrote, keeps the earlier best and says so in one line.
-    import errno
-
     kept = KeptPolicy(500, 1.0, policy.actor_params, policy.critic_params)
     write_best_policy(str(copied), kept)
     # The closing line names a best kept from before the last scoring (here: this one).
     moved = dataclasses.replace(point_mass_run, config=dataclasses.replace(point_mass_run.config, out=str(copied)))
     assert moved.summary().endswith(f"clean {point_mass_run.scores[-1]['clean_score']:.1f}; its best 1.0 at 500 env "
                                     f"steps, kept in best_policy.npz; run in {copied}")
-
-    def disk_full(file, **arrays):
-        file.write(b"part of it")
-        raise OSError(errno.ENOSPC, "No space left on device")
-
     monkeypatch.setattr(np, "savez", disk_full)
     with pytest.raises(BestPolicyNotWritten, match=f"^cannot write the best policy of env step 600 in {copied}: No space "
                                                    f"left on device; the partial write was removed; free space, then "
