@@ -301,10 +301,14 @@ def test_load_policy_is_the_trainers_deterministic_policy(point_mass_run, monkey
     # A write that fails (a full disk) removes what it wrote, keeps the earlier best and says so in one line.
     kept = KeptPolicy(500, 1.0, policy.actor_params, policy.critic_params)
     write_best_policy(str(copied), kept)
-    # The closing line names a best kept from before the last scoring (here: this one).
-    moved = dataclasses.replace(point_mass_run, config=dataclasses.replace(point_mass_run.config, out=str(copied)))
-    assert moved.summary().endswith(f"clean {point_mass_run.scores[-1]['clean_score']:.1f}; its best 1.0 at 500 env "
-                                    f"steps, kept in best_policy.npz; run in {copied}")
+    # The closing line names a best kept from before the last scoring (here: this one), not one of the last.
+    moved = lambda out: dataclasses.replace(point_mass_run, config=dataclasses.replace(point_mass_run.config, out=out))
+    assert moved(str(copied)).summary().endswith(f"clean {point_mass_run.scores[-1]['clean_score']:.1f}; its best 1.0 at "
+                                                 f"500 env steps, kept in best_policy.npz; run in {copied}")
+    os.makedirs(tmp_path / "best_last")
+    write_best_policy(str(tmp_path / "best_last"), dataclasses.replace(kept, env_steps=6000))
+    assert moved(str(tmp_path / "best_last")).summary().endswith(
+        f"clean {point_mass_run.scores[-1]['clean_score']:.1f}; run in {tmp_path / 'best_last'}")
     monkeypatch.setattr(np, "savez", disk_full)
     with pytest.raises(BestPolicyNotWritten, match=f"^cannot write the best policy of env step 600 in {copied}: No space "
                                                    f"left on device; the partial write was removed; free space, then "
