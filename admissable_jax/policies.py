@@ -82,7 +82,8 @@ class TrainedPolicy:
         hidden layers and mean head (not its log-std head, which only exploration reads), the
         action bounds, the feature names and where it came from; ``.save(path)`` writes it."""
         layers = self.actor_params["params"]
-        order = sorted(layers, key=lambda name: int(name.rsplit("_", 1)[1]))[:-1]  # Dense_0.., the mean head; not log-std
+        mean_head = len(self.trainer.agent.hp.hidden_sizes)  # agent.Actor: Dense_0.. hidden, the mean head, the log-std head
+        order = [f"Dense_{index}" for index in range(mean_head + 1)]
         train, env = self.config, self.trainer.env
         source = {"run": os.path.abspath(train.out), "env": train.env, "gymnasium_id": env.gymnasium_id,
                   "missingness": train.missingness, "seed": train.seed, "k": train.k, "up_to_k": train.up_to_k,
