@@ -22,6 +22,7 @@ import pytest
 
 from admissable_jax import TrainConfig, candidate_sets, make_env, mask_observation, score_missingness, train_fn
 from admissable_jax.audit import audit, main as audit_main
+from admissable_jax.exported_policy import ExportedPolicy
 from admissable_jax.policies import load_policy
 from admissable_jax.scoring import beam_search_worst_sets, estimate_scores
 from admissable_jax.scoring.set_search import first_copies
@@ -426,8 +427,28 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
     assert set(BATCH_SIZES) == {3}
     record = json.loads((tmp_path / "cli" / "audit.json").read_text())
     assert [entry["score"] for entry in record["sets"]["2"]] == [15.0, 10.0, 5.0]
+    assert record["source"]["policy"] == "test_audit:counted_sum_of_visible"  # (it said "call", its wrapper's name)
     assert ("k=2: worst 1, 2 ([1, 2]): a_u 5.0 ± 0.0, 83.3% below clean 30.0; mean over the 3 sets 10.0; told apart "
             "from every other set") in capfd.readouterr().out
+    # An exported policy (python -m admissable_jax.export), policy=FILE.npz: its run names the
+    # Gymnasium env and the set sizes (k = 2 with up_to_k: 1 and 2) and its features' names,
+    # the numbers are its masked batches' audited from Python, and the report says whence it came.
+    exported = ExportedPolicy((np.array([[0.01]] * 3 + [[0.0]] * 3, np.float32), np.ones((1, 1), np.float32)),
+                              (np.zeros(1, np.float32), np.zeros(1, np.float32)), np.array([-100.0], np.float32),
+                              np.array([100.0], np.float32), ("one", "two", "three"),
+                              {"run": "runs/x", "env": "constant", "gymnasium_id": "ConstantFeatures-v0",
+                               "missingness": "uniform", "seed": 3, "k": 2, "up_to_k": True, "env_steps": 500,
+                               "best_min_score": 4.25})
+    exported.save(str(tmp_path / "constant.npz"))
+    assert audit_main([f"policy={tmp_path / 'constant.npz'}", "episodes=2", f"out={tmp_path / 'exported'}"]) == 0
+    record = json.loads((tmp_path / "exported" / "audit.json").read_text())
+    direct = audit_gymnasium("ConstantFeatures-v0", exported.masked, ks=(1, 2), n_episodes=2)
+    assert sorted(record["sets"]) == ["1", "2"] and record["feature_names"] == ["one", "two", "three"]
+    for k in (1, 2):
+        assert [entry["score"] for entry in record["sets"][str(k)]] == [entry.score for entry in direct.sets[k]]
+    assert record["source"] == {"Gymnasium env": "ConstantFeatures-v0", "policy": str(tmp_path / "constant.npz"),
+                                "exported from": "runs/x (uniform, seed 3) at env step 500, its best scoring "
+                                                 "(training's min_u a_u 4.2)"}
     # tell_apart: every return here is constant, so no gap needs more episodes than the pilot's 2.
     assert audit_main(["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "k=1,2", "episodes=2",
                        "tell_apart=true", f"out={tmp_path / 'told'}"]) == 0

@@ -30,6 +30,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from admissable_jax import TrainConfig, candidate_sets, make_env, mask_observation, score_missingness, train_fn
+from admissable_jax.audit import main as audit_main
 from admissable_jax.best_policy import BestPolicyNotWritten, KeptPolicy, best_kept, write_best_policy
 from admissable_jax.branching import while_any
 from admissable_jax.checkpointing import CheckpointError, Checkpoints, OtherStateLayout
@@ -277,6 +278,8 @@ def test_load_policy_is_the_trainers_deterministic_policy(point_mass_run, monkey
     np.testing.assert_allclose(np.load(tmp_path / "acted.npy"), policy(obs[0], hidden=[0, 3]), rtol=1e-5, atol=1e-6)
     with pytest.raises(ValueError, match=r"^expected a batch of masked observations \(n, 2·d = 8\), got shape \(7, 4\)$"):
         exported.masked(obs)
+    assert audit_main([f"policy={path}"]) == 2  # the point mass has no Gymnasium env for the audit to name
+    assert capsys.readouterr().err == f"error: {path} is a policy of point_mass, which has no Gymnasium env: give gym=\n"
     # Never written over: a file that is no exported policy (refused in one line, exit 2, left
     # as it was); one that is, is replaced. Nor is such a file read as a policy.
     stranger = tmp_path / "notes.npz"

@@ -7,7 +7,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import os
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 
 from admissable_jax.audit.report import compare_modes, comparison_chart, over_training_chart, over_training_table, \
     pair_curves, shapley_order, write_audit
@@ -23,7 +23,6 @@ from admissable_jax.scoring.attribution import MIN_ORDERS, ShapleyPlan
 if TYPE_CHECKING:  # for the annotations only
     import numpy as np
 
-    from admissable_jax.config import TrainConfig
     from admissable_jax.envs import MjxEnv
     from admissable_jax.policies import TrainedPolicy
     from admissable_jax.training import Trainer
@@ -57,7 +56,8 @@ class AuditConfig:
     steps: str = setting("", "audit several checkpoints of one run: 'all' or a comma list of env steps; each into "
                              "its folder, then robustness_over_training.md/.png (worst and mean a_u per k by step)")
     policy: str = setting("", "instead of a run: MODULE:NAME, any Python policy masked_obs_batch -> actions "
-                              "(Stable-Baselines3, CleanRL, PyTorch) to audit on the Gymnasium env gym=")
+                              "(Stable-Baselines3, CleanRL, PyTorch) to audit on the Gymnasium env gym=; or FILE.npz, "
+                              "a policy python -m admissable_jax.export wrote (gym= and k= default to its run's)")
     gym: str = setting("", "with policy=: the Gymnasium env id (Hopper-v5, or any other; hopper names Hopper-v5 as "
                            "env= does) the policy acts in")
     tell_apart: bool = setting(False, "audit twice: a pilot of `episodes` per set, then, from fresh start states, as "
@@ -68,11 +68,11 @@ class AuditConfig:
                                 "coalitions are fewer); 0 = none")
 
 
-def _ks(text: str, train: TrainConfig | None = None) -> tuple[int, ...]:
-    """The set sizes ``k=`` asks for; where it is empty, those of the sets the run ``train``
-    trained against (a Python policy's: 1)."""
+def _ks(text: str, trained_k: int = 1, up_to_k: bool = False) -> tuple[int, ...]:
+    """The set sizes ``k=`` asks for; where it is empty, those of the sets the policy trained
+    against (a run's k and up_to_k; a Python policy's: 1)."""
     if not text.strip():
-        return tuple(set_sizes(train.k, train.up_to_k)) if train is not None else (1,)
+        return tuple(set_sizes(trained_k, up_to_k))
     try:
         ks = tuple(sorted({int(part) for part in text.split(",") if part.strip()}))
     except ValueError:
@@ -88,8 +88,9 @@ def _sizes(ks: tuple[int, ...]) -> str:
 
 def check_audit_config(config: AuditConfig) -> None:
     if config.policy or config.gym:
-        if config.run_dir or not (config.policy and config.gym):
-            raise ValueError("a Python policy is audited with policy=MODULE:NAME and gym=ENV_ID, and no run directory")
+        if config.run_dir or not config.policy or not (config.gym or config.policy.endswith(".npz")):
+            raise ValueError("a Python policy is audited with policy=MODULE:NAME and gym=ENV_ID (an exported policy: "
+                             "policy=FILE.npz), and no run directory")
         if config.score_estimator != "rollout" or config.search != "exact":
             raise ValueError("a Python policy is audited by rollouts of every set (it has no critic to estimate with)")
     elif not config.run_dir:
@@ -129,20 +130,53 @@ def _shapley(text: str) -> int | str:
     raise ValueError(f"shapley must be 0 (none), exact, or at least {MIN_ORDERS} feature orders, got {text!r}")
 
 
-def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
-    """Audit ``config.policy`` (MODULE:NAME, importable from here) on the Gymnasium env
-    ``config.gym`` by :func:`~admissable_jax.audit.sets.audit_gymnasium`; write the report
-    into ``config.out`` (default ``audit-<ENV_ID>-<NAME>``). ``gym=`` may name one of our
-    envs as ``env=`` does (``hopper`` for Hopper-v5)."""
-    import importlib
+class GymnasiumPolicy(NamedTuple):
+    """What ``policy=`` names, ready to audit on a Gymnasium env."""
 
+    policy: Callable[[np.ndarray], Any]  # masked_obs_batch -> actions
+    name: str  # the default folder's
+    gym: str  # the Gymnasium env id (or our env's name, as env= takes it)
+    ks: tuple[int, ...]
+    source: dict[str, str]  # for the report, beside the env and the policy
+    feature_names: list[str] | None  # None: our env's names, or the indices
+
+
+def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
+    """Audit ``config.policy`` on the Gymnasium env ``config.gym`` by
+    :func:`~admissable_jax.audit.sets.audit_gymnasium`: MODULE:NAME (importable from here),
+    or an exported policy's FILE.npz (:mod:`admissable_jax.exported_policy`), whose run
+    names the env and the set sizes where ``gym=`` and ``k=`` do not; write the report into
+    ``config.out`` (default ``audit-<ENV_ID>-<NAME>``). ``gym=`` may name one of our envs as
+    ``env=`` does (``hopper`` for Hopper-v5)."""
     from admissable_jax.envs.catalog import gymnasium_env_id
 
     check_audit_config(config)
-    config = dataclasses.replace(config, gym=gymnasium_env_id(config.gym))
+    audited = _exported(config) if config.policy.endswith(".npz") else _imported(config)
+    config = dataclasses.replace(config, gym=gymnasium_env_id(audited.gym))
+    d = gymnasium_features(config.gym)
+    audit_sizes(audited.ks, d)  # before anything is written
+    out = config.out or f"audit-{config.gym}-{audited.name}"
+    with _audit_folder(out):
+        with reporting(f"auditing {config.policy} on {config.gym} for k={_sizes(audited.ks)} "
+                       f"({_episodes_asked(config)})"):
+            result = audit_gymnasium(config.gym, _named(audited.policy, config.policy), audited.ks, config.episodes,
+                                     num_envs=config.slots or 8, seed=config.seed,
+                                     feature_names=audited.feature_names if len(audited.feature_names or ()) == d
+                                     else None, shapley=_shapley(config.shapley), progress=True,
+                                     tell_apart=config.tell_apart)
+        result = dataclasses.replace(result, source={**result.source, **audited.source})
+        return result, write_audit(result, out, config.top)
+
+
+def _imported(config: AuditConfig) -> GymnasiumPolicy:
+    """``policy=MODULE:NAME``, imported; ValueError in one line where it does not load or
+    is no callable."""
+    import importlib
+
     module_name, _, name = config.policy.partition(":")
     if not module_name or not name:
-        raise ValueError(f"policy must be MODULE:NAME (a callable in an importable module), got {config.policy!r}")
+        raise ValueError(f"policy must be MODULE:NAME (a callable in an importable module) or an exported policy's "
+                         f"FILE.npz, got {config.policy!r}")
     try:
         policy = getattr(importlib.import_module(module_name), name)
     except (ImportError, AttributeError) as error:
@@ -150,16 +184,27 @@ def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     if not callable(policy):
         raise ValueError(f"policy={config.policy} is not callable (its type: {type(policy).__name__}): give a function "
                          "masked_obs_batch -> actions")
-    ks = _ks(config.k)
-    audit_sizes(ks, gymnasium_features(config.gym))  # before anything is written
-    out = config.out or f"audit-{config.gym}-{name}"
-    with _audit_folder(out):
-        with reporting(f"auditing {config.policy} on {config.gym} for k={_sizes(ks)} ({_episodes_asked(config)})"):
-            result = audit_gymnasium(config.gym, _named(policy, config.policy), ks, config.episodes,
-                                     num_envs=config.slots or 8,
-                                     seed=config.seed, shapley=_shapley(config.shapley), progress=True,
-                                     tell_apart=config.tell_apart)
-        return result, write_audit(result, out, config.top)
+    return GymnasiumPolicy(policy, name, config.gym, _ks(config.k), {}, None)
+
+
+def _exported(config: AuditConfig) -> GymnasiumPolicy:
+    """``policy=FILE.npz``, an exported policy: the Gymnasium env and set sizes its run
+    trained on where ``gym=`` and ``k=`` do not say, its features' names, and where it came
+    from for the report."""
+    from admissable_jax.exported_policy import ExportedPolicy
+
+    exported = ExportedPolicy.load(config.policy)
+    trained = exported.source
+    gym = config.gym or trained.get("gymnasium_id")
+    if not gym:
+        raise ValueError(f"{config.policy} is a policy of {trained.get('env')}, which has no Gymnasium env: give gym=")
+    best = trained.get("best_min_score")
+    came_from = (f"{trained.get('run')} ({trained.get('missingness')}, seed {trained.get('seed')}) at env step "
+                 f"{trained.get('env_steps')}" + ("" if best is None else f", its best scoring (training's min_u a_u "
+                                                                          f"{best:.1f})"))
+    return GymnasiumPolicy(exported.masked, os.path.splitext(os.path.basename(config.policy))[0], gym,
+                           _ks(config.k, trained.get("k", 1), trained.get("up_to_k", False)),
+                           {"exported from": came_from}, list(exported.observation_names))
 
 
 @contextlib.contextmanager
@@ -202,6 +247,7 @@ def _named(policy: Callable[[np.ndarray], Any], name: str) -> Callable[[np.ndarr
             first_line = next(iter(str(error).splitlines()), "")
             raise ValueError(f"policy={name} raised {type(error).__name__}: {first_line}") from error
 
+    call.__name__ = name  # what the report calls the policy
     return call
 
 
@@ -222,7 +268,7 @@ def _slots(config: AuditConfig, policy: TrainedPolicy) -> int:
     from admissable_jax.config import default_score_envs
 
     d = policy.observation_size
-    num_sets = rollout_sets(d, _ks(config.k, policy.config), config.search, config.beam_width, _plan(config, d))
+    num_sets = rollout_sets(d, _ks(config.k, policy.config.k, policy.config.up_to_k), config.search, config.beam_width, _plan(config, d))
     episodes = (num_sets + 1) * config.episodes
     return min(episodes, config.slots) if config.slots else min(default_score_envs(episodes), 4096)
 
@@ -243,7 +289,7 @@ def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
     out = config.out or os.path.join(config.run_dir, f"audit-{'best-' * best}step{policy.step}")
     train = policy.config
     d = policy.observation_size
-    ks = audit_sizes(_ks(config.k, train), d)  # before the audit starts
+    ks = audit_sizes(_ks(config.k, train.k, train.up_to_k), d)  # before the audit starts
     check_audit_size(train.env, d, ks, config.episodes, config.search, config.beam_width, _plan(config, d))
     with _audit_folder(out):
         which = f"the best policy (env step {policy.step})" if best else f"checkpoint {policy.step}"
