@@ -1244,7 +1244,7 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                               "x = x @ weight + bias", "test_training.py"),
     "exported_unscaled_actions": ("admissable_jax/exported_policy.py",
                                   "return self.action_low + (squashed + 1.0) * 0.5 * (self.action_high - self.action_low)",
-                                  "return squashed", "test_training.py"),
+                                  "return squashed", "test_audit.py"),
     "exported_log_std_head_for_the_mean": ("admissable_jax/policies.py",
                                            "in range(mean_head + 1)]", "in [*range(mean_head), mean_head + 1]]",
                                            "test_training.py"),
