@@ -114,7 +114,7 @@ class ExportedPolicy:
                              "writes them)")
         try:
             data = np.load(path)
-        except (OSError, ValueError, EOFError):
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile):  # not NumPy's, or cut short
             raise refused from None
         if not isinstance(data, np.lib.npyio.NpzFile):
             raise refused

@@ -287,8 +287,12 @@ def test_load_policy_is_the_trainers_deterministic_policy(point_mass_run, monkey
     assert export_main([run_dir, f"out={stranger}"]) == 2
     assert capsys.readouterr().err == (f"error: {stranger} exists and is no exported policy: it is left as it is; "
                                        "give another out=\n") and stranger.read_text() == "my notes"
-    with pytest.raises(ValueError, match=f"^{stranger} is no exported policy of admissable_jax \\(python -m "):
-        ExportedPolicy.load(str(stranger))
+    cut_short = tmp_path / "cut.npz"  # an export cut short (a copy that stopped), as another NumPy file
+    cut_short.write_bytes(open(path, "rb").read()[:5000])
+    np.save(tmp_path / "array.npy", obs)
+    for refused in (stranger, cut_short, tmp_path / "array.npy", os.path.join(run_dir, "best_policy.npz")):
+        with pytest.raises(ValueError, match=f"^{refused} is no exported policy of admissable_jax \\(python -m "):
+            ExportedPolicy.load(str(refused))
     assert export_main([run_dir, f"out={path}"]) == 0 and capsys.readouterr().out.startswith(f"wrote {path}: ")
     with monkeypatch.context() as patched:  # a write that fails (a full disk): nothing half-written, the file before kept
         patched.setattr(np, "savez", disk_full)
