@@ -120,8 +120,12 @@ class ExportedPolicy:
             raise refused
         with data:
             try:
-                if str(data["format"]) != FORMAT:
-                    raise refused
+                found = str(data["format"])
+                if found != FORMAT:
+                    ours = found.startswith(FORMAT.rsplit(" ", 1)[0])  # a later (or earlier) version's layout
+                    raise refused if not ours else ValueError(
+                        f"{path} is an exported policy of another version of admissable_jax ({found!r}; this one "
+                        f"reads {FORMAT!r})")
                 layers = sum(name.startswith("weight_") for name in data.files)
                 return cls(tuple(data[f"weight_{layer}"].astype(np.float32) for layer in range(layers)),
                            tuple(data[f"bias_{layer}"].astype(np.float32) for layer in range(layers)),

@@ -293,6 +293,12 @@ def test_load_policy_is_the_trainers_deterministic_policy(point_mass_run, monkey
     for refused in (stranger, cut_short, tmp_path / "array.npy", os.path.join(run_dir, "best_policy.npz")):
         with pytest.raises(ValueError, match=f"^{refused} is no exported policy of admissable_jax \\(python -m "):
             ExportedPolicy.load(str(refused))
+    with np.load(path) as data:  # a later version's format, whose arrays may mean other things
+        np.savez(tmp_path / "later.npz", **{**data, "format": np.str_("admissable_jax exported policy 2")})
+    with pytest.raises(ValueError, match=f"^{tmp_path / 'later.npz'} is an exported policy of another version of "
+                                         "admissable_jax \\('admissable_jax exported policy 2'; this one reads "
+                                         "'admissable_jax exported policy 1'\\)$"):
+        ExportedPolicy.load(str(tmp_path / "later.npz"))
     assert export_main([run_dir, f"out={path}"]) == 0 and capsys.readouterr().out.startswith(f"wrote {path}: ")
     with monkeypatch.context() as patched:  # a write that fails (a full disk): nothing half-written, the file before kept
         patched.setattr(np, "savez", disk_full)
