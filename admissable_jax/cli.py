@@ -358,11 +358,10 @@ def run_main(main: Callable[[list[str]], int]) -> NoReturn:
     """A command's ``python -m`` start: ``main`` on the process's arguments, ended by
     :func:`exit_with`. Output piped into a reader that stopped early (``status runs | head``,
     over 64 KB) ends the command quietly with the shell's SIGPIPE status, as Unix tools do,
-    not with a traceback; stdout then goes to the null device, where Python's exit flushes it."""
+    not with a traceback."""
     try:
         status = main(sys.argv[1:])
     except BrokenPipeError:
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         status = BROKEN_PIPE
     exit_with(status)
 
