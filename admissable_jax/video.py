@@ -1,6 +1,7 @@
 """A video of a trained policy: nothing hidden, beside the same start with u hidden.
 
 ``python -m admissable_jax.video RUN_DIR hidden=worst out=FILE.mp4``
+(``policy=FILE.npz hidden=...``: a policy ``export`` wrote, without its run)
 
 The run's deterministic policy (:func:`~admissable_jax.policies.load_policy`) acts in
 Gymnasium's own C-MuJoCo env, the client every trained policy is for: two copies reset with
@@ -21,7 +22,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # read by MuJoCo when it is first imp
 import contextlib  # noqa: E402
 import dataclasses  # noqa: E402
 import warnings  # noqa: E402
-from typing import Iterator  # noqa: E402
+from typing import Callable, Iterator  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -37,10 +38,12 @@ PANEL_WIDTH, PANEL_HEIGHT, LABEL_HEIGHT = 480, 352, 32  # multiples of 16, as H.
 @dataclasses.dataclass
 class VideoConfig:
     run_dir: str = setting("", "a train run directory or an experiment pair's (may be given first, without run_dir=)")
+    policy: str = setting("", "instead of a run: a policy python -m admissable_jax.export wrote (FILE.npz), shown in its "
+                              "run's Gymnasium env; name hidden= (it holds no scorings)")
     hidden: str = setting("worst", "u: feature indices or names, comma separated (e.g. 2 or 'thigh joint angle'); "
                                    "worst = argmin_u a_u of the checkpoint's scoring")
     out: str = setting("", "the .mp4 to write (default RUN_DIR/videos/step<STEP>-hidden<u>.mp4; best=true: "
-                           "best-step<STEP>-...)")
+                           "best-step<STEP>-...; policy=: videos/<its name>-hidden<u>.mp4 beside the file)")
     step: int = setting(-1, "the checkpoint (env step); -1 = the latest")
     best: bool = setting(False, "the policy the run kept at its best scoring (best_policy.npz) instead of a checkpoint")
     seed: int = setting(0, "reset seed of the start state both sides share")
@@ -53,8 +56,12 @@ class RenderingUnavailable(RunFailed):
 
 
 def check_video_config(config: VideoConfig) -> None:
-    if not config.run_dir:
-        raise ValueError("give the run directory: python -m admissable_jax.video RUN_DIR [hidden=...] [out=FILE.mp4]")
+    if bool(config.run_dir) == bool(config.policy):
+        raise ValueError("give the run directory, or an exported policy's file: python -m admissable_jax.video RUN_DIR "
+                         "[hidden=...] [out=FILE.mp4], or policy=FILE.npz hidden=...")
+    if config.policy and (config.hidden.strip() == "worst" or config.best or config.step >= 0):
+        raise ValueError("an exported policy holds no scorings nor checkpoints: name the features to hide (hidden=0,3 "
+                         "or hidden='thigh joint angle'; hidden= for none), without best= or step=")
     if config.best and config.step >= 0:
         raise ValueError(f"best=true shows the policy the run kept at its best scoring: give no step= (got {config.step})")
     if config.frames < 1:
@@ -80,10 +87,9 @@ class Video:
     frames: int
 
 
-def resolve_hidden(hidden: str, env_name: str, scores: list[dict], step: int) -> tuple[int, ...]:
+def resolve_hidden(hidden: str, env_name: str, names: list[str], scores: list[dict], step: int) -> tuple[int, ...]:
     """u from ``hidden``: ``worst`` (argmin of the scoring row at ``step``), or indices and
-    feature names (:func:`~admissable_jax.envs.observation_names`), comma separated."""
-    names = observation_names(env_name)
+    feature ``names`` (env ``env_name``'s), comma separated."""
     if hidden.strip() == "worst":
         rows = [row for row in scores if row["env_steps"] == step]
         if not rows:
@@ -101,6 +107,48 @@ def resolve_hidden(hidden: str, env_name: str, scores: list[dict], step: int) ->
             raise ValueError(f"hidden: {item!r} is neither a feature index below {len(names)} nor a feature name of "
                              f"{env_name} ({', '.join(names[:4])}, ...; see observation_names)")
     return tuple(sorted(set(chosen)))
+
+
+@dataclasses.dataclass
+class _Shown:
+    """What the video shows: the policy, its Gymnasium env, u, and the default file's path."""
+
+    act: Callable[..., np.ndarray]  # policy(obs, hidden=()) -> action
+    gymnasium_id: str | None
+    env_name: str
+    hidden: tuple[int, ...]
+    names: tuple[str, ...]
+    step: int
+    out: str
+
+
+def _shown(config: VideoConfig) -> _Shown:
+    """The run's policy (:func:`~admissable_jax.policies.load_policy`) or the exported one."""
+    if config.policy:
+        from admissable_jax.exported_policy import ExportedPolicy
+
+        exported = ExportedPolicy.load(config.policy)
+        env_name, names = exported.source.get("env"), list(exported.observation_names)
+        hidden = resolve_hidden(config.hidden, env_name, names, [], -1)
+        stem = os.path.splitext(os.path.basename(config.policy))[0]
+        out = os.path.join(os.path.dirname(config.policy), "videos", f"{stem}-hidden{_set_text(hidden)}.mp4")
+        return _Shown(exported, exported.source.get("gymnasium_id"), env_name, hidden,
+                      tuple(names[i] for i in hidden), exported.source.get("env_steps"), out)
+    from admissable_jax.policies import load_policy, requested_step
+
+    policy = load_policy(config.run_dir, requested_step(config.step, config.best))
+    train = policy.config
+    scorings = read_jsonl(os.path.join(config.run_dir, "scores.jsonl"), required=SCORING_KEYS)
+    names = observation_names(train.env)
+    hidden = resolve_hidden(config.hidden, train.env, names, scorings, policy.step)
+    best = "best-" * (policy.best_min_score is not None)
+    out = os.path.join(config.run_dir, "videos", f"{best}step{policy.step}-hidden{_set_text(hidden)}.mp4")
+    return _Shown(policy, policy.trainer.env.gymnasium_id, train.env, hidden, tuple(names[i] for i in hidden),
+                  policy.step, out)
+
+
+def _set_text(hidden: tuple[int, ...]) -> str:
+    return "-".join(map(str, hidden)) or "none"
 
 
 def _labelled(frame: np.ndarray, text: str) -> np.ndarray:
@@ -126,24 +174,17 @@ def render_video(config: VideoConfig) -> Video:
     import gymnasium
     import imageio.v2 as imageio
 
-    from admissable_jax.policies import load_policy, requested_step
-
     check_video_config(config)
-    policy = load_policy(config.run_dir, requested_step(config.step, config.best))
-    train = policy.config
-    if policy.trainer.env.gymnasium_id is None:
-        raise ValueError(f"{train.env} has no Gymnasium env to render")
-    scorings = read_jsonl(os.path.join(config.run_dir, "scores.jsonl"), required=SCORING_KEYS)
-    hidden = resolve_hidden(config.hidden, train.env, scorings, policy.step)
-    names = tuple(observation_names(train.env)[i] for i in hidden)
-    best = "best-" * (policy.best_min_score is not None)
-    out = config.out or os.path.join(config.run_dir, "videos",
-                                     f"{best}step{policy.step}-hidden{'-'.join(map(str, hidden)) or 'none'}.mp4")
+    shown = _shown(config)
+    if shown.gymnasium_id is None:
+        raise ValueError(f"{shown.env_name} has no Gymnasium env to render")
+    hidden, names, policy = shown.hidden, shown.names, shown.act
+    out = config.out or shown.out
     make_directory(os.path.dirname(os.path.abspath(out)), "video folder")
 
     sides = [(), hidden]
     with settotalmass_warning_dropped():
-        envs = [gymnasium.make(policy.trainer.env.gymnasium_id, render_mode="rgb_array", width=PANEL_WIDTH,
+        envs = [gymnasium.make(shown.gymnasium_id, render_mode="rgb_array", width=PANEL_WIDTH,
                                height=PANEL_HEIGHT) for _ in sides]  # Gymnasium's own env: its 1000-step limit
     try:
         observations = [env.reset(seed=config.seed)[0] for env in envs]
@@ -180,7 +221,7 @@ def render_video(config: VideoConfig) -> Video:
     finally:
         for env in envs:
             env.close()
-    return Video(out, hidden, names, policy.step, returns[0], returns[1], lengths[0], lengths[1], frame + 1)
+    return Video(out, hidden, names, shown.step, returns[0], returns[1], lengths[0], lengths[1], frame + 1)
 
 
 def main(argv: list[str]) -> int:

@@ -29,6 +29,7 @@ import yaml
 
 from admissable_jax import TrainConfig, make_env
 from admissable_jax.best_policy import best_kept
+from admissable_jax.envs import observation_names
 from admissable_jax.experiment import ExperimentConfig, run_experiment
 from admissable_jax.host_loop import PhysicsCapacityExceeded
 from admissable_jax.train import train_fn
@@ -324,9 +325,10 @@ def test_video_of_the_trained_hopper_beside_its_worst_set(jax_run, tmp_path, cap
     # of the checkpoint's own scoring (step= an older checkpoint: not the last row's).
     pooled = [{"env_steps": 80, "argmin": 1, "argmin_set": "{3,7}", "sets": ["{0,1}", "{3,7}"]},
               {"env_steps": 120, "argmin": 0, "argmin_set": "{5}", "sets": ["{5}", "{3,7}"]}]
-    assert [video.resolve_hidden("worst", "hopper", pooled, step) for step in (80, 120)] == [(3, 7), (5,)]
+    names = observation_names("hopper")
+    assert [video.resolve_hidden("worst", "hopper", names, pooled, step) for step in (80, 120)] == [(3, 7), (5,)]
     with pytest.raises(ValueError, match="^hidden=worst needs the scoring at env step 100, which scores.jsonl does not hold"):
-        video.resolve_hidden("worst", "hopper", pooled, 100)  # a checkpoint between scorings (ζ changed on resume)
+        video.resolve_hidden("worst", "hopper", names, pooled, 100)  # a checkpoint between scorings (ζ changed on resume)
     # 20 frames: the start, one per step until this barely trained Hopper falls (both sides
     # within 19 steps), then the end held (for up to a second).
     assert made.frames == 20 and 0 < made.hidden_length <= 19 and 0 < made.clean_length <= 19
@@ -347,6 +349,18 @@ def test_video_of_the_trained_hopper_beside_its_worst_set(jax_run, tmp_path, cap
     assert same.hidden == () and (same.clean_return, same.clean_length) == (same.hidden_return, same.hidden_length)
     assert same.step == max((row for row in jax_run.scores if row["env_steps"] > HOPPER["learning_starts"]),
                             key=lambda row: row["min_score"])["env_steps"]
+    # The same policy exported (python -m admissable_jax.export) and shown from its file alone,
+    # hidden= named (it holds no scorings): the same episode, beside the file by default.
+    from admissable_jax.export import ExportConfig, export_policies
+
+    ((exported_path, _),) = export_policies(ExportConfig(run_dir=jax_run.run_dir, best=True, out=str(tmp_path / "best.npz")))
+    alike = video.render_video(video.VideoConfig(policy=exported_path, hidden="", frames=5))
+    assert alike.path == str(tmp_path / "videos" / "best-hiddennone.mp4") and alike.step == same.step
+    assert (alike.clean_return, alike.clean_length) == pytest.approx((same.clean_return, same.clean_length), rel=1e-5)
+    for args in (["hidden=worst"], ["hidden=1", "step=80"]):
+        with pytest.raises(SystemExit):
+            video.main([f"policy={exported_path}", *args])
+        assert capsys.readouterr().err.startswith("error: an exported policy holds no scorings nor checkpoints: name ")
 
     for hidden in ("elbow", "11"):  # Hopper's features are 0 to 10
         assert video.main([jax_run.run_dir, f"hidden={hidden}", f"out={tmp_path}/bad.mp4"]) == 2
