@@ -446,6 +446,11 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
     assert sorted(record["sets"]) == ["1", "2"] and record["feature_names"] == ["one", "two", "three"]
     for k in (1, 2):
         assert [entry["score"] for entry in record["sets"][str(k)]] == [entry.score for entry in direct.sets[k]]
+    # By hand: the action is 100 · tanh(0.01 · the sum it sees) (tanh squashes, then [-100, 100]), 5 steps an
+    # episode; hiding feature 0, 1 or 2 (values 1, 2, 3) leaves sums of 5, 4 and 3.
+    assert record["clean_score"] == pytest.approx(500 * np.tanh(0.06), rel=1e-5)
+    assert [entry["score"] for entry in record["sets"]["1"]] == pytest.approx(500 * np.tanh(np.array([5, 4, 3]) / 100),
+                                                                              rel=1e-5)
     assert record["source"] == {"Gymnasium env": "ConstantFeatures-v0", "policy": str(tmp_path / "constant.npz"),
                                 "exported from": "runs/x (uniform, seed 3) at env step 500, its best scoring "
                                                  "(training's min_u a_u 4.2)"}
