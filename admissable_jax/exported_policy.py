@@ -32,7 +32,7 @@ from admissable_jax.method import act_with_hidden, check_masked_batch
 FORMAT = "admissable_jax exported policy 1"
 
 
-@dataclasses.dataclass(frozen=True, repr=False)
+@dataclasses.dataclass(frozen=True, repr=False, eq=False)  # arrays: no elementwise == of two policies
 class ExportedPolicy:
     """A deterministic policy of masked observations in NumPy.
 
