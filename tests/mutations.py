@@ -1288,6 +1288,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "video_of_an_export_into_the_working_folder": ("admissable_jax/video.py",
                                                    'out = os.path.join(os.path.dirname(config.policy), "videos",',
                                                    'out = os.path.join("videos",', "test_hopper_pipelines.py"),
+    "readme_link_to_no_section": ("README.md", "[`export`](#without-jax-export)", "[`export`](#export)",
+                                  "test_documented_commands.py"),
     "scoring_columns_of_any_shape": ("admissable_jax/results.py", "        except (TypeError, ValueError):  # ragged",
                                      "        except ImportError:  # ragged", "test_runs.py"),
     "score_estimators_of_one_episode": ("benchmarks/score_estimators.py", "if config.n_episodes < 2 or any(",

@@ -156,3 +156,18 @@ def test_every_documented_python_call_names_real_parameters():
                         f"{document}: {node.func.id}() takes no {keyword.arg}=")
                 calls += 1
     assert calls >= 15, calls
+
+
+def test_every_link_to_a_section_leads_to_one():
+    """The documents' links within themselves (``[...](#anchor)``, the README's *Where to
+    look*) name a heading's anchor as GitHub makes it: lower case, punctuation dropped, spaces
+    as hyphens."""
+    for document in ("README.md", "benchmarks/README.md"):
+        with open(os.path.join(ROOT, document)) as file:
+            text = file.read()
+        headings = re.findall(r"^#{1,6} (.+)$", re.sub(r"```.*?```", "", text, flags=re.S), re.M)
+        anchors = {re.sub(r"[^\w\- ]", "", heading.lower()).replace(" ", "-") for heading in headings}
+        links = re.findall(r"\]\(#([^)]+)\)", text)
+        assert document != "README.md" or len(links) >= 15, len(links)
+        broken = [link for link in links if link not in anchors]
+        assert not broken, f"{document}: links to no section: {broken}"
