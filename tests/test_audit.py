@@ -27,6 +27,7 @@ from admissable_jax.policies import load_policy
 from admissable_jax.scoring import beam_search_worst_sets, estimate_scores
 from admissable_jax.scoring.set_search import first_copies
 from admissable_jax.scoring.attribution import ShapleyPlan, plan_shapley, shapley_attribution
+from admissable_jax.scoring.dropout import plan_dropout
 from admissable_jax.scoring.worst_set import samples_to_separate
 
 ENV = make_env("point_mass", episode_length=12)
@@ -430,6 +431,13 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
     assert record["source"]["policy"] == "test_audit:counted_sum_of_visible"  # (it said "call", its wrapper's name)
     assert ("k=2: worst 1, 2 ([1, 2]): a_u 5.0 ± 0.0, 83.3% below clean 30.0; mean over the 3 sets 10.0; told apart "
             "from every other set") in capfd.readouterr().out
+    # Random sensor failure on a Gymnasium env: each mask's return by hand, 5 · (6 − what it
+    # hides), R(p) their mean; the sets' scores as without it.
+    plan = plan_dropout(3, (0.2, 0.6), 8, seed=1)
+    failing = audit_gymnasium("ConstantFeatures-v0", sum_of_visible, ks=(1,), n_episodes=2, num_envs=3, dropout=plan)
+    by_hand = (5 * (6 - plan.hidden_rows @ np.array([1.0, 2.0, 3.0]))).reshape(2, 8)
+    assert [entry.score for entry in failing.dropout] == pytest.approx(by_hand.mean(axis=1))
+    assert [entry.score for entry in failing.sets[1]] == [25.0, 20.0, 15.0]
     # An exported policy (python -m admissable_jax.export), policy=FILE.npz: its run names the
     # Gymnasium env and the set sizes (k = 2 with up_to_k: 1 and 2) and its features' names,
     # the numbers are its masked batches' audited from Python, and the report says whence it came.
@@ -486,6 +494,12 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
          "a Python policy is audited by rollouts of every set (it has no critic to estimate with)"),
         (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "score_horizon=0"],
          "score_estimator must be one of rollout, critic, horizon and score_horizon >= 1"),
+        (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "dropout=0.1,1.5"],
+         "dropout rates must lie in (0, 1], got '0.1,1.5'"),
+        (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "dropout=often"],
+         "dropout must be a comma list of failure rates in (0, 1], e.g. 0.05,0.1,0.2; got 'often'"),
+        (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "dropout=0.1", "dropout_masks=1"],
+         "dropout_masks must be at least 2 for an interval, got 1"),
         ([], "give the run directory: python -m admissable_jax.audit RUN_DIR [k=1,2] [episodes=50]"),
         (["some_run", "search=guess"], "search must be one of exact, beam, got 'guess'"),
         (["some_run", "search=beam", "beam_width=0"], "beam_width must be >= 1, got 0"),
@@ -594,7 +608,8 @@ def test_score_estimators_benchmark_compares_each_estimator_with_the_rollout(sho
 
 def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path, capsys):
     out = str(tmp_path / "audit")
-    assert audit_main([short_run.run_dir, "k=1,2", "episodes=6", f"out={out}", "seed=4", "shapley=6"]) == 0
+    assert audit_main([short_run.run_dir, "k=1,2", "episodes=6", f"out={out}", "seed=4", "shapley=6",
+                       "dropout=0.5,0.25", "dropout_masks=4"]) == 0
     captured = capsys.readouterr()
     printed = captured.out
     # The long part (compile and rollouts) is announced, then timed, as training's compile is;
@@ -631,8 +646,24 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
     np.testing.assert_allclose(worth["values"], brute_force_shapley(lambda visible: value_of[frozenset(visible)], 4),
                                rtol=1e-4, atol=1e-3)
     np.testing.assert_allclose(worth["leave_one_out"], [record["clean_score"] - entry["score"] for entry in record["sets"]["1"]])
+    # Random sensor failure (dropout=0.25,0.5, 4 masks each, from seed 4's draws; here among the
+    # coalitions, so the rollout stays as it was): each mask is valued as its set is, the clean
+    # return where it hides nothing; R(p) is their mean.
+    masks = plan_dropout(4, (0.25, 0.5), 4, seed=4).hidden_rows
+    by_hand = np.reshape([value_of[frozenset(np.flatnonzero(1 - row).tolist())] for row in masks], (2, 4))
+    assert [entry["rate"] for entry in record["dropout"]] == [0.25, 0.5]
+    np.testing.assert_allclose([entry["score"] for entry in record["dropout"]], by_hand.mean(axis=1), rtol=1e-4)
+    np.testing.assert_allclose([entry["ci95"] for entry in record["dropout"]],
+                               3.1824 * by_hand.std(axis=1, ddof=1) / 2, rtol=1e-4)  # Student's t, 3 degrees of freedom
+    assert [entry["mean_hidden"] for entry in record["dropout"]] == masks.reshape(2, 4, 4).sum(axis=2).mean(axis=1).tolist()
+    assert re.search(r"^random failure: p = 0\.25: -?\d+\.\d ± \d+\.\d \(-?\d+\.\d% below clean\); p = 0\.5: ", printed,
+                     re.M), printed
     with open(os.path.join(out, "report.md")) as file:
-        assert f"| x | 0 | {worth['values'][0]:.1f} ± {worth['ci95_starts'][0]:.1f} | " in file.read()
+        report = file.read()
+    assert f"| x | 0 | {worth['values'][0]:.1f} ± {worth['ci95_starts'][0]:.1f} | " in report
+    failing = record["dropout"][0]
+    assert (f"| 0.25 | {failing['mean_hidden']:.1f} | {failing['score']:.1f} ± {failing['ci95']:.1f} | "
+            f"{100 * (record['clean_score'] - failing['score']) / abs(record['clean_score']):.1f}% |") in report
     assert re.search(r"^shapley: [\w ]+ \(\d\) worth most: φ -?\d+\.\d ± \d+\.\d of v\(all\) − v\(none\) -?\d+\.\d; hidden alone "
                      r"it costs -?\d+\.\d \(exact\)$", printed, re.M), printed
     # Each set's gap above the worst of its size, paired episode by episode (the same 6 start

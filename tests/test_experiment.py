@@ -125,7 +125,7 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
         policy(np.concatenate([obs, obs], axis=1))  # an 8-wide row is no two 4-wide ones
     # The whole experiment audited: every pair into its own folder, then the modes compared per k.
     results, written = audit_experiment(AuditConfig(run_dir=str(tmp_path / "straight"), k="1,2", episodes=3,
-                                                    shapley="exact"))
+                                                    shapley="exact", dropout="0.3", dropout_masks=4))
     assert [(result.source["mode"], result.source["seed"]) for result in results] == [
         ("adversarial", 0), ("adversarial", 1), ("uniform", 0), ("uniform", 1)]
     assert written[-1] == str(tmp_path / "straight" / "audit-step3000" / "comparison.md")
@@ -145,7 +145,7 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
         average = [np.mean([entry.score for entry in result.sets[k]]) for result in results[2:]]
         assert f"| {k} | uniform | 2 | {np.mean(worst):.1f} ± " in comparison
         assert f" | {np.mean(average):.1f} ± " in comparison.split(f"| {k} | uniform | 2 |")[1].splitlines()[0]
-        differences = comparison.split("adversarial − uniform")[-1]
+        differences = comparison.split("## Random sensor failure")[0].split("adversarial − uniform")[-1]
         gap = np.mean([min(e.score for e in r.sets[k]) for r in results[:2]]) - np.mean(worst)
         assert f"| {k} | worst a_u | {gap:+.1f} | [" in differences
         gap = np.mean([np.mean([e.score for e in r.sets[k]]) for r in results[:2]]) - np.mean(average)
@@ -159,6 +159,10 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
     for i, name in enumerate(["x", "y", "x velocity", "y velocity"]):
         by_mode = [estimate(np.array([result.shapley.values[i] for result in pairs])) for pairs in (results[:2], results[2:])]
         assert f"| {name} | {i} | {by_mode[0]} | {by_mode[1]} |" in worth
+    failing = comparison.split("## Random sensor failure, per mode")[1]  # R(p) per mode, then adversarial − uniform
+    by_mode = [np.array([result.dropout[0].score for result in pairs]) for pairs in (results[:2], results[2:])]
+    assert f"| 0.3 | {estimate(by_mode[0])} | {estimate(by_mode[1])} |" in failing
+    assert f"| 0.3 | adversarial | {by_mode[0].mean() - by_mode[1].mean():+.1f} | [" in failing
     # The command line, at an earlier checkpoint (step=): every pair's.
     assert audit_main([str(tmp_path / "straight"), "k=1", "episodes=2", "step=2000", f"out={tmp_path / 'audits'}"]) == 0
     said = capsys.readouterr().out

@@ -9,8 +9,8 @@ import dataclasses
 import os
 from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 
-from admissable_jax.audit.report import compare_modes, comparison_chart, over_training_chart, over_training_table, \
-    pair_curves, shapley_order, write_audit
+from admissable_jax.audit.report import compare_modes, comparison_chart, dropout_line, over_training_chart, \
+    over_training_table, pair_curves, shapley_order, write_audit
 from admissable_jax.audit.sets import AuditResult, audit, audit_gymnasium, audit_sizes, check_audit_size, \
     check_search, gymnasium_features, rollout_sets, shapley_plan
 from admissable_jax.cli import enable_compilation_cache, parse_args, reporting, run_from_cli, setting
@@ -19,6 +19,7 @@ from admissable_jax.method import set_sizes
 from admissable_jax.run_directory import is_experiment
 from admissable_jax.scoring import SCORE_ESTIMATORS
 from admissable_jax.scoring.attribution import MIN_ORDERS, ShapleyPlan
+from admissable_jax.scoring.dropout import DropoutPlan, parse_rates, plan_dropout
 
 if TYPE_CHECKING:  # for the annotations only
     import numpy as np
@@ -66,6 +67,10 @@ class AuditConfig:
     shapley: str = setting("0", "what each feature is worth: Shapley values of the return over the visible features; "
                                 "exact (every coalition, d <= 20), or M random feature orders (exact where the 2^d "
                                 "coalitions are fewer); 0 = none")
+    dropout: str = setting("", "random sensor failure: failure rates p, comma separated (e.g. 0.05,0.1,0.2): the "
+                               "expected return when each feature fails with probability p for a whole episode, "
+                               "independently, from dropout_masks masks per rate; '' = none")
+    dropout_masks: int = setting(20, "M: masks drawn per dropout rate (the interval narrows as 1/sqrt(M))")
 
 
 def _ks(text: str, trained_k: int = 1, up_to_k: bool = False) -> tuple[int, ...]:
@@ -115,6 +120,8 @@ def check_audit_config(config: AuditConfig) -> None:
         raise ValueError(f"score_estimator must be one of {', '.join(SCORE_ESTIMATORS)} and score_horizon >= 1")
     check_search(config.search, config.beam_width, config.ranker)
     _shapley(config.shapley)
+    if parse_rates(config.dropout) and config.dropout_masks < 2:
+        raise ValueError(f"dropout_masks must be at least 2 for an interval, got {config.dropout_masks}")
 
 
 def _shapley(text: str) -> int | str:
@@ -163,7 +170,7 @@ def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
                                      num_envs=config.slots or 8, seed=config.seed,
                                      feature_names=audited.feature_names if len(audited.feature_names or ()) == d
                                      else None, shapley=_shapley(config.shapley), progress=True,
-                                     tell_apart=config.tell_apart)
+                                     tell_apart=config.tell_apart, dropout=_dropout(config, d))
         result = dataclasses.replace(result, source={**result.source, **audited.source})
         return result, write_audit(result, out, config.top)
 
@@ -268,13 +275,18 @@ def _slots(config: AuditConfig, policy: TrainedPolicy) -> int:
     from admissable_jax.config import default_score_envs
 
     d = policy.observation_size
-    num_sets = rollout_sets(d, _ks(config.k, policy.config.k, policy.config.up_to_k), config.search, config.beam_width, _plan(config, d))
+    num_sets = rollout_sets(d, _ks(config.k, policy.config.k, policy.config.up_to_k), config.search, config.beam_width,
+                            _plan(config, d), _dropout(config, d))
     episodes = (num_sets + 1) * config.episodes
     return min(episodes, config.slots) if config.slots else min(default_score_envs(episodes), 4096)
 
 
 def _plan(config: AuditConfig, d: int) -> ShapleyPlan | None:
     return shapley_plan(d, _shapley(config.shapley), config.seed)
+
+
+def _dropout(config: AuditConfig, d: int) -> DropoutPlan | None:
+    return plan_dropout(d, parse_rates(config.dropout), config.dropout_masks, config.seed)
 
 
 def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
@@ -290,7 +302,8 @@ def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
     train = policy.config
     d = policy.observation_size
     ks = audit_sizes(_ks(config.k, train.k, train.up_to_k), d)  # before the audit starts
-    check_audit_size(train.env, d, ks, config.episodes, config.search, config.beam_width, _plan(config, d))
+    check_audit_size(train.env, d, ks, config.episodes, config.search, config.beam_width, _plan(config, d),
+                     _dropout(config, d))
     with _audit_folder(out):
         which = f"the best policy (env step {policy.step})" if best else f"checkpoint {policy.step}"
         with reporting(f"auditing {which} of {train.env} for k={_sizes(ks)} ({config.search} search, "
@@ -305,7 +318,8 @@ def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
                             **({"lower_bound": train.lower_bound} if train.missingness == "adversarial" else {})},
                            config.score_estimator, trainer.critic_values, policy.critic_params,
                            config.score_horizon, train.gamma, config.search, config.beam_width, config.ranker,
-                           _shapley(config.shapley), progress=True, tell_apart=config.tell_apart)
+                           _shapley(config.shapley), progress=True, tell_apart=config.tell_apart,
+                           dropout=_dropout(config, d))
         return result, write_audit(result, out, config.top)
 
 
@@ -411,6 +425,8 @@ def main(argv: list[str]) -> int:
             print(f"{pair}shapley: {result.feature_names[top]} ({top}) worth most: φ {attribution.values[top]:.1f} ± "
                   f"{attribution.ci95[top]:.1f} of v(all) − v(none) {attribution.full - attribution.blind:.1f}; "
                   f"hidden alone it costs {attribution.leave_one_out[top]:.1f} ({attribution.method})")
+        if result.dropout is not None:
+            print(f"{pair}{dropout_line(result)}")
     if experiment or config.steps:
         with open(written[-1]) as file:
             print(file.read())

@@ -84,6 +84,8 @@ def _report(result: AuditResult, top: int, figures: list[str]) -> str:
         lines += ["", _worst_told_apart(result, k), ""]
     if result.shapley is not None:
         lines += _shapley_section(result, result.shapley)
+    if result.dropout is not None:
+        lines += _dropout_section(result)
     lines += [f"![{name}]({name})" for name in figures]
     lines += ["", "Every number, with each episode's return: `audit.json`."]
     return "\n".join(lines) + "\n"
@@ -155,6 +157,30 @@ def _shapley_section(result: AuditResult, attribution: ShapleyAttribution) -> li
         share = 100 * attribution.values[i] / worth if worth else float("nan")
         lines.append(f"| {rank} | {result.feature_names[i]} | {i} | {attribution.values[i]:.1f} ± "
                      f"{attribution.ci95[i]:.1f} | {share:.1f}% | {attribution.leave_one_out[i]:.1f} |")
+    return lines + [""]
+
+
+def dropout_line(result: AuditResult) -> str:
+    """The expected return under random sensor failure at each rate asked, in one line."""
+    return "random failure: " + "; ".join(
+        f"p = {entry.rate:g}: {entry.score:.1f} ± {entry.ci95:.1f} ({drop_below_clean(result.clean_score, entry.score):.1f}% "
+        f"below clean)" for entry in result.dropout)
+
+
+def _dropout_section(result: AuditResult) -> list[str]:
+    """The report's table of the expected return under random sensor failure, per rate."""
+    first = result.dropout[0]
+    value = "return" if result.estimator == "rollout" else f"`{result.estimator}` estimate"
+    lines = ["## Random sensor failure", "",
+             f"Each feature failed (read 0, flagged) with probability p, independently of the others, for whole "
+             f"episodes. R(p) is the expected {value} then, from M = {first.masks} masks drawn per rate, each valued "
+             f"as a set is (N = {result.n_episodes} episodes), ± the 95% interval over the masks (Student's t). The "
+             f"worst sets above are what an adversary makes of as many losses. Method: "
+             f"admissable_jax.scoring.dropout.", "",
+             "| failure rate p | features lost per episode (mean) | R(p) ± 95% CI | drop |", "|---|---|---|---|"]
+    for entry in result.dropout:
+        lines.append(f"| {entry.rate:g} | {entry.mean_hidden:.1f} | {entry.score:.1f} ± {entry.ci95:.1f} | "
+                     f"{drop_below_clean(result.clean_score, entry.score):.1f}% |")
     return lines + [""]
 
 
@@ -436,6 +462,8 @@ def compare_modes(results: list[AuditResult]) -> str:
             lines += ["", sentence.rstrip()]
     if all(result.shapley is not None for result in results):
         lines += _shapley_by_mode(by_mode, first.feature_names)
+    if all(result.dropout is not None for result in results):
+        lines += _dropout_by_mode(by_mode, adversarial)
     return "\n".join(lines) + "\n"
 
 
@@ -445,6 +473,26 @@ def episodes_per_set(results: list[AuditResult]) -> str:
     low, high = min(result.n_episodes for result in results), max(result.n_episodes for result in results)
     return (f"N = {low} episodes per set" if low == high else
             f"N = {low}–{high} episodes per set, each audit's chosen by its pilot (`tell_apart`)")
+
+
+def _dropout_by_mode(by_mode: dict[str, list[AuditResult]], adversarial: list[str]) -> list[str]:
+    """Markdown: the expected return under random sensor failure per rate and mode, mean ±
+    95% t-interval over the mode's pairs; then adversarial − uniform per rate (Welch's t)."""
+    rates = [entry.rate for entry in next(iter(by_mode.values()))[0].dropout]
+    values = {mode: np.array([[entry.score for entry in result.dropout] for result in group])
+              for mode, group in sorted(by_mode.items())}
+    lines = ["", "## Random sensor failure, per mode", "",
+             "Each pair's R(p), the expected return when each feature fails with probability p for whole episodes "
+             "(its report's section), mean ± 95% t-interval over the seeds of a mode.", "",
+             "| failure rate p | " + " | ".join(values) + " |", "|---|" + "---|" * len(values)]
+    lines += [f"| {rate:g} | " + " | ".join(estimate(per_pair[:, column]) for per_pair in values.values()) + " |"
+              for column, rate in enumerate(rates)]
+    if adversarial and "uniform" in values:
+        lines += ["", *comparison_header("failure rate p", "curve")]
+        lines += [f"| {rate:g} | {curve} | "
+                  f"{Difference(f'p={rate:g} {curve}', values[curve][:, column], values['uniform'][:, column]).cells()} |"
+                  for curve in adversarial for column, rate in enumerate(rates)]
+    return lines
 
 
 def _shapley_by_mode(by_mode: dict[str, list[AuditResult]], names: list[str], most: int = 20) -> list[str]:

@@ -18,6 +18,7 @@ from admissable_jax.cli import compiled_in_background
 from admissable_jax.method import candidate_sets
 from admissable_jax.scoring import SCORE_ESTIMATORS
 from admissable_jax.scoring.attribution import ShapleyAttribution, ShapleyPlan, plan_shapley, shapley_attribution
+from admissable_jax.scoring.dropout import DropoutPlan, DropoutScore, dropout_scores
 from admissable_jax.scoring.worst_set import gap_above, samples_to_separate, t_half_width
 
 
@@ -69,6 +70,7 @@ class AuditResult:
     same_starts: bool = True  # every set's episode i starts from one state (False: a Gymnasium vector env's resets)
     shapley: ShapleyAttribution | None = None  # what each feature is worth, where asked (scoring.attribution)
     pilot: dict[str, Any] | None = None  # with tell_apart: the pilot audit that chose N (see audit)
+    dropout: list[DropoutScore] | None = None  # where asked: the return under random sensor failure (scoring.dropout)
 
     def worst(self, k: int, top: int) -> list[SetScore]:
         return sorted(self.sets[k], key=lambda entry: entry.score)[:top]
@@ -136,7 +138,7 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
           feature_names: list[str] | None = None, source: dict[str, Any] | None = None, estimator: str = "rollout",
           critic_fn=None, critic_params=None, horizon: int = 0, gamma: float = 0.99, search: str = "exact",
           beam_width: int = 4, ranker: str = "rollout", shapley: int | str = 0, progress: bool = False,
-          tell_apart: bool = False) -> AuditResult:
+          tell_apart: bool = False, dropout: DropoutPlan | None = None) -> AuditResult:
     """Score every set of each size in ``ks`` and the clean case in one batch, N =
     ``n_episodes`` each from the same N start states, by
     :func:`~admissable_jax.scoring.score_missingness` with ``estimator`` (``critic`` and
@@ -144,7 +146,9 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
     ``search="beam"`` the sets of each k > 1 are the ``beam_width`` finalists of a beam
     search ranked by ``ranker`` instead of all C(d, k). ``shapley`` (``"exact"``, or M >= 4
     feature orders; 0: none) adds the Shapley attribution's coalitions to the batch (module
-    package docstring). ``progress`` draws a bar over each rollout's episodes as they finish.
+    package docstring). ``dropout`` adds its masks to the batch: the expected return under
+    random sensor failure (:mod:`admissable_jax.scoring.dropout`). ``progress`` draws a bar
+    over each rollout's episodes as they finish.
 
     ``tell_apart``: ``n_episodes`` is a pilot's N; the audit returned is a second one, from
     the start states of ``seed + 1``, with as many episodes per set as the pilot says would
@@ -160,13 +164,13 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
     ks = audit_sizes(ks, d)
     searched = [k for k in ks if search == "beam" and k > 1]
     plan = shapley_plan(d, shapley, seed)
-    check_audit_size(env.name, d, ks, n_episodes, search, beam_width, plan)
+    check_audit_size(env.name, d, ks, n_episodes, search, beam_width, plan, dropout)
     if tell_apart:
         return _told_apart(functools.partial(
             audit, env, policy_fn, params, ks, num_slots=num_slots, feature_names=feature_names, source=source,
             estimator=estimator, critic_fn=critic_fn, critic_params=critic_params, horizon=horizon, gamma=gamma,
             search=search, beam_width=beam_width, ranker=ranker, progress=progress),
-            ks, n_episodes, seed, shapley, rollout_sets(d, ks, search, beam_width, plan))
+            ks, n_episodes, seed, shapley, dropout, rollout_sets(d, ks, search, beam_width, plan, dropout))
     scorer = jax.jit(score_missingness, static_argnums=(0, 1, 5, 6, 7), static_argnames=(
         "score_estimator", "critic_fn", "score_horizon", "gamma", "progress"))
     key = jax.random.key(seed)
@@ -203,20 +207,21 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
                           "ranker_scores": [[np.flatnonzero(row).tolist(), float(score_)]
                                             for row, score_ in zip(finalists, ranker_scores)]}
     return _audit_result(env.name, estimator, lambda rows: score(rows, estimator).returns, ks, blocks, plan,
-                         feature_names or [str(i) for i in range(d)], source or {}, search_info)
+                         feature_names or [str(i) for i in range(d)], source or {}, search_info, dropout)
 
 
-def _told_apart(audit_with, ks, n_episodes: int, seed: int, shapley: int | str, rollout_sets: int) -> AuditResult:
-    """``tell_apart``: a pilot audit (``audit_with(n_episodes=, seed=, shapley=)``) of
-    ``n_episodes`` per set from ``seed``'s start states, without the Shapley coalitions;
+def _told_apart(audit_with, ks, n_episodes: int, seed: int, shapley: int | str, dropout: DropoutPlan | None,
+                rollout_sets: int) -> AuditResult:
+    """``tell_apart``: a pilot audit (``audit_with(n_episodes=, seed=, shapley=, dropout=)``) of
+    ``n_episodes`` per set from ``seed``'s start states, without the Shapley coalitions and the dropout masks;
     then the audit returned, from ``seed + 1``'s, with as many episodes per set as the pilot
     says tell the worst set of each k from the runner-up (the largest; at least the pilot's,
     at most MAX_TELL_APART_EPISODES and what one rollout of ``rollout_sets`` sets may hold)."""
-    pilot = audit_with(n_episodes=n_episodes, seed=seed, shapley=0)
+    pilot = audit_with(n_episodes=n_episodes, seed=seed, shapley=0, dropout=None)
     needed = {k: pilot.episodes_to_separate(k) for k in ks}
     most = min(MAX_TELL_APART_EPISODES, MAX_AUDIT_EPISODES // (rollout_sets + 1))
     chosen = min(max([n_episodes] + [n for n in needed.values() if n is not None]), max(most, n_episodes))
-    final = audit_with(n_episodes=chosen, seed=seed + 1, shapley=shapley)
+    final = audit_with(n_episodes=chosen, seed=seed + 1, shapley=shapley, dropout=dropout)
     return dataclasses.replace(final, pilot={"episodes": n_episodes, "seed": seed, "needed": needed,
                                              "chosen": chosen, "most": most})
 
@@ -230,25 +235,28 @@ def plan_size(plan: ShapleyPlan | None) -> int:
     return 0 if plan is None else len(plan.hidden_rows)
 
 
-def _distinct_hidden_sets(blocks: list[np.ndarray], plan: ShapleyPlan | None) -> tuple[np.ndarray, np.ndarray]:
-    """The distinct non-empty hidden sets of ``blocks`` and of ``plan`` (each valued once; the
-    empty one is the clean case every rollout adds last), and where each row of the blocks,
-    concatenated, lies among those rollout rows."""
-    rows = np.concatenate(blocks + ([plan.hidden_rows] if plan is not None else []))
+def _distinct_hidden_sets(row_blocks: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct non-empty hidden sets of ``row_blocks`` (each valued once; the empty one
+    is the clean case every rollout adds last), and where each of their rows, concatenated,
+    lies among those rollout rows."""
+    rows = np.concatenate(row_blocks)
     distinct, index = np.unique(rows, axis=0, return_inverse=True)
     empty = ~distinct.any(axis=1)
     row_in_rollout = np.where(empty, (~empty).sum(), np.cumsum(~empty) - 1)  # the empty set: the clean row, last
-    return distinct[~empty], row_in_rollout[index.reshape(-1)][:sum(len(block) for block in blocks)]
+    return distinct[~empty], row_in_rollout[index.reshape(-1)]
 
 
 def _audit_result(env_name: str, estimator: str, score_rows, ks, blocks: list[np.ndarray], plan: ShapleyPlan | None,
-                  names: list[str], source: dict[str, Any], search_info: dict[int, dict[str, Any]]) -> AuditResult:
+                  names: list[str], source: dict[str, Any], search_info: dict[int, dict[str, Any]],
+                  dropout: DropoutPlan | None = None) -> AuditResult:
     """The audit of one rollout by ``score_rows`` ((r, d) 0/1 rows -> (r + 1, N) returns,
-    the clean case last) of the sets in ``blocks`` (one block of 0/1 rows per k in ``ks``)
-    and of ``plan``'s coalitions, each distinct set once."""
-    rollout_rows, block_rows = _distinct_hidden_sets(blocks, plan)
+    the clean case last) of the sets in ``blocks`` (one block of 0/1 rows per k in ``ks``),
+    of ``dropout``'s masks and of ``plan``'s coalitions, each distinct set once."""
+    num_sets = sum(len(block) for block in blocks)
+    masks = [] if dropout is None else [dropout.hidden_rows]
+    rollout_rows, row_index = _distinct_hidden_sets(blocks + masks + ([plan.hidden_rows] if plan is not None else []))
     valued = np.asarray(score_rows(rollout_rows), np.float64)
-    returns = valued[np.append(block_rows, -1)]
+    returns = valued[np.append(row_index[:num_sets], -1)]
     clean = returns[-1]
     clean_score = float(clean.mean())
     sets, row = {}, 0
@@ -263,8 +271,10 @@ def _audit_result(env_name: str, estimator: str, score_rows, ks, blocks: list[np
         sets[k] = entries
     shapley = None if plan is None else shapley_attribution(
         plan, np.concatenate([rollout_rows, np.zeros((1, len(names)), np.float32)]), valued)
+    failures = None if dropout is None else dropout_scores(
+        dropout, valued[row_index[num_sets:num_sets + len(dropout.hidden_rows)]].mean(axis=1))
     return AuditResult(env_name, estimator, returns.shape[1], clean_score, t_half_width(clean), clean.tolist(), sets,
-                       list(names), source, search_info, shapley=shapley)
+                       list(names), source, search_info, shapley=shapley, dropout=failures)
 
 
 def gymnasium_features(env_id: str, **env_kwargs) -> int:
@@ -297,15 +307,15 @@ def audit_sizes(ks, d: int) -> tuple[int, ...]:
 
 def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs: int = 8, seed: int = 0,
                     feature_names: list[str] | None = None, shapley: int | str = 0, progress: bool = False,
-                    tell_apart: bool = False, **env_kwargs) -> AuditResult:
+                    tell_apart: bool = False, dropout: DropoutPlan | None = None, **env_kwargs) -> AuditResult:
     """:func:`audit` for any policy on any Gymnasium env (Stable-Baselines3, CleanRL, your
     own PyTorch): every set of each size in ``ks`` and the clean case, N = ``n_episodes``
     episodes each, in one rollout on ``num_envs`` copies of ``gymnasium.make_vec(env_id)``
     by :func:`~admissable_jax.wrappers.score_policy` (``policy(masked_obs_batch) ->
     actions``). Episode starts follow the vector env's seed, so unlike :func:`audit` the
     sets do not share their N start states. ``feature_names`` default to our env's for
-    Hopper-v5, Walker2d-v5, Ant-v5 and HalfCheetah-v5, else the indices. ``shapley``
-    and ``tell_apart`` as in :func:`audit` (the gaps by Welch's t); ``progress`` draws a bar over
+    Hopper-v5, Walker2d-v5, Ant-v5 and HalfCheetah-v5, else the indices. ``shapley``,
+    ``dropout`` and ``tell_apart`` as in :func:`audit` (the gaps by Welch's t); ``progress`` draws a bar over
     the episodes. :func:`~admissable_jax.audit.report.write_audit` writes the files."""
     from admissable_jax.envs import canonical_env_name, observation_names, settotalmass_warning_dropped
     from admissable_jax.wrappers import score_policy
@@ -314,11 +324,11 @@ def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs
     ks = audit_sizes(ks, d)
     blocks = [candidate_sets(d, k) for k in ks]
     plan = shapley_plan(d, shapley, seed)
-    check_audit_size(env_id, d, ks, n_episodes, search=None, plan=plan)
+    check_audit_size(env_id, d, ks, n_episodes, search=None, plan=plan, dropout=dropout)
     if tell_apart:
         return _told_apart(functools.partial(audit_gymnasium, env_id, policy, ks, num_envs=num_envs,
                                              feature_names=feature_names, progress=progress, **env_kwargs),
-                           ks, n_episodes, seed, shapley, rollout_sets(d, ks, None, 0, plan))
+                           ks, n_episodes, seed, shapley, dropout, rollout_sets(d, ks, None, 0, plan, dropout))
     if feature_names is None:
         try:
             feature_names = observation_names(canonical_env_name(env_id))
@@ -333,7 +343,7 @@ def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs
                                 progress=progress, **env_kwargs).returns
 
     source = {"Gymnasium env": env_id, "policy": getattr(policy, "__name__", type(policy).__name__)}
-    result = _audit_result(env_id, "rollout", score_rows, ks, blocks, plan, feature_names, source, {})
+    result = _audit_result(env_id, "rollout", score_rows, ks, blocks, plan, feature_names, source, {}, dropout)
     return dataclasses.replace(result, same_starts=False)
 
 
@@ -343,25 +353,29 @@ def drop_below_clean(clean_score: float, score: float) -> float:
 
 
 def check_audit_size(env_name: str, d: int, ks, n_episodes: int, search: str | None = "exact", beam_width: int = 4,
-                     plan: ShapleyPlan | None = None) -> None:
+                     plan: ShapleyPlan | None = None, dropout: DropoutPlan | None = None) -> None:
     """Refuse, in one line, an audit whose one rollout would step more than
-    MAX_AUDIT_EPISODES episodes: (its sets, where searched the b finalists, and the plan's
-    coalitions, + the clean case) × N; a beam search's levels rank b · d sets a batch.
-    ``search`` None: the audit cannot search (a Gymnasium policy's)."""
-    num_sets = rollout_sets(d, ks, search, beam_width, plan)
+    MAX_AUDIT_EPISODES episodes: (its sets, where searched the b finalists, the plan's
+    coalitions and the dropout masks, + the clean case) × N; a beam search's levels rank
+    b · d sets a batch. ``search`` None: the audit cannot search (a Gymnasium policy's)."""
+    num_sets = rollout_sets(d, ks, search, beam_width, plan, dropout)
     if (num_sets + 1) * n_episodes > MAX_AUDIT_EPISODES:
         offers = ["lower episodes=", "drop the largest k"]
         offers += [] if search is None else ["use search=beam" if search == "exact" else "lower beam_width="]
         offers += [] if plan is None else ["give shapley= fewer feature orders"]
+        offers += [] if dropout is None else ["give dropout= fewer rates or dropout_masks= fewer masks"]
         raise ValueError(f"auditing k={','.join(map(str, ks))} on {env_name} is {num_sets:,} sets x {n_episodes} "
                          f"episodes in one rollout, over {MAX_AUDIT_EPISODES:,}: {', '.join(offers[:-1])} or {offers[-1]}")
 
 
-def rollout_sets(d: int, ks, search: str | None, beam_width: int, plan: ShapleyPlan | None) -> int:
+def rollout_sets(d: int, ks, search: str | None, beam_width: int, plan: ShapleyPlan | None,
+                 dropout: DropoutPlan | None = None) -> int:
     """The most sets an audit's one rollout scores besides the clean case: its sets (where
-    searched, the b finalists) and the plan's coalitions; a beam search's level, b · d.
+    searched, the b finalists), the plan's coalitions and the dropout masks; a beam search's
+    level, b · d.
     Counted, never listed: a searched k may have far more sets than can be listed
     (MAX_CANDIDATE_SETS; Ant at k = 3: 187,460), and an exact one is refused by its count."""
     searched = [k for k in ks if search == "beam" and k > 1]
-    num_sets = sum(beam_width if k in searched else math.comb(d, k) for k in ks) + plan_size(plan)
+    masks = 0 if dropout is None else len(dropout.hidden_rows)
+    num_sets = sum(beam_width if k in searched else math.comb(d, k) for k in ks) + plan_size(plan) + masks
     return max(num_sets, beam_width * d if searched else 0)

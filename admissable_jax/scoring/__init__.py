@@ -11,6 +11,7 @@
 - :mod:`.worst_set`: is the worst set the worst? The gap between two sets' scores with its
   interval (paired where they share start states) and the episodes that would resolve it.
 - :mod:`.attribution`: each feature's Shapley value in the missingness game.
+- :mod:`.dropout`: the expected return when each feature fails independently with probability p.
 """
 
 from admissable_jax.scoring.estimators import SCORE_ESTIMATORS, score_missingness
