@@ -433,6 +433,10 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
             "from every other set") in capfd.readouterr().out
     # Random sensor failure on a Gymnasium env: each mask's return by hand, 5 · (6 − what it
     # hides), R(p) their mean; the sets' scores as without it.
+    # The masks follow the law: each feature lost with probability p, independently of the others.
+    law = plan_dropout(3, (0.2,), 20_000, seed=0).hidden_rows
+    assert np.abs(law.mean(axis=0) - 0.2).max() < 4 * np.sqrt(0.2 * 0.8 / 20_000)
+    assert abs((law[:, 0] * law[:, 2]).mean() - 0.04) < 4 * np.sqrt(0.04 * 0.96 / 20_000)  # both lost: p²
     plan = plan_dropout(3, (0.2, 0.6), 8, seed=1)
     failing = audit_gymnasium("ConstantFeatures-v0", sum_of_visible, ks=(1,), n_episodes=2, num_envs=3, dropout=plan)
     by_hand = (5 * (6 - plan.hidden_rows @ np.array([1.0, 2.0, 3.0]))).reshape(2, 8)
@@ -500,6 +504,9 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
          "dropout must be a comma list of failure rates in (0, 1], e.g. 0.05,0.1,0.2; got 'often'"),
         (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "dropout=0.1", "dropout_masks=1"],
          "dropout_masks must be at least 2 for an interval, got 1"),
+        (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "dropout=0.5", "dropout_masks=100000",
+          "episodes=2"], "auditing k=1 on ConstantFeatures-v0 is 100,003 sets x 2 episodes in one rollout, over 200,000: "
+                         "lower episodes=, drop the largest k or give dropout= fewer rates or dropout_masks= fewer masks"),
         ([], "give the run directory: python -m admissable_jax.audit RUN_DIR [k=1,2] [episodes=50]"),
         (["some_run", "search=guess"], "search must be one of exact, beam, got 'guess'"),
         (["some_run", "search=beam", "beam_width=0"], "beam_width must be >= 1, got 0"),

@@ -162,6 +162,7 @@ def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     config = dataclasses.replace(config, gym=gymnasium_env_id(audited.gym))
     d = gymnasium_features(config.gym)
     audit_sizes(audited.ks, d)  # before anything is written
+    check_audit_size(config.gym, d, audited.ks, config.episodes, None, plan=_plan(config, d), dropout=_dropout(config, d))
     out = config.out or f"audit-{config.gym}-{audited.name}"
     with _audit_folder(out):
         with reporting(f"auditing {config.policy} on {config.gym} for k={_sizes(audited.ks)} "
