@@ -765,7 +765,8 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
 
     # Over training: every checkpoint kept (keep_checkpoints=3: 200, 400, 600) audited, each as a single audit of it.
     over = tmp_path / "over"
-    assert audit_main([short_run.run_dir, "steps=all", "k=1,2", "episodes=6", "seed=4", f"out={over}", "shapley=6"]) == 0
+    assert audit_main([short_run.run_dir, "steps=all", "k=1,2", "episodes=6", "seed=4", f"out={over}", "shapley=6",
+                       "dropout=0.5", "dropout_masks=4"]) == 0
     assert sorted(os.listdir(over)) == ["robustness_over_training.md", "robustness_over_training.png", "step200",
                                         "step400", "step600"]
     table = (over / "robustness_over_training.md").read_text()
@@ -779,8 +780,9 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
         assert f"| {float(np.mean(direct.scores)):.1f} |" in row  # k=2's mean a_u at that checkpoint
         worth = alone["shapley"]
         top = int(np.argmax(worth["values"]))  # the feature worth most at that checkpoint, and its φ
+        failing = alone["dropout"][0]  # and R(0.5) then, under random sensor failure
         assert row.endswith(f"| {alone['feature_names'][top]}: {worth['values'][top]:.1f} ± {worth['ci95_starts'][top]:.1f} "
-                            f"of {worth['full'] - worth['blind']:.1f} |"), row
+                            f"of {worth['full'] - worth['blind']:.1f} | {failing['score']:.1f} ± {failing['ci95']:.1f} |"), row
     assert "step 200: k=1: worst" in capsys.readouterr().out
 
     # The best policy: the networks of the scoring with the highest min_u a_u, kept beside the

@@ -295,18 +295,20 @@ def _pair_heatmap(result: AuditResult, path: str) -> str:
 
 def over_training_table(results: list[AuditResult]) -> str:
     """Markdown: a row per checkpoint; per k the worst a_u (its set) and the mean a_u over the
-    sets; with ``shapley=``, the feature worth most then and its φ."""
+    sets; with ``shapley=``, the feature worth most then and its φ; with ``dropout=``, R(p) per rate."""
     first = results[0]
     ks = list(first.sets)
     attributed = all(result.shapley is not None for result in results)
+    rates = [entry.rate for entry in first.dropout] if all(result.dropout is not None for result in results) else []
     lines = [f"# Robustness over training: {first.env}, {first.source['run']}", "",
              f"Each checkpoint audited as its folder's report says ({episodes_per_set(results)}, "
              f"`{first.estimator}`): per k, the worst a_u ± its 95% interval with its set, and the mean a_u over the "
              "sets (the average case; none for a searched k)" + ("; and the feature worth most, its Shapley value "
                                                                 "φ_i of v(all) − v(none)" if attributed else "") + ".", "",
              "| env step | clean return | " + " | ".join(f"k={k}: worst a_u (set) | k={k}: mean a_u" for k in ks)
-             + (" | worth most: φ_i of v(all) − v(none)" if attributed else "") + " |",
-             "|---|---|" + "---|---|" * len(ks) + ("---|" if attributed else "")]
+             + (" | worth most: φ_i of v(all) − v(none)" if attributed else "")
+             + "".join(f" | R({rate:g}): random failure" for rate in rates) + " |",
+             "|---|---|" + "---|---|" * len(ks) + ("---|" if attributed else "") + "---|" * len(rates)]
     for result in results:
         cells = []
         for k in ks:
@@ -318,6 +320,8 @@ def over_training_table(results: list[AuditResult]) -> str:
             attribution, top = result.shapley, shapley_order(result.shapley)[0]
             cells.append(f"{result.feature_names[top]}: {attribution.values[top]:.1f} ± {attribution.ci95[top]:.1f} "
                          f"of {attribution.full - attribution.blind:.1f}")
+        if rates:
+            cells += [f"{entry.score:.1f} ± {entry.ci95:.1f}" for entry in result.dropout]
         lines.append(f"| {result.source['checkpoint (env step)']} | {result.clean_score:.1f} ± {result.clean_ci95:.1f} | "
                      + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
@@ -325,7 +329,7 @@ def over_training_table(results: list[AuditResult]) -> str:
 
 def over_training_chart(results: list[AuditResult], path: str) -> str:
     """Per k: the worst a_u (solid, with its 95% interval) and the mean a_u (dashed) by
-    checkpoint; the clean return in black."""
+    checkpoint; the clean return in black; with ``dropout=``, R(p) per rate in greys."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -342,6 +346,12 @@ def over_training_chart(results: list[AuditResult], path: str) -> str:
         means = [result.mean(k) for result in results]
         if not any(math.isnan(mean) for mean in means):
             ax.plot(steps, means, color=color, linestyle=":", marker=".", label=f"k = {k}: mean $a_u$ over the sets")
+    if all(result.dropout is not None for result in results):
+        for index, rate in enumerate(entry.rate for entry in results[0].dropout):
+            failing = [result.dropout[index] for result in results]
+            ax.errorbar(steps, [entry.score for entry in failing], yerr=[entry.ci95 for entry in failing], capsize=2,
+                        color=str(0.25 + 0.5 * index / max(1, len(results[0].dropout) - 1)), linestyle="-.",
+                        marker="s", markersize=3, label=f"random failure, p = {rate:g}: R(p)")
     from admissable_jax.plot import env_steps_axis
 
     env_steps_axis(ax, "checkpoint (env steps)")
