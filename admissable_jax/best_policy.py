@@ -26,7 +26,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from admissable_jax.errors import RunFailed
+from admissable_jax.errors import RunFailed, write_whole
 
 BEST_POLICY = "best_policy.npz"
 
@@ -55,16 +55,11 @@ def write_best_policy(run_dir: str, kept: KeptPolicy) -> None:
     """Write ``kept`` as ``run_dir``'s best policy, whole or not at all: a crash mid-write
     leaves the earlier best in place, and a write that fails removes what it wrote and stops
     the run in one line (:class:`BestPolicyNotWritten`)."""
-    path = os.path.join(run_dir, BEST_POLICY)
-    partial = f"{path}.partial"
     try:
-        with open(partial, "wb") as file:
-            np.savez(file, env_steps=np.int64(kept.env_steps), min_score=np.float64(kept.min_score),
-                     **_arrays("actor", kept.actor_params), **_arrays("critic", kept.critic_params))
-        os.replace(partial, path)
+        write_whole(os.path.join(run_dir, BEST_POLICY), lambda file: np.savez(
+            file, env_steps=np.int64(kept.env_steps), min_score=np.float64(kept.min_score),
+            **_arrays("actor", kept.actor_params), **_arrays("critic", kept.critic_params)))
     except OSError as error:
-        if os.path.exists(partial):
-            os.remove(partial)
         raise BestPolicyNotWritten(f"cannot write the best policy of env step {kept.env_steps} in {run_dir}: "
                                    f"{error.strerror or error}; the partial write was removed; free space, then "
                                    f"continue with resume=true") from error

@@ -6,6 +6,7 @@ with its status, never with a traceback.
 """
 
 import os
+from typing import BinaryIO, Callable
 
 USAGE_ERROR = 2  # a bad setting or an output folder that cannot be used
 RUN_FAILED = 1  # the run itself failed (its finished work is kept)
@@ -35,6 +36,22 @@ def make_directory(path: str, what: str) -> None:
         os.makedirs(path, exist_ok=True)
     except OSError as error:
         raise UnusableDirectory(f"cannot create the {what} {path}: {error.strerror}") from None
+
+
+def write_whole(path: str, write: Callable[[BinaryIO], None]) -> None:
+    """Write the file ``path`` by ``write(file)`` whole or not at all: into ``<path>.partial``,
+    then renamed over ``path``, so that a crash mid-write leaves the earlier file in place. A
+    write that fails (OSError: a full disk, no permission) removes what it wrote and raises,
+    for the caller to say in one line what was not written."""
+    partial = f"{path}.partial"
+    try:
+        with open(partial, "wb") as file:
+            write(file)
+        os.replace(partial, path)
+    except OSError:
+        if os.path.exists(partial):
+            os.remove(partial)
+        raise
 
 
 def remove_if_unused(path: str, own_files: tuple[str, ...]) -> None:

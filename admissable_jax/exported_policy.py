@@ -26,7 +26,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from admissable_jax.errors import RunFailed
+from admissable_jax.errors import RunFailed, write_whole
 from admissable_jax.method import act_with_hidden, check_masked_batch
 
 FORMAT = "admissable_jax exported policy 1"
@@ -92,16 +92,12 @@ class ExportedPolicy:
         (:class:`ExportNotWritten`)."""
         arrays = {f"{kind}_{layer}": array for layer, pair in enumerate(zip(self.weights, self.biases))
                   for kind, array in zip(("weight", "bias"), pair)}
-        partial = f"{path}.partial"
         try:
-            with open(partial, "wb") as file:
-                np.savez(file, format=np.str_(FORMAT), action_low=self.action_low, action_high=self.action_high,
-                         observation_names=np.array(self.observation_names, dtype=np.str_),
-                         source=np.str_(json.dumps(self.source)), **arrays)
-            os.replace(partial, path)
+            write_whole(path, lambda file: np.savez(
+                file, format=np.str_(FORMAT), action_low=self.action_low, action_high=self.action_high,
+                observation_names=np.array(self.observation_names, dtype=np.str_),
+                source=np.str_(json.dumps(self.source)), **arrays))
         except OSError as error:
-            if os.path.exists(partial):
-                os.remove(partial)
             raise ExportNotWritten(f"cannot write the exported policy {path}: {error.strerror or error}") from None
 
     @classmethod

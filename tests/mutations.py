@@ -1210,7 +1210,7 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                            "find . -name best_policy.none -not -path", "test_hopper_pipelines.py"),
     "sim_to_sim_best_beside_a_step": ("benchmarks/sim_to_sim.py", "    if config.best and config.step >= 0:",
                                       "    if False:", "test_benchmark_scripts.py"),
-    "best_policy_partial_write_left": ("admissable_jax/best_policy.py", "            os.remove(partial)\n",
+    "best_policy_partial_write_left": ("admissable_jax/errors.py", "            os.remove(partial)\n",
                                        "            pass\n", "test_training.py"),
     "best_policy_failed_write_a_traceback": ("admissable_jax/best_policy.py", "    except OSError as error:",
                                              "    except ImportError as error:", "test_training.py"),
@@ -1256,9 +1256,9 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                                "return [os.path.join(root, pairs[0])]", "test_experiment.py"),
     "export_best_ignored": ("admissable_jax/export.py", "load_policy(run_dir, requested_step(config.step, config.best))",
                             "load_policy(run_dir, requested_step(config.step, False))", "test_experiment.py"),
-    "export_partial_write_left": ("admissable_jax/exported_policy.py",
-                                  "            if os.path.exists(partial):\n                os.remove(partial)\n            raise ExportNotWritten",
-                                  "            raise ExportNotWritten", "test_training.py"),
+    "export_failed_write_a_traceback": ("admissable_jax/exported_policy.py", "        except OSError as error:\n"
+                                        "            raise ExportNotWritten", "        except ImportError as error:\n"
+                                        "            raise ExportNotWritten", "test_training.py"),
     "export_of_any_version_read": ("admissable_jax/exported_policy.py", "                if found != FORMAT:",
                                    "                if False:", "test_training.py"),
     "broken_pipe_exits_zero": ("admissable_jax/cli.py", "        status = BROKEN_PIPE", "        status = 0", "test_runs.py"),
