@@ -162,7 +162,8 @@ def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     config = dataclasses.replace(config, gym=gymnasium_env_id(audited.gym))
     d = gymnasium_features(config.gym)
     audit_sizes(audited.ks, d)  # before anything is written
-    check_audit_size(config.gym, d, audited.ks, config.episodes, None, plan=_plan(config, d), dropout=_dropout(config, d))
+    dropout = _dropout(config, d)
+    check_audit_size(config.gym, d, audited.ks, config.episodes, None, plan=_plan(config, d), dropout=dropout)
     out = config.out or f"audit-{config.gym}-{audited.name}"
     with _audit_folder(out):
         with reporting(f"auditing {config.policy} on {config.gym} for k={_sizes(audited.ks)} "
@@ -171,7 +172,7 @@ def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
                                      num_envs=config.slots or 8, seed=config.seed,
                                      feature_names=audited.feature_names if len(audited.feature_names or ()) == d
                                      else None, shapley=_shapley(config.shapley), progress=True,
-                                     tell_apart=config.tell_apart, dropout=_dropout(config, d))
+                                     tell_apart=config.tell_apart, dropout=dropout)
         result = dataclasses.replace(result, source={**result.source, **audited.source})
         return result, write_audit(result, out, config.top)
 
@@ -303,8 +304,8 @@ def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
     train = policy.config
     d = policy.observation_size
     ks = audit_sizes(_ks(config.k, train.k, train.up_to_k), d)  # before the audit starts
-    check_audit_size(train.env, d, ks, config.episodes, config.search, config.beam_width, _plan(config, d),
-                     _dropout(config, d))
+    dropout = _dropout(config, d)
+    check_audit_size(train.env, d, ks, config.episodes, config.search, config.beam_width, _plan(config, d), dropout)
     with _audit_folder(out):
         which = f"the best policy (env step {policy.step})" if best else f"checkpoint {policy.step}"
         with reporting(f"auditing {which} of {train.env} for k={_sizes(ks)} ({config.search} search, "
@@ -319,8 +320,7 @@ def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
                             **({"lower_bound": train.lower_bound} if train.missingness == "adversarial" else {})},
                            config.score_estimator, trainer.critic_values, policy.critic_params,
                            config.score_horizon, train.gamma, config.search, config.beam_width, config.ranker,
-                           _shapley(config.shapley), progress=True, tell_apart=config.tell_apart,
-                           dropout=_dropout(config, d))
+                           _shapley(config.shapley), progress=True, tell_apart=config.tell_apart, dropout=dropout)
         return result, write_audit(result, out, config.top)
 
 
