@@ -211,6 +211,26 @@ def mask_observation(obs, hidden):
     return xp.concat([obs * (1 - hidden), hidden], axis=-1)
 
 
+def check_fail_at(fail_at, max_steps: int | None = None) -> int:
+    """``fail_at`` as an int: the env step of each episode at which the sensors of u fail
+    (:func:`hidden_from_step`); ValueError in one line for one below 0, not whole, or at or
+    past ``max_steps`` (the episodes' step limit, where known), where nothing would fail."""
+    if not isinstance(fail_at, numbers.Integral) or isinstance(fail_at, bool) or fail_at < 0:
+        raise ValueError(f"fail_at must be an env step >= 0 (0: hidden from the start), got {fail_at!r}")
+    if max_steps is not None and fail_at >= max_steps:
+        raise ValueError(f"fail_at={fail_at} is not below the episodes' {max_steps} steps: nothing would fail")
+    return int(fail_at)
+
+
+def hidden_from_step(hidden, steps_taken, fail_at: int):
+    """u's 0/1 rows as each episode sees them after ``steps_taken`` env steps, when the sensors
+    of u fail at env step ``fail_at``: nothing hidden before it, u from it on (the observation
+    after ``fail_at`` steps is the first without them). ``fail_at`` = 0 is the paper's u, hidden
+    for the whole episode (§3). ``hidden`` (n, d), ``steps_taken`` (n,), NumPy or JAX."""
+    xp = hidden.__array_namespace__()
+    return hidden * xp.astype(steps_taken >= fail_at, hidden.dtype)[..., None]
+
+
 def check_masked_batch(masked_obs: np.ndarray, num_features: int) -> None:
     """ValueError in one line unless ``masked_obs`` is a batch of masked observations (n, 2·d),
     as a policy's ``masked`` takes them (an unmasked batch would fail deep in the network)."""

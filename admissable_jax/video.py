@@ -29,7 +29,7 @@ import numpy as np  # noqa: E402
 from admissable_jax.cli import parse_args, run_from_cli, run_main, setting  # noqa: E402
 from admissable_jax.envs import observation_names, settotalmass_warning_dropped  # noqa: E402
 from admissable_jax.errors import RunFailed, make_directory  # noqa: E402
-from admissable_jax.method import describe_set, parse_set  # noqa: E402
+from admissable_jax.method import check_fail_at, describe_set, parse_set  # noqa: E402
 from admissable_jax.run_directory import SCORING_KEYS, read_jsonl  # noqa: E402
 
 PANEL_WIDTH, PANEL_HEIGHT, LABEL_HEIGHT = 480, 352, 32  # multiples of 16, as H.264 wants
@@ -42,13 +42,15 @@ class VideoConfig:
                               "run's Gymnasium env; name hidden= (it holds no scorings)")
     hidden: str = setting("worst", "u: feature indices or names, comma separated (e.g. 2 or 'thigh joint angle'); "
                                    "worst = argmin_u a_u of the checkpoint's scoring")
-    out: str = setting("", "the .mp4 to write (default RUN_DIR/videos/step<STEP>-hidden<u>.mp4; best=true: "
+    out: str = setting("", "the .mp4 to write (default RUN_DIR/videos/step<STEP>-hidden<u>[-fail<T>].mp4; best=true: "
                            "best-step<STEP>-...; policy=: videos/<its name>-hidden<u>.mp4 beside the file)")
     step: int = setting(-1, "the checkpoint (env step); -1 = the latest")
     best: bool = setting(False, "the policy the run kept at its best scoring (best_policy.npz) instead of a checkpoint")
     seed: int = setting(0, "reset seed of the start state both sides share")
     frames: int = setting(1000, "frames at most: the start, then one per env step (Gymnasium's episodes end at 1000 "
                                 "steps, or when the agent falls; the end is then held for a second)")
+    fail_at: int = setting(0, "the env step at which u's sensors fail, every feature seen before it (a sensor "
+                              "that dies mid-run); 0 = hidden from the start. The default file ends in -fail<T>")
 
 
 class RenderingUnavailable(RunFailed):
@@ -70,6 +72,7 @@ def check_video_config(config: VideoConfig) -> None:
         raise ValueError(f"seed must be >= 0, got {config.seed}")
     if config.out and not config.out.endswith(".mp4"):
         raise ValueError(f"out must be an .mp4 file, got {config.out!r}")
+    check_fail_at(config.fail_at)
 
 
 @dataclasses.dataclass
@@ -131,7 +134,7 @@ def _shown(config: VideoConfig) -> _Shown:
         env_name, names = exported.source.get("env"), list(exported.observation_names)
         hidden = resolve_hidden(config.hidden, env_name, names, [], -1)
         stem = os.path.splitext(os.path.basename(config.policy))[0]
-        out = os.path.join(os.path.dirname(config.policy), "videos", f"{stem}-hidden{_set_text(hidden)}.mp4")
+        out = os.path.join(os.path.dirname(config.policy), "videos", f"{stem}-{_file_ending(hidden, config.fail_at)}")
         return _Shown(exported, exported.source.get("gymnasium_id"), env_name, hidden,
                       tuple(names[i] for i in hidden), exported.source.get("env_steps"), out)
     from admissable_jax.policies import load_policy, requested_step
@@ -142,13 +145,14 @@ def _shown(config: VideoConfig) -> _Shown:
     names = observation_names(train.env)
     hidden = resolve_hidden(config.hidden, train.env, names, scorings, policy.step)
     best = "best-" * (policy.best_min_score is not None)
-    out = os.path.join(config.run_dir, "videos", f"{best}step{policy.step}-hidden{_set_text(hidden)}.mp4")
+    out = os.path.join(config.run_dir, "videos", f"{best}step{policy.step}-{_file_ending(hidden, config.fail_at)}")
     return _Shown(policy, policy.trainer.env.gymnasium_id, train.env, hidden, tuple(names[i] for i in hidden),
                   policy.step, out)
 
 
-def _set_text(hidden: tuple[int, ...]) -> str:
-    return "-".join(map(str, hidden)) or "none"
+def _file_ending(hidden: tuple[int, ...], fail_at: int) -> str:
+    """The default file name's end: u, and when its sensors fail where not at the start."""
+    return f"hidden{'-'.join(map(str, hidden)) or 'none'}{f'-fail{fail_at}' * bool(fail_at)}.mp4"
 
 
 def _labelled(frame: np.ndarray, text: str) -> np.ndarray:
@@ -196,7 +200,9 @@ def render_video(config: VideoConfig) -> Video:
                 "libegl1 and libgl1-mesa-dri (EGL), or libosmesa6 and set MUJOCO_GL=osmesa") from None
         returns, lengths, running, held = [0.0, 0.0], [0, 0], [True, True], 0
         fps = envs[0].metadata.get("render_fps", 30)
-        titles = ["nothing hidden", f"hidden {describe_set(np.array(hidden))}: {', '.join(names) or 'nothing'}"]
+        failing = f" from step {config.fail_at}" if config.fail_at else ""
+        titles = ["nothing hidden",
+                  f"hidden {describe_set(np.array(hidden))}{failing}: {', '.join(names) or 'nothing'}"]
         with ffmpeg_forks_quietly(), imageio.get_writer(out, fps=fps, codec="libx264", macro_block_size=16) as writer:
             for frame in range(config.frames):
                 panels = []
@@ -212,7 +218,8 @@ def render_video(config: VideoConfig) -> Video:
                     continue
                 for side, env in enumerate(envs):
                     if running[side]:
-                        action = policy(observations[side], hidden=sides[side])
+                        failed = lengths[side] >= config.fail_at  # (u seen until its sensors fail)
+                        action = policy(observations[side], hidden=sides[side] if failed else ())
                         observations[side], reward, terminated, truncated, _ = env.step(action)
                         returns[side] += float(reward)
                         lengths[side] += 1
@@ -232,7 +239,8 @@ def main(argv: list[str]) -> int:
     if status:
         return status
     print(f"wrote {video.path}: {video.frames} frames of step {video.step}; nothing hidden: return "
-          f"{video.clean_return:.1f} in {video.clean_length} steps; hidden {list(video.hidden)} "
+          f"{video.clean_return:.1f} in {video.clean_length} steps; hidden {list(video.hidden)}"
+          f"{f' from step {config.fail_at}' if config.fail_at else ''} "
           f"({', '.join(video.hidden_names)}): return {video.hidden_return:.1f} in {video.hidden_length} steps")
     return 0
 

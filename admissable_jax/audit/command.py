@@ -7,15 +7,16 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import os
+import sys
 from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 
 from admissable_jax.audit.report import compare_modes, comparison_chart, dropout_line, over_training_chart, \
     over_training_table, pair_curves, shapley_order, write_audit
 from admissable_jax.audit.sets import AuditResult, audit, audit_gymnasium, audit_sizes, check_audit_size, \
-    check_search, gymnasium_features, rollout_sets, shapley_plan
+    check_failing_audit, check_search, gymnasium_features, rollout_sets, shapley_plan
 from admissable_jax.cli import enable_compilation_cache, parse_args, reporting, run_from_cli, setting
 from admissable_jax.errors import make_directory, remove_if_unused
-from admissable_jax.method import set_sizes
+from admissable_jax.method import check_fail_at, set_sizes
 from admissable_jax.run_directory import is_experiment
 from admissable_jax.scoring import SCORE_ESTIMATORS
 from admissable_jax.scoring.attribution import MIN_ORDERS, ShapleyPlan
@@ -71,6 +72,9 @@ class AuditConfig:
                                "expected return when each feature fails with probability p for a whole episode, "
                                "independently, from dropout_masks masks per rate; '' = none")
     dropout_masks: int = setting(20, "M: masks drawn per dropout rate (the interval narrows as 1/sqrt(M))")
+    fail_at: int = setting(0, "the env step of each episode at which the hidden features' sensors fail, every feature "
+                              "seen before it (a sensor that dies mid-run); 0 = hidden from the start, as the paper "
+                              "and training hide them. Rollouts only; the default folders end in -fail<T>")
 
 
 def _ks(text: str, trained_k: int = 1, up_to_k: bool = False) -> tuple[int, ...]:
@@ -122,6 +126,13 @@ def check_audit_config(config: AuditConfig) -> None:
     _shapley(config.shapley)
     if parse_rates(config.dropout) and config.dropout_masks < 2:
         raise ValueError(f"dropout_masks must be at least 2 for an interval, got {config.dropout_masks}")
+    check_failing_audit(check_fail_at(config.fail_at), config.score_estimator,
+                        config.ranker if config.search == "beam" else "rollout")
+
+
+def _failing(config: AuditConfig) -> str:
+    """The default folder's ending: ``-fail<T>`` where the sensors fail at env step T."""
+    return f"-fail{config.fail_at}" if config.fail_at else ""
 
 
 def _shapley(text: str) -> int | str:
@@ -155,6 +166,8 @@ def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     names the env and the set sizes where ``gym=`` and ``k=`` do not; write the report into
     ``config.out`` (default ``audit-<ENV_ID>-<NAME>``). ``gym=`` may name one of our envs as
     ``env=`` does (``hopper`` for Hopper-v5)."""
+    import gymnasium
+
     from admissable_jax.envs.catalog import gymnasium_env_id
 
     check_audit_config(config)
@@ -162,9 +175,10 @@ def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     config = dataclasses.replace(config, gym=gymnasium_env_id(audited.gym))
     d = gymnasium_features(config.gym)
     audit_sizes(audited.ks, d)  # before anything is written
+    check_fail_at(config.fail_at, gymnasium.spec(config.gym).max_episode_steps)
     dropout = _dropout(config, d)
     check_audit_size(config.gym, d, audited.ks, config.episodes, None, plan=_plan(config, d), dropout=dropout)
-    out = config.out or f"audit-{config.gym}-{audited.name}"
+    out = config.out or f"audit-{config.gym}-{audited.name}{_failing(config)}"
     with _audit_folder(out):
         with reporting(f"auditing {config.policy} on {config.gym} for k={_sizes(audited.ks)} "
                        f"({_episodes_asked(config)})"):
@@ -172,7 +186,7 @@ def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
                                      num_envs=config.slots or 8, seed=config.seed,
                                      feature_names=audited.feature_names if len(audited.feature_names or ()) == d
                                      else None, shapley=_shapley(config.shapley), progress=True,
-                                     tell_apart=config.tell_apart, dropout=dropout)
+                                     tell_apart=config.tell_apart, dropout=dropout, fail_at=config.fail_at)
         result = dataclasses.replace(result, source={**result.source, **audited.source})
         return result, write_audit(result, out, config.top)
 
@@ -300,8 +314,9 @@ def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
     from admissable_jax.envs import observation_names
 
     best = policy.best_min_score is not None
-    out = config.out or os.path.join(config.run_dir, f"audit-{'best-' * best}step{policy.step}")
+    out = config.out or os.path.join(config.run_dir, f"audit-{'best-' * best}step{policy.step}{_failing(config)}")
     train = policy.config
+    check_fail_at(config.fail_at, train.episode_length)
     d = policy.observation_size
     ks = audit_sizes(_ks(config.k, train.k, train.up_to_k), d)  # before the audit starts
     dropout = _dropout(config, d)
@@ -320,7 +335,8 @@ def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
                             **({"lower_bound": train.lower_bound} if train.missingness == "adversarial" else {})},
                            config.score_estimator, trainer.critic_values, policy.critic_params,
                            config.score_horizon, train.gamma, config.search, config.beam_width, config.ranker,
-                           _shapley(config.shapley), progress=True, tell_apart=config.tell_apart, dropout=dropout)
+                           _shapley(config.shapley), progress=True, tell_apart=config.tell_apart, dropout=dropout,
+                           fail_at=config.fail_at)
         return result, write_audit(result, out, config.top)
 
 
@@ -343,7 +359,7 @@ def audit_over_training(config: AuditConfig) -> tuple[list[AuditResult], list[st
     if missing:
         raise ValueError(f"no checkpoint at {', '.join(map(str, missing))} in {config.run_dir}; "
                          f"saved: {', '.join(map(str, saved)) or 'none'}")
-    out = config.out or os.path.join(config.run_dir, "audit-over-training")
+    out = config.out or os.path.join(config.run_dir, f"audit-over-training{_failing(config)}")
     results, written = _audit_each([(dataclasses.replace(config, out=os.path.join(out, f"step{step}")), step)
                                     for step in steps])
     written.append(over_training_chart(results, os.path.join(out, "robustness_over_training.png")))
@@ -391,8 +407,8 @@ def audit_experiment(config: AuditConfig) -> tuple[list[AuditResult], list[str]]
     pair_out = lambda name: os.path.join(config.out, name) if config.out else ""
     results, written = _audit_each([(dataclasses.replace(config, run_dir=os.path.join(root, name), out=pair_out(name)),
                                      step) for name in pairs])
-    out = config.out or os.path.join(root, "audit-best" if config.best else
-                                     f"audit-step{results[0].source['checkpoint (env step)']}")
+    audited = "audit-best" if config.best else f"audit-step{results[0].source['checkpoint (env step)']}"
+    out = config.out or os.path.join(root, audited + _failing(config))
     make_directory(out, "audit folder")
     written.append(comparison_chart(results, os.path.join(out, "comparison.png")))
     written.append(os.path.join(out, "comparison.md"))
@@ -419,6 +435,9 @@ def main(argv: list[str]) -> int:
                 f"step {result.source['checkpoint (env step)']}: " if config.steps else "")
         if result.pilot is not None:
             print(f"{pair}N = {result.pilot['chosen']} episodes per set, chosen by a pilot of {result.pilot['episodes']}")
+        if result.fail_at and result.ended_before_failing == len(result.clean_lengths):
+            print(f"{pair}warning: every clean episode had ended by env step {result.fail_at}, where the sensors fail: "
+                  "the sets' returns are the clean one's; give a smaller fail_at", file=sys.stderr)
         for k in result.sets:
             print(f"{pair}{result.worst_line(k)}")
         if result.shapley is not None:

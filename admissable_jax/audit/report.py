@@ -52,12 +52,14 @@ def _report(result: AuditResult, top: int, figures: list[str]) -> str:
                f"the `{result.estimator}` estimate (the critic's discounted value; admissable_jax.scoring) over")
     lines = [
         f"# Robustness audit: {result.env}", "",
-        f"{source}. Every set u of the sizes below was hidden for whole episodes (hidden features read 0, "
-        f"with the 0/1 indicator of the paper's masked observation); a_u is {measure} "
+        f"{source}. Every set u of the sizes below was hidden (hidden features read 0, with the 0/1 indicator of "
+        f"the paper's masked observation) {hidden_when(result)}; a_u is {measure} "
         f"N = {result.n_episodes} {episodes}, ± the 95% confidence "
         f"interval (Student's t); the drop is relative to the clean case.", "",
         f"**Clean return (nothing hidden): {result.clean_score:.1f} ± {result.clean_ci95:.1f}**", "",
     ]
+    if result.fail_at:
+        lines += [_failure_sentence(result), ""]
     if result.pilot is not None:
         lines += [_pilot_sentence(result.pilot), ""]
     for k, entries in result.sets.items():
@@ -89,6 +91,36 @@ def _report(result: AuditResult, top: int, figures: list[str]) -> str:
     lines += [f"![{name}]({name})" for name in figures]
     lines += ["", "Every number, with each episode's return: `audit.json`."]
     return "\n".join(lines) + "\n"
+
+
+def hidden_when(result: AuditResult) -> str:
+    """When the audit's sets were hidden, in words: for whole episodes (the paper's a_u), or
+    from the env step at which their sensors failed (``fail_at``)."""
+    return ("for whole episodes" if not result.fail_at else
+            f"from env step {result.fail_at} of each episode on, every feature seen before it (a sensor that fails "
+            f"mid-episode, `fail_at`; the paper's a_u hides u from the start)")
+
+
+def _failure_sentence(result: AuditResult) -> str:
+    """How many episodes ended before the sensors failed, where they fail mid-episode."""
+    ended, total = result.ended_before_failing, len(result.clean_lengths)
+    span = f"the clean episodes last {min(result.clean_lengths)}–{max(result.clean_lengths)} env steps"
+    if not ended:
+        return f"The sensors fail at env step {result.fail_at}, and every clean episode ran past it ({span})."
+    if not result.same_starts:
+        return (f"The sensors fail at env step {result.fail_at}; {ended} of the {total} clean episodes had ended by "
+                f"then ({span}). The sets' episodes start elsewhere, so this is a guide only.")
+    return (f"The sensors fail at env step {result.fail_at}; {ended} of the {total} clean episodes had ended by then "
+            f"({span}). Each set's episode from the same start took the clean one's course, so no sensor failed in "
+            f"those" + (": every a_u equals the clean return; give a smaller `fail_at`." if ended == total else "."))
+
+
+def audit_settings(results: list[AuditResult]) -> str:
+    """How several audits (an experiment's pairs, a run's checkpoints) were made, in a few
+    words: N, the estimator and, where the sensors failed mid-episode, when."""
+    first = results[0]
+    failing = f", sensors failing at env step {first.fail_at}" if first.fail_at else ""
+    return f"{episodes_per_set(results)}, `{first.estimator}`{failing}"
 
 
 def _small(value: float) -> str:
@@ -172,9 +204,10 @@ def _dropout_section(result: AuditResult) -> list[str]:
     first = result.dropout[0]
     value = "return" if result.estimator == "rollout" else f"`{result.estimator}` estimate"
     lines = ["## Random sensor failure", "",
-             f"Each feature failed (read 0, flagged) with probability p, independently of the others, for whole "
-             f"episodes. R(p) is the expected {value} then, from M = {first.masks} masks drawn per rate, each valued "
-             f"as a set is (N = {result.n_episodes} episodes), ± the 95% interval over the masks (Student's t). The "
+             f"Each feature failed (read 0, flagged) with probability p, independently of the others, "
+             f"{hidden_when(result)}. R(p) is the expected {value} then, from M = {first.masks} masks drawn per rate, "
+             f"each valued as a set is (N = {result.n_episodes} episodes), ± the 95% interval over the masks "
+             f"(Student's t). The "
              f"worst sets above are what an adversary makes of as many losses. Method: "
              f"admissable_jax.scoring.dropout.", "",
              "| failure rate p | features lost per episode (mean) | R(p) ± 95% CI | drop |", "|---|---|---|---|"]
@@ -301,8 +334,8 @@ def over_training_table(results: list[AuditResult]) -> str:
     attributed = all(result.shapley is not None for result in results)
     rates = [entry.rate for entry in first.dropout] if all(result.dropout is not None for result in results) else []
     lines = [f"# Robustness over training: {first.env}, {first.source['run']}", "",
-             f"Each checkpoint audited as its folder's report says ({episodes_per_set(results)}, "
-             f"`{first.estimator}`): per k, the worst a_u ± its 95% interval with its set, and the mean a_u over the "
+             f"Each checkpoint audited as its folder's report says ({audit_settings(results)}): per k, the worst a_u ± "
+             "its 95% interval with its set, and the mean a_u over the "
              "sets (the average case; none for a searched k)" + ("; and the feature worth most, its Shapley value "
                                                                 "φ_i of v(all) − v(none)" if attributed else "") + ".", "",
              "| env step | clean return | " + " | ".join(f"k={k}: worst a_u (set) | k={k}: mean a_u" for k in ks)
@@ -442,7 +475,7 @@ def compare_modes(results: list[AuditResult]) -> str:
         by_mode.setdefault(curve, []).append(result)
     first = results[0]
     lines = [f"# Robustness audit of an experiment: {first.env}, {audited_policies(results)}", "",
-             f"Each pair audited as its own report says ({episodes_per_set(results)}, `{first.estimator}`); "
+             f"Each pair audited as its own report says ({audit_settings(results)}); "
              "here, per pair, the worst a_u over the sets of each size and the mean a_u over them (the average case, "
              "u drawn uniformly), then mean ± 95% t-interval over the seeds of a mode. Where a k was searched "
              "(`search=beam`), the worst found is an upper bound on the worst, and there is no mean.", "",
@@ -488,12 +521,13 @@ def episodes_per_set(results: list[AuditResult]) -> str:
 def _dropout_by_mode(by_mode: dict[str, list[AuditResult]], adversarial: list[str]) -> list[str]:
     """Markdown: the expected return under random sensor failure per rate and mode, mean ±
     95% t-interval over the mode's pairs; then adversarial − uniform per rate (Welch's t)."""
-    rates = [entry.rate for entry in next(iter(by_mode.values()))[0].dropout]
+    first = next(iter(by_mode.values()))[0]
+    rates = [entry.rate for entry in first.dropout]
     values = {mode: np.array([[entry.score for entry in result.dropout] for result in group])
               for mode, group in sorted(by_mode.items())}
     lines = ["", "## Random sensor failure, per mode", "",
-             "Each pair's R(p), the expected return when each feature fails with probability p for whole episodes "
-             "(its report's section), mean ± 95% t-interval over the seeds of a mode.", "",
+             f"Each pair's R(p) (its report's section), the expected return when each feature fails with probability p "
+             f"{hidden_when(first)}, mean ± 95% t-interval over the seeds of a mode.", "",
              "| failure rate p | " + " | ".join(values) + " |", "|---|" + "---|" * len(values)]
     lines += [f"| {rate:g} | " + " | ".join(estimate(per_pair[:, column]) for per_pair in values.values()) + " |"
               for column, rate in enumerate(rates)]

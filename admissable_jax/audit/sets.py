@@ -15,7 +15,7 @@ import numpy as np
 
 from admissable_jax.audit.watch import report_from_rollout, watched_rollout
 from admissable_jax.cli import compiled_in_background
-from admissable_jax.method import candidate_sets
+from admissable_jax.method import candidate_sets, check_fail_at
 from admissable_jax.scoring import SCORE_ESTIMATORS
 from admissable_jax.scoring.attribution import ShapleyAttribution, ShapleyPlan, plan_shapley, shapley_attribution
 from admissable_jax.scoring.dropout import DropoutPlan, DropoutScore, dropout_scores
@@ -71,6 +71,15 @@ class AuditResult:
     shapley: ShapleyAttribution | None = None  # what each feature is worth, where asked (scoring.attribution)
     pilot: dict[str, Any] | None = None  # with tell_apart: the pilot audit that chose N (see audit)
     dropout: list[DropoutScore] | None = None  # where asked: the return under random sensor failure (scoring.dropout)
+    fail_at: int = 0  # the env step of each episode at which the hidden features failed (0: hidden from the start)
+    clean_lengths: list[int] = dataclasses.field(default_factory=list)  # the clean episodes' env steps
+
+    @property
+    def ended_before_failing(self) -> int:
+        """Clean episodes that ended by env step ``fail_at``: where every set's episode starts
+        from the clean one's state, its sensors never failed in them (the policy saw everything
+        until then, so it took the clean episode's course)."""
+        return sum(length <= self.fail_at for length in self.clean_lengths) if self.fail_at else 0
 
     def worst(self, k: int, top: int) -> list[SetScore]:
         return sorted(self.sets[k], key=lambda entry: entry.score)[:top]
@@ -109,8 +118,9 @@ class AuditResult:
     def __repr__(self) -> str:
         """What was found, a line per k, not every episode's return (a notebook showing an
         audit of Hopper's 66 sets of 1 and 2 features printed each of their 50 returns)."""
-        lines = [f"<AuditResult of {self.env}, {self.n_episodes} episodes per set: clean {self.clean_score:.1f} ± "
-                 f"{self.clean_ci95:.1f}", *(f"  {self.worst_line(k)}" for k in self.sets)]
+        failing = f", hidden from env step {self.fail_at}" if self.fail_at else ""
+        lines = [f"<AuditResult of {self.env}, {self.n_episodes} episodes per set{failing}: clean "
+                 f"{self.clean_score:.1f} ± {self.clean_ci95:.1f}", *(f"  {self.worst_line(k)}" for k in self.sets)]
         return "\n".join(lines) + ">"
 
 
@@ -138,7 +148,7 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
           feature_names: list[str] | None = None, source: dict[str, Any] | None = None, estimator: str = "rollout",
           critic_fn=None, critic_params=None, horizon: int = 0, gamma: float = 0.99, search: str = "exact",
           beam_width: int = 4, ranker: str = "rollout", shapley: int | str = 0, progress: bool = False,
-          tell_apart: bool = False, dropout: DropoutPlan | None = None) -> AuditResult:
+          tell_apart: bool = False, dropout: DropoutPlan | None = None, fail_at: int = 0) -> AuditResult:
     """Score every set of each size in ``ks`` and the clean case in one batch, N =
     ``n_episodes`` each from the same N start states, by
     :func:`~admissable_jax.scoring.score_missingness` with ``estimator`` (``critic`` and
@@ -147,7 +157,9 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
     search ranked by ``ranker`` instead of all C(d, k). ``shapley`` (``"exact"``, or M >= 4
     feature orders; 0: none) adds the Shapley attribution's coalitions to the batch (module
     package docstring). ``dropout`` adds its masks to the batch: the expected return under
-    random sensor failure (:mod:`admissable_jax.scoring.dropout`). ``progress`` draws a bar
+    random sensor failure (:mod:`admissable_jax.scoring.dropout`). ``fail_at`` > 0 (with the
+    ``rollout`` estimator and ranker): every set's sensors fail at that env step of each
+    episode, seen until then, instead of being hidden from its start. ``progress`` draws a bar
     over each rollout's episodes as they finish.
 
     ``tell_apart``: ``n_episodes`` is a pilot's N; the audit returned is a second one, from
@@ -163,16 +175,17 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
     d = env.observation_size
     ks = audit_sizes(ks, d)
     searched = [k for k in ks if search == "beam" and k > 1]
+    check_failing_audit(check_fail_at(fail_at, env.max_episode_steps), estimator, ranker if searched else "rollout")
     plan = shapley_plan(d, shapley, seed)
     check_audit_size(env.name, d, ks, n_episodes, search, beam_width, plan, dropout)
     if tell_apart:
         return _told_apart(functools.partial(
             audit, env, policy_fn, params, ks, num_slots=num_slots, feature_names=feature_names, source=source,
             estimator=estimator, critic_fn=critic_fn, critic_params=critic_params, horizon=horizon, gamma=gamma,
-            search=search, beam_width=beam_width, ranker=ranker, progress=progress),
+            search=search, beam_width=beam_width, ranker=ranker, progress=progress, fail_at=fail_at),
             ks, n_episodes, seed, shapley, dropout, rollout_sets(d, ks, search, beam_width, plan, dropout))
     scorer = jax.jit(score_missingness, static_argnums=(0, 1, 5, 6, 7), static_argnames=(
-        "score_estimator", "critic_fn", "score_horizon", "gamma", "progress"))
+        "score_estimator", "critic_fn", "score_horizon", "gamma", "progress", "fail_at"))
     key = jax.random.key(seed)
 
     def score(rows: np.ndarray, how: str):
@@ -181,7 +194,7 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
         compiled = compiled_in_background(scorer.lower(
             env, policy_fn, params, key, rows, n_episodes, None, num_slots, score_estimator=how, critic_fn=critic_fn,
             critic_params=critic_params, score_horizon=horizon, gamma=gamma,
-            progress=report_from_rollout if counted else None))
+            progress=report_from_rollout if counted else None, fail_at=fail_at))
 
         def rollout():
             result = jax.block_until_ready(compiled(params, key, rows, critic_params=critic_params))
@@ -206,8 +219,19 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
                           "sets_ranked": int(found.num_ranked), "sets_in_all": math.comb(d, k),
                           "ranker_scores": [[np.flatnonzero(row).tolist(), float(score_)]
                                             for row, score_ in zip(finalists, ranker_scores)]}
-    return _audit_result(env.name, estimator, lambda rows: score(rows, estimator).returns, ks, blocks, plan,
-                         feature_names or [str(i) for i in range(d)], source or {}, search_info, dropout)
+    result = _audit_result(env.name, estimator, lambda rows: score(rows, estimator), ks, blocks, plan,
+                           feature_names or [str(i) for i in range(d)], source or {}, search_info, dropout)
+    return dataclasses.replace(result, fail_at=fail_at)
+
+
+def check_failing_audit(fail_at: int, estimator: str, ranker: str = "rollout") -> None:
+    """ValueError in one line for sensors that fail mid-episode (``fail_at`` > 0) valued by an
+    estimate: the critic values a start with u hidden from it, not a sensor that fails later."""
+    estimates = [name for name, how in (("score_estimator", estimator), ("ranker", ranker)) if how != "rollout"]
+    if fail_at and estimates:
+        given = " and ".join(f"{name}=rollout" for name in estimates)
+        raise ValueError(f"fail_at={fail_at} needs rollouts: give {given} (the critic values a start with u hidden "
+                         f"from it, not a sensor that fails later)")
 
 
 def _told_apart(audit_with, ks, n_episodes: int, seed: int, shapley: int | str, dropout: DropoutPlan | None,
@@ -249,13 +273,15 @@ def _distinct_hidden_sets(row_blocks: list[np.ndarray]) -> tuple[np.ndarray, np.
 def _audit_result(env_name: str, estimator: str, score_rows, ks, blocks: list[np.ndarray], plan: ShapleyPlan | None,
                   names: list[str], source: dict[str, Any], search_info: dict[int, dict[str, Any]],
                   dropout: DropoutPlan | None = None) -> AuditResult:
-    """The audit of one rollout by ``score_rows`` ((r, d) 0/1 rows -> (r + 1, N) returns,
-    the clean case last) of the sets in ``blocks`` (one block of 0/1 rows per k in ``ks``),
-    of ``dropout``'s masks and of ``plan``'s coalitions, each distinct set once."""
+    """The audit of one rollout by ``score_rows`` ((r, d) 0/1 rows -> the scores, whose
+    ``returns`` and ``lengths`` are (r + 1, N), the clean case last) of the sets in ``blocks``
+    (one block of 0/1 rows per k in ``ks``), of ``dropout``'s masks and of ``plan``'s
+    coalitions, each distinct set once."""
     num_sets = sum(len(block) for block in blocks)
     masks = [] if dropout is None else [dropout.hidden_rows]
     rollout_rows, row_index = _distinct_hidden_sets(blocks + masks + ([plan.hidden_rows] if plan is not None else []))
-    valued = np.asarray(score_rows(rollout_rows), np.float64)
+    scored = score_rows(rollout_rows)
+    valued = np.asarray(scored.returns, np.float64)
     returns = valued[np.append(row_index[:num_sets], -1)]
     clean = returns[-1]
     clean_score = float(clean.mean())
@@ -274,7 +300,8 @@ def _audit_result(env_name: str, estimator: str, score_rows, ks, blocks: list[np
     failures = None if dropout is None else dropout_scores(
         dropout, valued[row_index[num_sets:num_sets + len(dropout.hidden_rows)]].mean(axis=1))
     return AuditResult(env_name, estimator, returns.shape[1], clean_score, t_half_width(clean), clean.tolist(), sets,
-                       list(names), source, search_info, shapley=shapley, dropout=failures)
+                       list(names), source, search_info, shapley=shapley, dropout=failures,
+                       clean_lengths=np.asarray(scored.lengths)[-1].tolist())
 
 
 def gymnasium_features(env_id: str, **env_kwargs) -> int:
@@ -307,7 +334,8 @@ def audit_sizes(ks, d: int) -> tuple[int, ...]:
 
 def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs: int = 8, seed: int = 0,
                     feature_names: list[str] | None = None, shapley: int | str = 0, progress: bool = False,
-                    tell_apart: bool = False, dropout: DropoutPlan | None = None, **env_kwargs) -> AuditResult:
+                    tell_apart: bool = False, dropout: DropoutPlan | None = None, fail_at: int = 0,
+                    **env_kwargs) -> AuditResult:
     """:func:`audit` for any policy on any Gymnasium env (Stable-Baselines3, CleanRL, your
     own PyTorch): every set of each size in ``ks`` and the clean case, N = ``n_episodes``
     episodes each, in one rollout on ``num_envs`` copies of ``gymnasium.make_vec(env_id)``
@@ -315,19 +343,22 @@ def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs
     actions``). Episode starts follow the vector env's seed, so unlike :func:`audit` the
     sets do not share their N start states. ``feature_names`` default to our env's for
     Hopper-v5, Walker2d-v5, Ant-v5 and HalfCheetah-v5, else the indices. ``shapley``,
-    ``dropout`` and ``tell_apart`` as in :func:`audit` (the gaps by Welch's t); ``progress`` draws a bar over
+    ``dropout``, ``fail_at`` and ``tell_apart`` as in :func:`audit` (the gaps by Welch's t); ``progress`` draws a
+    bar over
     the episodes. :func:`~admissable_jax.audit.report.write_audit` writes the files."""
     from admissable_jax.envs import canonical_env_name, observation_names, settotalmass_warning_dropped
-    from admissable_jax.wrappers import score_policy
+    from admissable_jax.wrappers import PolicyScores, score_policy
 
     d = gymnasium_features(env_id, **env_kwargs)
     ks = audit_sizes(ks, d)
+    check_fail_at(fail_at)
     blocks = [candidate_sets(d, k) for k in ks]
     plan = shapley_plan(d, shapley, seed)
     check_audit_size(env_id, d, ks, n_episodes, search=None, plan=plan, dropout=dropout)
     if tell_apart:
         return _told_apart(functools.partial(audit_gymnasium, env_id, policy, ks, num_envs=num_envs,
-                                             feature_names=feature_names, progress=progress, **env_kwargs),
+                                             feature_names=feature_names, progress=progress, fail_at=fail_at,
+                                             **env_kwargs),
                            ks, n_episodes, seed, shapley, dropout, rollout_sets(d, ks, None, 0, plan, dropout))
     if feature_names is None:
         try:
@@ -337,14 +368,14 @@ def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs
         if len(feature_names) != d:  # or made with other observation arguments
             feature_names = [str(i) for i in range(d)]
 
-    def score_rows(rows: np.ndarray) -> np.ndarray:
+    def score_rows(rows: np.ndarray) -> PolicyScores:
         with settotalmass_warning_dropped():
             return score_policy(env_id, policy, n_episodes=n_episodes, num_envs=num_envs, seed=seed, hidden_sets=rows,
-                                progress=progress, **env_kwargs).returns
+                                progress=progress, fail_at=fail_at, **env_kwargs)
 
     source = {"Gymnasium env": env_id, "policy": getattr(policy, "__name__", type(policy).__name__)}
     result = _audit_result(env_id, "rollout", score_rows, ks, blocks, plan, feature_names, source, {}, dropout)
-    return dataclasses.replace(result, same_starts=False)
+    return dataclasses.replace(result, same_starts=False, fail_at=fail_at)
 
 
 def drop_below_clean(clean_score: float, score: float) -> float:

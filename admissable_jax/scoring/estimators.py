@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from admissable_jax.method import check_fail_at
 from admissable_jax.missingness import check_zero_one
 from admissable_jax.scoring.rollout_scores import MissingnessScores, PolicyFn, score_by_rollout
 from admissable_jax.scoring.value_estimates import CriticFn, estimate_scores
@@ -42,12 +43,15 @@ def score_missingness(
     score_horizon: int = 100,
     gamma: float = 0.99,
     progress: Callable[[jax.Array], None] | None = None,
+    fail_at: int = 0,
 ) -> MissingnessScores:
     """Score every u in ``hidden_sets`` ((|U|, d) 0/1 rows) and the clean case, N =
     ``n_episodes`` from the same N start states, by ``score_estimator``. ``max_steps``,
     ``num_slots`` and ``steps_per_check`` concern ``rollout`` (see ``score_by_rollout``); ``critic_fn(critic_params,
     masked_obs, action) -> (2,)`` twin Q, ``score_horizon`` (H) and ``gamma`` the other two.
     ``progress(finished)``: the ``rollout``'s episodes finished so far, told from inside it.
+    ``fail_at`` (``rollout`` only): the env step of each episode at which u's sensors fail,
+    seen until then; 0, the paper's a_u, hides them from the start.
     Called directly it runs as one program, compiled once per env, function, setting and
     shape of ``hidden_sets`` (op by op, each call compiled its rollout again and each eager
     op of its start states once); inside a caller's jit it is part of the caller's program."""
@@ -58,20 +62,24 @@ def score_missingness(
         raise ValueError(f"score_estimator must be one of {', '.join(SCORE_ESTIMATORS)}, got {score_estimator!r}")
     if score_estimator != "rollout" and critic_fn is None:
         raise ValueError(f"score_estimator={score_estimator} needs the critic (critic_fn and critic_params)")
+    fail_at = check_fail_at(fail_at, env.max_episode_steps if max_steps is None else max_steps)
+    if fail_at and score_estimator != "rollout":
+        raise ValueError(f"fail_at={fail_at} needs score_estimator=rollout: the critic values each start with u "
+                         f"hidden from it, not a sensor that fails later")
     return _scores(env, policy_fn, params, rng, hidden_sets, int(n_episodes), max_steps, num_slots, steps_per_check,
-                   score_estimator, critic_fn, critic_params, score_horizon, gamma, progress)
+                   score_estimator, critic_fn, critic_params, score_horizon, gamma, progress, fail_at)
 
 
-@functools.partial(jax.jit, static_argnums=(0, 1, 5, 6, 7, 8, 9, 10, 12, 13, 14))
+@functools.partial(jax.jit, static_argnums=(0, 1, 5, 6, 7, 8, 9, 10, 12, 13, 14, 15))
 def _scores(env, policy_fn: PolicyFn, params: Any, rng: jax.Array, hidden_sets: jax.Array, n_episodes: int,
             max_steps: int | None, num_slots: int | None, steps_per_check: int, score_estimator: str,
             critic_fn: CriticFn | None, critic_params: Any, score_horizon: int, gamma: float,
-            progress: Callable[[jax.Array], None] | None) -> MissingnessScores:
+            progress: Callable[[jax.Array], None] | None, fail_at: int) -> MissingnessScores:
     """:func:`score_missingness` once its arguments are checked (everything but the
     parameters, the key and the sets static)."""
     if score_estimator == "rollout":
         return score_by_rollout(env, policy_fn, params, rng, hidden_sets, n_episodes, max_steps, num_slots,
-                                steps_per_check, progress)
+                                steps_per_check, progress, fail_at)
     horizon = score_horizon if score_estimator == "horizon" else 0
     return estimate_scores(env, policy_fn, params, critic_fn, critic_params, rng, hidden_sets, n_episodes, horizon, gamma)
 

@@ -31,6 +31,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from admissable_jax.branching import while_any
+from admissable_jax.method import check_fail_at, hidden_from_step
 from admissable_jax.missingness import mask_observation
 
 PolicyFn = Callable[[Any, jax.Array], jax.Array]  # (params, masked_obs (2·d,)) -> action
@@ -72,6 +73,7 @@ def score_by_rollout(
     num_slots: int | None = None,
     steps_per_check: int = 1,
     progress: Callable[[jax.Array], None] | None = None,
+    fail_at: int = 0,
 ) -> MissingnessScores:
     """Score every u in ``hidden_sets`` ((|U|, d) 0/1 rows) and the clean case.
 
@@ -83,9 +85,11 @@ def score_by_rollout(
     ``max_batch``). Fewer trades loop steps for a smaller batch, which pays where a step's
     cost grows with the batch, as on a CPU. ``steps_per_check``: steps between checks
     whether any episode still runs (module docstring). ``progress(finished)``: told the
-    episodes finished after each check (module docstring). Jit-able with ``env``,
-    ``policy_fn``, ``n_episodes``, ``max_steps``, ``num_slots``, ``steps_per_check`` and
-    ``progress`` static.
+    episodes finished after each check (module docstring). ``fail_at``: the env step of each
+    episode at which u's sensors fail, seen until then (0: hidden from the start, the paper's
+    a_u; :func:`~admissable_jax.method.hidden_from_step`). Jit-able with ``env``,
+    ``policy_fn``, ``n_episodes``, ``max_steps``, ``num_slots``, ``steps_per_check``,
+    ``progress`` and ``fail_at`` static.
     """
     if steps_per_check < 1:
         raise ValueError(f"steps_per_check must be >= 1, got {steps_per_check}")
@@ -95,6 +99,7 @@ def score_by_rollout(
     max_steps = env.max_episode_steps if max_steps is None else max_steps
     if max_steps < 1:  # (at 0, every episode would still take its first step)
         raise ValueError(f"max_steps must be >= 1, got {max_steps}")
+    fail_at = check_fail_at(fail_at, max_steps)
     num_rows = num_sets + 1
     num_episodes = num_rows * n_episodes  # episode e: set row e // N, initial state e % N
     max_batch = env.options.max_batch
@@ -119,8 +124,11 @@ def score_by_rollout(
 
     def step(carry, params, episode_hidden, initial):
         states, episode, alive = carry["states"], carry["episode"], carry["alive"]
+        hidden = episode_hidden[episode]
+        if fail_at:  # (at 0 the program is the paper's, as training compiles it)
+            hidden = hidden_from_step(hidden, states.step_count, fail_at)
         with jax.named_scope("score_policy"):
-            actions = policy(params, mask_observation(states.obs, episode_hidden[episode]))
+            actions = policy(params, mask_observation(states.obs, hidden))
         with jax.named_scope("score_env_step"):
             states = jax.vmap(env.step)(states, actions)
         finished = alive & (states.terminated | (states.step_count >= max_steps))
