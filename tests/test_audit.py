@@ -103,6 +103,28 @@ def test_full_horizon_without_discount_is_the_papers_rollout():
                                         r"make_env\('point_mass'\)$"):
         score_missingness("point_mass", steer, gain, rng, SETS, N)  # (it said "'str' object has no attribute ...")
     np.testing.assert_array_equal(score_missingness(ENV, steer, gain, rng, SETS, np.int64(N)).scores, rollout.scores)
+    # Sensors that fail at env step 4: each episode stepped by hand from the rollout's own start
+    # states, its first 4 actions seeing everything, the rest with u hidden.
+    failing = score_missingness(ENV, steer, gain, rng, SETS, N, fail_at=4)
+    starts = jax.vmap(ENV.reset)(jax.random.split(rng, N))
+    for row_index, hidden in enumerate(SETS):
+        for i in range(N):
+            state, total = jax.tree.map(lambda x: x[i], starts), 0.0
+            while True:
+                seen = hidden * (int(state.step_count) >= 4)
+                state = ENV.step(state, steer(gain, mask_observation(state.obs, seen)))
+                total += float(state.reward)
+                if bool(state.terminated) or int(state.step_count) >= ENV.max_episode_steps:
+                    break
+            assert float(failing.returns[row_index, i]) == pytest.approx(total, rel=1e-5, abs=1e-5)
+    assert not np.allclose(failing.scores, rollout.scores)  # (a failure at step 4 is not one from the start)
+    np.testing.assert_array_equal(failing.returns[-1], rollout.returns[-1])  # nothing fails in the clean case
+    for fail_at, estimator, message in ((12, "rollout", "fail_at=12 is not below the episodes' 12 steps"),
+                                        (-1, "rollout", r"fail_at must be an env step >= 0 \(0: hidden from the start\)"),
+                                        (4, "critic", "fail_at=4 needs score_estimator=rollout")):
+        with pytest.raises(ValueError, match=message):
+            score_missingness(ENV, steer, gain, rng, SETS, N, fail_at=fail_at, score_estimator=estimator,
+                              critic_fn=known_critic)
 
 
 def test_beam_search_finds_the_known_worst_pair():
@@ -442,6 +464,21 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
     by_hand = (5 * (6 - plan.hidden_rows @ np.array([1.0, 2.0, 3.0]))).reshape(2, 8)
     assert [entry.score for entry in failing.dropout] == pytest.approx(by_hand.mean(axis=1))
     assert [entry.score for entry in failing.sets[1]] == [25.0, 20.0, 15.0]
+    # Sensors that fail at env step 2 of each 5-step episode: 2 · 6 + 3 · (6 − the hidden value).
+    late = audit_gymnasium("ConstantFeatures-v0", sum_of_visible, ks=(1,), n_episodes=2, num_envs=3, fail_at=2)
+    assert [entry.score for entry in late.sets[1]] == [27.0, 24.0, 21.0] and late.clean_score == 30.0
+    assert (late.fail_at, late.clean_lengths, late.ended_before_failing) == (2, [5, 5], 0)
+    write_audit(late, str(tmp_path / "late"))
+    report = (tmp_path / "late" / "report.md").read_text()
+    assert ("was hidden (hidden features read 0, with the 0/1 indicator of the paper's masked observation) from env step 2 "
+            "of each episode on, every feature seen before it (a sensor that fails mid-episode, `fail_at`;") in report
+    assert "The sensors fail at env step 2, and every clean episode ran past it (the clean episodes last 5 env steps)." in report
+    # ...and at step 5, after every episode's end: nothing fails, which the command says, into a folder named for it.
+    assert audit_main(["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "episodes=2", "fail_at=5"]) == 0
+    record = json.loads((tmp_path / "audit-ConstantFeatures-v0-sum_of_visible-fail5" / "audit.json").read_text())
+    assert record["fail_at"] == 5 and [entry["score"] for entry in record["sets"]["1"]] == [30.0] * 3
+    assert ("warning: every clean episode had ended by env step 5, where the sensors fail: the sets' returns are the "
+            "clean one's; give a smaller fail_at") in capfd.readouterr().err
     # An exported policy (python -m admissable_jax.export), policy=FILE.npz: its run names the
     # Gymnasium env and the set sizes (k = 2 with up_to_k: 1 and 2) and its features' names,
     # the numbers are its masked batches' audited from Python, and the report says whence it came.
@@ -504,6 +541,12 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
          "dropout must be a comma list of failure rates in (0, 1], e.g. 0.05,0.1,0.2; got 'often'"),
         (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "dropout=0.1", "dropout_masks=1"],
          "dropout_masks must be at least 2 for an interval, got 1"),
+        (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "fail_at=-1"],
+         "fail_at must be an env step >= 0 (0: hidden from the start), got -1"),
+        (["policy=test_wrappers:sum_of_visible", "gym=Hopper-v5", "fail_at=1000"],
+         "fail_at=1000 is not below the episodes' 1000 steps: nothing would fail"),
+        (["some_run", "search=beam", "ranker=critic", "fail_at=5"],
+         "fail_at=5 needs rollouts: give ranker=rollout (the critic values a start with u hidden from it"),
         (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "dropout=0.5", "dropout_masks=100000",
           "episodes=2"], "auditing k=1 on ConstantFeatures-v0 is 100,003 sets x 2 episodes in one rollout, over 200,000: "
                          "lower episodes=, drop the largest k or give dropout= fewer rates or dropout_masks= fewer masks"),
@@ -804,6 +847,23 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
     assert best_record["sets"] == json.loads((over / f"step{best.step}" / "audit.json").read_text())["sets"]
     assert f"auditing the best policy (env step {best.step}) of point_mass" in capsys.readouterr().err
 
+    # Sensors that fail at env step 3 of the 12: score_missingness's numbers with fail_at=3, in
+    # folders named for it, the latest checkpoint's and (steps=) over training.
+    assert audit_main([short_run.run_dir, "k=1", "episodes=6", "seed=4", "fail_at=3"]) == 0
+    assert audit_main([short_run.run_dir, "k=1", "episodes=6", "seed=4", "fail_at=3", f"steps={policy.step}"]) == 0
+    late_out = os.path.join(short_run.run_dir, f"audit-step{policy.step}-fail3")
+    late = json.loads(open(os.path.join(late_out, "audit.json")).read())
+    over_late = os.path.join(short_run.run_dir, "audit-over-training-fail3")
+    assert late == json.loads(open(os.path.join(over_late, f"step{policy.step}", "audit.json")).read())
+    assert "(N = 6 episodes per set, `rollout`, sensors failing at env step 3)" in open(
+        os.path.join(over_late, "robustness_over_training.md")).read()
+    shutil.rmtree(late_out), shutil.rmtree(over_late)
+    direct = score_missingness(ENV, policy.trainer.policy, policy.actor_params, jax.random.key(4),
+                               jnp.asarray(candidate_sets(4, 1)), 6, fail_at=3)
+    np.testing.assert_allclose([entry["score"] for entry in late["sets"]["1"]], direct.scores, rtol=1e-5)
+    assert late["fail_at"] == 3 and late["clean_lengths"] == np.asarray(direct.lengths[-1]).tolist()
+    capsys.readouterr()  # (what these audits said)
+
     # Bad input: one line, exit status 2.
     for args, message in [(["steps=all", "step=200"], "steps= audits several checkpoints of one run"),
                           (["best=true", "step=200"], "best=true audits the policy a run kept at its best scoring"),
@@ -812,7 +872,9 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
                           (["k=1", "episodes=20000", "shapley=exact", f"out={tmp_path / 'big'}"],  # 4 + 16 sets
                            "auditing k=1 on point_mass is 20 sets x 20000 episodes in one rollout, over 200,000: lower "
                            "episodes=, drop the largest k, use search=beam or give shapley= fewer feature orders"),
-                          (["k=1,4", f"out={tmp_path / 'k4'}"], "k must be set sizes 1 <= k < d = 4, got 1, 4")]:
+                          (["k=1,4", f"out={tmp_path / 'k4'}"], "k must be set sizes 1 <= k < d = 4, got 1, 4"),
+                          (["fail_at=12"], "fail_at=12 is not below the episodes' 12 steps: nothing would fail"),
+                          (["fail_at=2", "score_estimator=horizon"], "fail_at=2 needs rollouts: give score_estimator=rollout")]:
         try:
             status = audit_main([short_run.run_dir, *args])
         except SystemExit as exit_info:  # refused by the parser's validation

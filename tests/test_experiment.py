@@ -169,17 +169,21 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
     for pair in ("adversarial-s0", "uniform-s1"):
         assert "checkpoint (env step) 2000, " in open(tmp_path / "audits" / pair / "report.md").read()
     assert "uniform seed 1: k=1: worst" in said and "| 1 | adversarial | 2 |" in said
-    # Each pair's best policy (best=true), each at its own best scoring, compared as one checkpoint's are.
-    assert audit_main([str(tmp_path / "straight"), "k=1", "episodes=2", "best=true", f"out={tmp_path / 'best'}"]) == 0
+    # Each pair's best policy (best=true), each at its own best scoring, compared as one checkpoint's are;
+    # here with sensors that fail at env step 20 of the 50, into folders named for both.
+    assert audit_main([str(tmp_path / "straight"), "k=1", "episodes=2", "best=true", "fail_at=20"]) == 0
     capsys.readouterr()
     best_steps = {os.path.basename(result.run_dir): max(result.scores, key=lambda row: row["min_score"])["env_steps"]
                   for result in straight}
     for pair, step in best_steps.items():
-        source = json.loads((tmp_path / "best" / pair / "audit.json").read_text())["source"]
-        assert source["checkpoint (env step)"] == step and source["kept as"].startswith("its best scoring")
-    assert (tmp_path / "best" / "comparison.md").read_text().startswith(
+        record = json.loads((tmp_path / "straight" / pair / f"audit-best-step{step}-fail20" / "audit.json").read_text())
+        assert record["source"]["checkpoint (env step)"] == step and record["source"]["kept as"].startswith("its best scoring")
+        assert record["fail_at"] == 20
+    comparison = (tmp_path / "straight" / "audit-best-fail20" / "comparison.md").read_text()
+    assert comparison.startswith(
         "# Robustness audit of an experiment: point_mass, each pair's best scoring (env steps "
         f"{', '.join(f'{step:,}' for step in sorted(set(best_steps.values())))})\n")
+    assert "Each pair audited as its own report says (N = 2 episodes per set, `rollout`, sensors failing at env step 20)" in comparison
     assert said.strip().endswith(f"and {tmp_path / 'audits' / 'comparison.md'}")
     assert sorted(os.listdir(tmp_path / "audits")) == ["adversarial-s0", "adversarial-s1", "comparison.md",
                                                        "comparison.png", "uniform-s0", "uniform-s1"]

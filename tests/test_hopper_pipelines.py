@@ -341,6 +341,13 @@ def test_video_of_the_trained_hopper_beside_its_worst_set(jax_run, tmp_path, cap
     scene = frames[0, video.LABEL_HEIGHT:].astype(np.float32)
     assert np.abs(scene[:, :video.PANEL_WIDTH] - scene[:, video.PANEL_WIDTH:]).mean() < 5
     assert made.clean_return != made.hidden_return
+    # The same set's sensors failing at env step 19 (fail_at), after the 19 steps 20 frames show:
+    # the hidden side sees everything, so it runs the clean episode; the file is named for both.
+    late = video.render_video(video.VideoConfig(run_dir=jax_run.run_dir, frames=20, fail_at=19))
+    assert late.path == os.path.join(jax_run.run_dir, "videos", f"step80-hidden{'-'.join(map(str, worst))}-fail19.mp4")
+    shutil.rmtree(os.path.dirname(late.path))
+    assert (late.hidden_return, late.hidden_length) == (late.clean_return, late.clean_length) == (
+        made.clean_return, made.clean_length)
     # With nothing hidden on either side, the two sides run one episode: the same start state
     # (returns compared in full: the command's line rounds them to 0.1, which hides other starts).
     # Here of the policy the run kept at its best scoring (best=true).

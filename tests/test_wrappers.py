@@ -53,6 +53,15 @@ def test_score_policy_gives_the_papers_a_u_for_a_numpy_policy(capsys):
     np.testing.assert_allclose(pairs.scores, [15.0, 10.0, 5.0])  # {0,1}, {0,2}, {1,2}; SB3-style tuple taken
     up_to_two = score_policy("ConstantFeatures-v0", sum_of_visible, k=2, up_to_k=True, n_episodes=1, num_envs=2)
     np.testing.assert_allclose(up_to_two.scores, [25.0, 20.0, 15.0, 15.0, 10.0, 5.0])  # singles, then pairs
+    # Sensors that fail at env step 2: each episode's first 2 steps see all 6, its last 3 the
+    # rest; 8 episodes on 3 slots, so slots run episodes back to back (each from step 0 again).
+    failing = score_policy("ConstantFeatures-v0", sum_of_visible, k=1, n_episodes=2, num_envs=3, fail_at=2)
+    np.testing.assert_allclose(failing.scores, [27.0, 24.0, 21.0])  # 2 · 6 + 3 · (6 − 1, 2 or 3)
+    assert failing.clean_score == 30.0
+    with pytest.raises(ValueError, match=r"^fail_at must be an env step >= 0 \(0: hidden from the start\), got -1$"):
+        score_policy("ConstantFeatures-v0", sum_of_visible, fail_at=-1)
+    with pytest.raises(ValueError, match="^fail_at=1000 is not below the episodes' 1000 steps: nothing would fail$"):
+        score_policy("Hopper-v5", sum_of_visible, fail_at=1000)  # (its registered time limit)
     adversary = AdversarialMissingness(ConstantFeatures(), k=2, up_to_k=True, seed=0)
     np.testing.assert_array_equal(adversary.candidate_sets, up_to_two.hidden_sets)
     assert adversary.update(up_to_two.scores).shape == (6,)

@@ -104,7 +104,8 @@ def hidden_when(result: AuditResult) -> str:
 def _failure_sentence(result: AuditResult) -> str:
     """How many episodes ended before the sensors failed, where they fail mid-episode."""
     ended, total = result.ended_before_failing, len(result.clean_lengths)
-    span = f"the clean episodes last {min(result.clean_lengths)}–{max(result.clean_lengths)} env steps"
+    shortest, longest = min(result.clean_lengths), max(result.clean_lengths)
+    span = f"the clean episodes last {shortest}{f'–{longest}' if longest > shortest else ''} env steps"
     if not ended:
         return f"The sensors fail at env step {result.fail_at}, and every clean episode ran past it ({span})."
     if not result.same_starts:
