@@ -479,6 +479,19 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
     assert record["fail_at"] == 5 and [entry["score"] for entry in record["sets"]["1"]] == [30.0] * 3
     assert ("warning: every clean episode had ended by env step 5, where the sensors fail: the sets' returns are the "
             "clean one's; give a smaller fail_at") in capfd.readouterr().err
+    # Several failure steps: each audited into its folder, then a row per step (and the clean
+    # episodes ended by then) in failure_times.md, and its chart.
+    assert audit_main(["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "episodes=2", "fail_at=5,0,2"]) == 0
+    times = tmp_path / "audit-sum_of_visible-failure-times"
+    assert sorted(os.listdir(times)) == ["fail0", "fail2", "fail5", "failure_times.md", "failure_times.png"]
+    table = (times / "failure_times.md").read_text()
+    assert table.startswith("# Robustness by when the sensors fail: ConstantFeatures-v0, Gymnasium env "
+                            "ConstantFeatures-v0, policy test_wrappers:sum_of_visible\n")
+    assert ("| 0 (0 of 2) | 30.0 ± 0.0 | 15.0 ± 0.0 (2) | 20.0 |\n| 2 (0 of 2) | 30.0 ± 0.0 | 21.0 ± 0.0 (2) | 24.0 |\n"
+            "| 5 (2 of 2) | 30.0 ± 0.0 | 30.0 ± 0.0 (0) | 30.0 |\n") in table
+    printed = capfd.readouterr()
+    assert "fail_at 2: k=1: worst 2 ([2]): a_u 21.0 ± 0.0" in printed.out and table in printed.out
+    assert "fail_at 5: warning: every clean episode had ended by env step 5" in printed.err
     # An exported policy (python -m admissable_jax.export), policy=FILE.npz: its run names the
     # Gymnasium env and the set sizes (k = 2 with up_to_k: 1 and 2) and its features' names,
     # the numbers are its masked batches' audited from Python, and the report says whence it came.
@@ -543,6 +556,10 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
          "dropout_masks must be at least 2 for an interval, got 1"),
         (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "fail_at=-1"],
          "fail_at must be an env step >= 0 (0: hidden from the start), got -1"),
+        (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "fail_at=soon"],
+         "fail_at must be an env step or a comma list of them, e.g. 0,50,100; got 'soon'"),
+        (["some_run", "steps=all", "fail_at=0,50"], "a list of fail_at audits one policy (a run's checkpoint, its best, "
+                                                     "or policy=): give steps= or an experiment one fail_at"),
         (["policy=test_wrappers:sum_of_visible", "gym=Hopper-v5", "fail_at=1000"],
          "fail_at=1000 is not below the episodes' 1000 steps: nothing would fail"),
         (["some_run", "search=beam", "ranker=critic", "fail_at=5"],
@@ -857,7 +874,14 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
     assert late == json.loads(open(os.path.join(over_late, f"step{policy.step}", "audit.json")).read())
     assert "(N = 6 episodes per set, `rollout`, sensors failing at env step 3)" in open(
         os.path.join(over_late, "robustness_over_training.md")).read()
-    shutil.rmtree(late_out), shutil.rmtree(over_late)
+    # ...and at steps 0 and 3 in one command: each as audited alone, then the page of both.
+    assert audit_main([short_run.run_dir, "k=1", "episodes=6", "seed=4", "fail_at=3,0"]) == 0
+    times = os.path.join(short_run.run_dir, "audit-failure-times")
+    assert sorted(os.listdir(times)) == ["fail0", "fail3", "failure_times.md", "failure_times.png"]
+    assert json.loads(open(os.path.join(times, "fail3", "audit.json")).read()) == late
+    ended = sum(length <= 3 for length in late["clean_lengths"])  # clean episodes over by step 3
+    assert f"\n| 3 ({ended} of 6) | {late['clean_score']:.1f} ± " in open(os.path.join(times, "failure_times.md")).read()
+    shutil.rmtree(late_out), shutil.rmtree(over_late), shutil.rmtree(times)
     direct = score_missingness(ENV, policy.trainer.policy, policy.actor_params, jax.random.key(4),
                                jnp.asarray(candidate_sets(4, 1)), 6, fail_at=3)
     np.testing.assert_allclose([entry["score"] for entry in late["sets"]["1"]], direct.scores, rtol=1e-5)

@@ -43,6 +43,12 @@ interval over seeds, and adversarial − uniform with Welch's interval; ``compar
 draws the worst
 (:func:`audit_experiment`).
 
+``fail_at=T`` lets every set's sensors fail at env step T of each episode, every feature seen
+before it, where the paper hides u from the start (a sensor that dies mid-run); a comma list
+(``fail_at=0,50,100``) audits the policy at each step, then writes ``failure_times.md`` and
+``.png``: the worst and mean a_u by failure step, and each single feature's
+(:func:`audit_failure_times`).
+
 In Python, :func:`audit` takes any JAX ``policy_fn(params, masked_obs) -> action`` on any of
 our envs, :func:`audit_gymnasium` any Python policy on any Gymnasium env (Stable-Baselines3,
 CleanRL, PyTorch), and :func:`write_audit` writes either's files.
@@ -52,10 +58,10 @@ itself), :mod:`~admissable_jax.audit.report` writes what an audit found, and
 :mod:`~admissable_jax.audit.command` is the command line.
 """
 
-from admissable_jax.audit.command import AuditConfig, audit_experiment, audit_over_training, audit_python_policy, \
-    audit_run, main
+from admissable_jax.audit.command import AuditConfig, audit_experiment, audit_failure_times, audit_over_training, \
+    audit_python_policy, audit_run, main
 from admissable_jax.audit.report import compare_modes, write_audit
 from admissable_jax.audit.sets import AuditResult, GapToWorst, SetScore, audit, audit_gymnasium
 
-__all__ = ["AuditConfig", "AuditResult", "GapToWorst", "SetScore", "audit", "audit_experiment", "audit_gymnasium",
-           "audit_over_training", "audit_python_policy", "audit_run", "compare_modes", "main", "write_audit"]
+__all__ = ["AuditConfig", "AuditResult", "GapToWorst", "SetScore", "audit", "audit_experiment", "audit_failure_times",
+           "audit_gymnasium", "audit_over_training", "audit_python_policy", "audit_run", "compare_modes", "main", "write_audit"]

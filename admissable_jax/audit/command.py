@@ -10,8 +10,8 @@ import os
 import sys
 from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 
-from admissable_jax.audit.report import compare_modes, comparison_chart, dropout_line, over_training_chart, \
-    over_training_table, pair_curves, shapley_order, write_audit
+from admissable_jax.audit.report import BY_FAILURE_TIME, compare_modes, comparison_chart, dropout_line, \
+    pair_curves, robustness_chart, robustness_table, shapley_order, write_audit
 from admissable_jax.audit.sets import AuditResult, audit, audit_gymnasium, audit_sizes, check_audit_size, \
     check_failing_audit, check_search, gymnasium_features, rollout_sets, shapley_plan
 from admissable_jax.cli import enable_compilation_cache, parse_args, reporting, run_from_cli, setting
@@ -72,9 +72,10 @@ class AuditConfig:
                                "expected return when each feature fails with probability p for a whole episode, "
                                "independently, from dropout_masks masks per rate; '' = none")
     dropout_masks: int = setting(20, "M: masks drawn per dropout rate (the interval narrows as 1/sqrt(M))")
-    fail_at: int = setting(0, "the env step of each episode at which the hidden features' sensors fail, every feature "
-                              "seen before it (a sensor that dies mid-run); 0 = hidden from the start, as the paper "
-                              "and training hide them. Rollouts only; the default folders end in -fail<T>")
+    fail_at: str = setting("0", "the env step of each episode at which the hidden features' sensors fail, every feature "
+                                "seen before it (a sensor that dies mid-run); 0 = hidden from the start, as the paper "
+                                "and training hide them. Rollouts only; the default folders end in -fail<T>. A comma "
+                                "list (0,50,100) audits one policy at each, then failure_times.md/.png")
 
 
 def _ks(text: str, trained_k: int = 1, up_to_k: bool = False) -> tuple[int, ...]:
@@ -126,13 +127,33 @@ def check_audit_config(config: AuditConfig) -> None:
     _shapley(config.shapley)
     if parse_rates(config.dropout) and config.dropout_masks < 2:
         raise ValueError(f"dropout_masks must be at least 2 for an interval, got {config.dropout_masks}")
-    check_failing_audit(check_fail_at(config.fail_at), config.score_estimator,
-                        config.ranker if config.search == "beam" else "rollout")
+    times = _fail_times(config.fail_at)
+    check_failing_audit(max(times), config.score_estimator, config.ranker if config.search == "beam" else "rollout")
+    if len(times) > 1 and (config.steps or (config.run_dir and is_experiment(config.run_dir))):
+        raise ValueError("a list of fail_at audits one policy (a run's checkpoint, its best, or policy=): give steps= or "
+                         "an experiment one fail_at")
+
+
+def _fail_times(text: str) -> tuple[int, ...]:
+    """The env steps ``fail_at=`` names, smallest first: one, or a comma list."""
+    try:
+        times = sorted({int(part) for part in str(text).split(",") if part.strip()})
+    except ValueError:
+        times = []
+    if not times:
+        raise ValueError(f"fail_at must be an env step or a comma list of them, e.g. 0,50,100; got {text!r}")
+    return tuple(check_fail_at(time) for time in times)
+
+
+def _fail_at(config: AuditConfig) -> int:
+    """The env step at which the sensors fail in one audit."""
+    (time,) = _fail_times(config.fail_at)
+    return time
 
 
 def _failing(config: AuditConfig) -> str:
     """The default folder's ending: ``-fail<T>`` where the sensors fail at env step T."""
-    return f"-fail{config.fail_at}" if config.fail_at else ""
+    return f"-fail{_fail_at(config)}" if _fail_at(config) else ""
 
 
 def _shapley(text: str) -> int | str:
@@ -175,7 +196,7 @@ def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     config = dataclasses.replace(config, gym=gymnasium_env_id(audited.gym))
     d = gymnasium_features(config.gym)
     audit_sizes(audited.ks, d)  # before anything is written
-    check_fail_at(config.fail_at, gymnasium.spec(config.gym).max_episode_steps)
+    check_fail_at(_fail_at(config), gymnasium.spec(config.gym).max_episode_steps)
     dropout = _dropout(config, d)
     check_audit_size(config.gym, d, audited.ks, config.episodes, None, plan=_plan(config, d), dropout=dropout)
     out = config.out or f"audit-{config.gym}-{audited.name}{_failing(config)}"
@@ -186,7 +207,7 @@ def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
                                      num_envs=config.slots or 8, seed=config.seed,
                                      feature_names=audited.feature_names if len(audited.feature_names or ()) == d
                                      else None, shapley=_shapley(config.shapley), progress=True,
-                                     tell_apart=config.tell_apart, dropout=dropout, fail_at=config.fail_at)
+                                     tell_apart=config.tell_apart, dropout=dropout, fail_at=_fail_at(config))
         result = dataclasses.replace(result, source={**result.source, **audited.source})
         return result, write_audit(result, out, config.top)
 
@@ -207,7 +228,7 @@ def _imported(config: AuditConfig) -> GymnasiumPolicy:
     if not callable(policy):
         raise ValueError(f"policy={config.policy} is not callable (its type: {type(policy).__name__}): give a function "
                          "masked_obs_batch -> actions")
-    return GymnasiumPolicy(policy, name, config.gym, _ks(config.k), {}, None)
+    return GymnasiumPolicy(policy, _policy_name(config.policy), config.gym, _ks(config.k), {}, None)
 
 
 def _exported(config: AuditConfig) -> GymnasiumPolicy:
@@ -225,9 +246,14 @@ def _exported(config: AuditConfig) -> GymnasiumPolicy:
     came_from = (f"{trained.get('run')} ({trained.get('missingness')}, seed {trained.get('seed')}) at env step "
                  f"{trained.get('env_steps')}" + ("" if best is None else f", its best scoring (training's min_u a_u "
                                                                           f"{best:.1f})"))
-    return GymnasiumPolicy(exported.masked, os.path.splitext(os.path.basename(config.policy))[0], gym,
+    return GymnasiumPolicy(exported.masked, _policy_name(config.policy), gym,
                            _ks(config.k, trained.get("k", 1), trained.get("up_to_k", False)),
                            {"exported from": came_from}, list(exported.observation_names))
+
+
+def _policy_name(policy: str) -> str:
+    """The name ``policy=`` gives a default folder: MODULE:NAME's NAME, or the file's stem."""
+    return os.path.splitext(os.path.basename(policy))[0] if policy.endswith(".npz") else policy.partition(":")[2]
 
 
 @contextlib.contextmanager
@@ -316,7 +342,7 @@ def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
     best = policy.best_min_score is not None
     out = config.out or os.path.join(config.run_dir, f"audit-{'best-' * best}step{policy.step}{_failing(config)}")
     train = policy.config
-    check_fail_at(config.fail_at, train.episode_length)
+    check_fail_at(_fail_at(config), train.episode_length)
     d = policy.observation_size
     ks = audit_sizes(_ks(config.k, train.k, train.up_to_k), d)  # before the audit starts
     dropout = _dropout(config, d)
@@ -336,7 +362,7 @@ def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
                            config.score_estimator, trainer.critic_values, policy.critic_params,
                            config.score_horizon, train.gamma, config.search, config.beam_width, config.ranker,
                            _shapley(config.shapley), progress=True, tell_apart=config.tell_apart, dropout=dropout,
-                           fail_at=config.fail_at)
+                           fail_at=_fail_at(config))
         return result, write_audit(result, out, config.top)
 
 
@@ -362,10 +388,10 @@ def audit_over_training(config: AuditConfig) -> tuple[list[AuditResult], list[st
     out = config.out or os.path.join(config.run_dir, f"audit-over-training{_failing(config)}")
     results, written = _audit_each([(dataclasses.replace(config, out=os.path.join(out, f"step{step}")), step)
                                     for step in steps])
-    written.append(over_training_chart(results, os.path.join(out, "robustness_over_training.png")))
+    written.append(robustness_chart(results, os.path.join(out, "robustness_over_training.png")))
     written.append(os.path.join(out, "robustness_over_training.md"))
     with open(written[-1], "w") as file:
-        file.write(over_training_table(results) + "\n![worst and mean a_u per k by checkpoint]"
+        file.write(robustness_table(results) + "\n![worst and mean a_u per k by checkpoint]"
                    "(robustness_over_training.png)\n")
     return results, written
 
@@ -384,6 +410,36 @@ def _audit_each(jobs: list[tuple[AuditConfig, int | str | None]]) -> tuple[list[
         result, files = _audit_policy(config, policy, env, trainer)
         results.append(result)
         written += files
+    return results, written
+
+
+def audit_failure_times(config: AuditConfig) -> tuple[list[AuditResult], list[str]]:
+    """Audit one policy (a run's checkpoint, its best, or ``policy=``) once per env step in
+    ``fail_at`` (a comma list), each into ``<out>/fail<T>/`` as a single audit (each compiles
+    its rollout: the step is part of the program); then ``failure_times.md`` and ``.png`` (in
+    ``out``; default ``RUN_DIR/audit-failure-times`` with ``-best`` or ``-step<STEP>`` where
+    asked, or ``audit-<NAME>-failure-times`` for ``policy=``): per failure step and k, the worst
+    a_u and its set and the mean a_u over the sets, beside the clean return, and each single
+    feature's a_u by failure step. Training hides u from an episode's start; this says what a
+    sensor lost later costs, and which."""
+    check_audit_config(config)
+    which = "-best" if config.best else f"-step{config.step}" if config.step >= 0 else ""
+    out = config.out or (f"audit-{_policy_name(config.policy)}-failure-times" if config.policy else
+                         os.path.join(config.run_dir, f"audit-failure-times{which}"))
+    jobs = [dataclasses.replace(config, fail_at=str(time), out=os.path.join(out, f"fail{time}"))
+            for time in _fail_times(config.fail_at)]
+    if config.policy:
+        audits = [audit_python_policy(job) for job in jobs]
+        results, written = [result for result, _ in audits], [path for _, files in audits for path in files]
+    else:
+        from admissable_jax.policies import requested_step
+
+        results, written = _audit_each([(job, requested_step(config.step, config.best)) for job in jobs])
+    written.append(robustness_chart(results, os.path.join(out, "failure_times.png"), BY_FAILURE_TIME))
+    written.append(os.path.join(out, "failure_times.md"))
+    with open(written[-1], "w") as file:
+        file.write(robustness_table(results, BY_FAILURE_TIME) + "\n![worst and mean a_u per k, and each feature's, by "
+                   "failure time](failure_times.png)\n")
     return results, written
 
 
@@ -423,16 +479,19 @@ def main(argv: list[str]) -> int:
                         validate=check_audit_config, positional="run_dir")
     enable_compilation_cache()
     experiment = bool(config.run_dir) and is_experiment(config.run_dir)
-    command = (audit_python_policy if config.policy else audit_over_training if config.steps
-               else audit_experiment if experiment else audit_run)
+    several_times = len(_fail_times(config.fail_at)) > 1
+    command = (audit_failure_times if several_times else audit_python_policy if config.policy
+               else audit_over_training if config.steps else audit_experiment if experiment else audit_run)
     outcome, status = run_from_cli(command, config, interrupted="interrupted: the audit in progress wrote nothing; "
                                                                 "audit folders finished before it are kept")
     if status:
         return status
-    results, written = outcome if experiment or config.steps else ([outcome[0]], outcome[1])
+    several = experiment or config.steps or several_times  # audits, then a page that sets them side by side
+    results, written = outcome if several else ([outcome[0]], outcome[1])
     for result, curve in zip(results, pair_curves(results) if experiment else [""] * len(results)):
         pair = (f"{curve} seed {result.source['seed']}: " if experiment else
-                f"step {result.source['checkpoint (env step)']}: " if config.steps else "")
+                f"step {result.source['checkpoint (env step)']}: " if config.steps else
+                f"fail_at {result.fail_at}: " if several_times else "")
         if result.pilot is not None:
             print(f"{pair}N = {result.pilot['chosen']} episodes per set, chosen by a pilot of {result.pilot['episodes']}")
         if result.fail_at and result.ended_before_failing == len(result.clean_lengths):
@@ -447,10 +506,10 @@ def main(argv: list[str]) -> int:
                   f"hidden alone it costs {attribution.leave_one_out[top]:.1f} ({attribution.method})")
         if result.dropout is not None:
             print(f"{pair}{dropout_line(result)}")
-    if experiment or config.steps:
+    if several:
         with open(written[-1]) as file:
             print(file.read())
-        each = "pair" if experiment else "checkpoint"
+        each = "pair" if experiment else "checkpoint" if config.steps else "failure time"
         print(f"wrote each {each}'s report, audit.json and figures into its audit folder, and {written[-1]}")
     else:
         print(f"wrote {', '.join(written)}")

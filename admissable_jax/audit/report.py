@@ -1,7 +1,7 @@
 """What an audit writes: one policy's ``report.md``, ``audit.json`` and figures
 (:func:`write_audit`); an experiment's modes side by side (:func:`compare_modes`,
-:func:`comparison_chart`); a run's robustness by checkpoint (:func:`over_training_table`,
-:func:`over_training_chart`)."""
+:func:`comparison_chart`); one policy's robustness by checkpoint or by when
+its sensors fail (:func:`robustness_table`, :func:`robustness_chart`)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import dataclasses
 import json
 import math
 import os
-from typing import Any
+from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
@@ -119,8 +119,8 @@ def _failure_sentence(result: AuditResult) -> str:
 def audit_settings(results: list[AuditResult]) -> str:
     """How several audits (an experiment's pairs, a run's checkpoints) were made, in a few
     words: N, the estimator and, where the sensors failed mid-episode, when."""
-    first = results[0]
-    failing = f", sensors failing at env step {first.fail_at}" if first.fail_at else ""
+    first, times = results[0], {result.fail_at for result in results}
+    failing = f", sensors failing at env step {first.fail_at}" if times != {0} and len(times) == 1 else ""
     return f"{episodes_per_set(results)}, `{first.estimator}`{failing}"
 
 
@@ -327,19 +327,45 @@ def _pair_heatmap(result: AuditResult, path: str) -> str:
     return path
 
 
-def over_training_table(results: list[AuditResult]) -> str:
-    """Markdown: a row per checkpoint; per k the worst a_u (its set) and the mean a_u over the
-    sets; with ``shapley=``, the feature worth most then and its φ; with ``dropout=``, R(p) per rate."""
+class RobustnessAxis(NamedTuple):
+    """What differs between several audits of one policy that a table and a chart set side by
+    side: a run's checkpoints (:data:`OVER_TRAINING`), or when the sensors fail
+    (:data:`BY_FAILURE_TIME`)."""
+
+    title: str  # the table's heading and the chart's title
+    each: str  # what one audit is, as "each ... audited as its folder's report says"
+    column: str  # the table's first column
+    label: str  # the chart's x axis
+    of: Callable[[AuditResult], int]  # the x value
+    cell: Callable[[AuditResult], str]  # the first column's cell
+    audited: Callable[[AuditResult], str]  # what was audited, for the heading
+
+
+OVER_TRAINING = RobustnessAxis(
+    "Robustness over training", "checkpoint", "env step", "checkpoint (env steps)",
+    lambda result: result.source["checkpoint (env step)"], lambda result: str(result.source["checkpoint (env step)"]),
+    lambda result: result.source["run"])
+BY_FAILURE_TIME = RobustnessAxis(
+    "Robustness by when the sensors fail", "failure time", "sensors fail at env step (clean episodes ended by then)",
+    "env step at which the sensors fail (0: from the start, the paper's a_u)", lambda result: result.fail_at,
+    lambda result: f"{result.fail_at} ({result.ended_before_failing} of {len(result.clean_lengths)})",
+    lambda result: ", ".join(f"{key} {value}" for key, value in result.source.items()))
+
+
+def robustness_table(results: list[AuditResult], axis: RobustnessAxis = OVER_TRAINING) -> str:
+    """Markdown: a row per audit (a checkpoint, a failure time: ``axis``); per k the worst a_u
+    (its set) and the mean a_u over the sets; with ``shapley=``, the feature worth most then
+    and its φ; with ``dropout=``, R(p) per rate."""
     first = results[0]
     ks = list(first.sets)
     attributed = all(result.shapley is not None for result in results)
     rates = [entry.rate for entry in first.dropout] if all(result.dropout is not None for result in results) else []
-    lines = [f"# Robustness over training: {first.env}, {first.source['run']}", "",
-             f"Each checkpoint audited as its folder's report says ({audit_settings(results)}): per k, the worst a_u ± "
-             "its 95% interval with its set, and the mean a_u over the "
+    lines = [f"# {axis.title}: {first.env}, {axis.audited(first)}", "",
+             f"Each {axis.each} audited as its folder's report says ({audit_settings(results)}): per k, the worst a_u "
+             "± its 95% interval with its set, and the mean a_u over the "
              "sets (the average case; none for a searched k)" + ("; and the feature worth most, its Shapley value "
                                                                 "φ_i of v(all) − v(none)" if attributed else "") + ".", "",
-             "| env step | clean return | " + " | ".join(f"k={k}: worst a_u (set) | k={k}: mean a_u" for k in ks)
+             f"| {axis.column} | clean return | " + " | ".join(f"k={k}: worst a_u (set) | k={k}: mean a_u" for k in ks)
              + (" | worth most: φ_i of v(all) − v(none)" if attributed else "")
              + "".join(f" | R({rate:g}): random failure" for rate in rates) + " |",
              "|---|---|" + "---|---|" * len(ks) + ("---|" if attributed else "") + "---|" * len(rates)]
@@ -356,47 +382,71 @@ def over_training_table(results: list[AuditResult]) -> str:
                          f"of {attribution.full - attribution.blind:.1f}")
         if rates:
             cells += [f"{entry.score:.1f} ± {entry.ci95:.1f}" for entry in result.dropout]
-        lines.append(f"| {result.source['checkpoint (env step)']} | {result.clean_score:.1f} ± {result.clean_ci95:.1f} | "
+        lines.append(f"| {axis.cell(result)} | {result.clean_score:.1f} ± {result.clean_ci95:.1f} | "
                      + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
-def over_training_chart(results: list[AuditResult], path: str) -> str:
+def robustness_chart(results: list[AuditResult], path: str, axis: RobustnessAxis = OVER_TRAINING) -> str:
     """Per k: the worst a_u (solid, with its 95% interval) and the mean a_u (dashed) by
-    checkpoint; the clean return in black; with ``dropout=``, R(p) per rate in greys."""
+    ``axis`` (checkpoint, failure time); the clean return in black; with ``dropout=``, R(p) per
+    rate in greys. By failure time, beside it, each single feature's a_u at each time, where
+    the audit scored them all: which sensor hurts when."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    steps = [result.source["checkpoint (env step)"] for result in results]
-    figure, ax = plt.subplots(figsize=(8, 4.5))
-    ax.plot(steps, [result.clean_score for result in results], "k--", marker="o", label="nothing hidden")
+    xs = [axis.of(result) for result in results]
+    singles = axis is BY_FAILURE_TIME and 1 in results[0].sets and 1 not in results[0].search
+    figure, axes = plt.subplots(1, 2 if singles else 1, figsize=(15 if singles else 8, 4.5), squeeze=False)
+    ax = axes[0, 0]
+    ax.plot(xs, [result.clean_score for result in results], "k--", marker="o", label="nothing hidden")
     for index, k in enumerate(results[0].sets):
         color = f"C{index}"
         worst = [result.worst(k, 1)[0] for result in results]
-        ax.errorbar(steps, [entry.score for entry in worst], yerr=[entry.ci95 for entry in worst], color=color,
+        ax.errorbar(xs, [entry.score for entry in worst], yerr=[entry.ci95 for entry in worst], color=color,
                     marker="o", capsize=3, label=f"k = {k}: worst $a_u$")
         means = [result.mean(k) for result in results]
         if not any(math.isnan(mean) for mean in means):
-            ax.plot(steps, means, color=color, linestyle=":", marker=".", label=f"k = {k}: mean $a_u$ over the sets")
+            ax.plot(xs, means, color=color, linestyle=":", marker=".", label=f"k = {k}: mean $a_u$ over the sets")
     if all(result.dropout is not None for result in results):
         for index, rate in enumerate(entry.rate for entry in results[0].dropout):
             failing = [result.dropout[index] for result in results]
-            ax.errorbar(steps, [entry.score for entry in failing], yerr=[entry.ci95 for entry in failing], capsize=2,
+            ax.errorbar(xs, [entry.score for entry in failing], yerr=[entry.ci95 for entry in failing], capsize=2,
                         color=str(0.25 + 0.5 * index / max(1, len(results[0].dropout) - 1)), linestyle="-.",
                         marker="s", markersize=3, label=f"random failure, p = {rate:g}: R(p)")
     from admissable_jax.plot import env_steps_axis
 
-    env_steps_axis(ax, "checkpoint (env steps)")
+    env_steps_axis(ax, axis.label)
     ax.set_ylabel(f"return ({results[0].n_episodes} episodes per set)")
-    ax.set_title(f"{results[0].env}: robustness over training", fontsize=10)
+    ax.set_title(f"{results[0].env}: {axis.title.lower()}", fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
+    if singles:
+        _single_features_by_time(axes[0, 1], results, xs)
     os.makedirs(os.path.dirname(path), exist_ok=True)
     figure.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(figure)
     return path
+
+
+def _single_features_by_time(ax, results: list[AuditResult], times: list[int]) -> None:
+    """A heatmap of each single feature's a_u (rows) at each failure time (columns), the
+    number written in each cell where there are few enough to read."""
+    scores = np.array([[entry.score for entry in result.sets[1]] for result in results]).T
+    image = ax.imshow(scores, aspect="auto", cmap="viridis")
+    ax.figure.colorbar(image, ax=ax, label="$a_u$, one feature hidden")
+    names = [", ".join(entry.names) for entry in results[0].sets[1]]
+    ax.set_yticks(range(len(names)), names if len(names) <= 40 else [""] * len(names), fontsize=7)
+    ax.set_xticks(range(len(times)), [str(time) for time in times])
+    ax.set_xlabel("env step at which the sensor fails")
+    if scores.size <= 400:
+        middle = (scores.min() + scores.max()) / 2
+        for (row, column), score in np.ndenumerate(scores):
+            ax.text(column, row, f"{score:.0f}", ha="center", va="center", fontsize=6,
+                    color="black" if score > middle else "white")
+    ax.set_title("which sensor hurts when: $a_u$ of each feature hidden alone", fontsize=10)
 
 
 def pair_curves(results: list[AuditResult]) -> list[str]:
