@@ -29,7 +29,7 @@ import numpy as np  # noqa: E402
 from admissable_jax.cli import parse_args, run_from_cli, run_main, setting  # noqa: E402
 from admissable_jax.envs import observation_names, settotalmass_warning_dropped  # noqa: E402
 from admissable_jax.errors import RunFailed, make_directory  # noqa: E402
-from admissable_jax.method import check_fail_at, describe_set, parse_set  # noqa: E402
+from admissable_jax.method import check_fail_at, parse_set  # noqa: E402
 from admissable_jax.run_directory import SCORING_KEYS, read_jsonl  # noqa: E402
 
 PANEL_WIDTH, PANEL_HEIGHT, LABEL_HEIGHT = 480, 352, 32  # multiples of 16, as H.264 wants
@@ -150,6 +150,13 @@ def _shown(config: VideoConfig) -> _Shown:
                   policy.step, out)
 
 
+def panel_titles(hidden: tuple[int, ...], names: tuple[str, ...], fail_at: int) -> list[str]:
+    """The two panels' titles: nothing hidden, and u (its indices and names; from which step)."""
+    failing = f" from step {fail_at}" if fail_at else ""
+    indices = "{" + ",".join(map(str, hidden)) + "}"  # (as describe_set writes a set's 0/1 row)
+    return ["nothing hidden", f"hidden {indices}{failing}: {', '.join(names) or 'nothing'}"]
+
+
 def _file_ending(hidden: tuple[int, ...], fail_at: int) -> str:
     """The default file name's end: u, and when its sensors fail where not at the start."""
     return f"hidden{'-'.join(map(str, hidden)) or 'none'}{f'-fail{fail_at}' * bool(fail_at)}.mp4"
@@ -200,9 +207,7 @@ def render_video(config: VideoConfig) -> Video:
                 "libegl1 and libgl1-mesa-dri (EGL), or libosmesa6 and set MUJOCO_GL=osmesa") from None
         returns, lengths, running, held = [0.0, 0.0], [0, 0], [True, True], 0
         fps = envs[0].metadata.get("render_fps", 30)
-        failing = f" from step {config.fail_at}" if config.fail_at else ""
-        titles = ["nothing hidden",
-                  f"hidden {describe_set(np.array(hidden))}{failing}: {', '.join(names) or 'nothing'}"]
+        titles = panel_titles(hidden, names, config.fail_at)
         with ffmpeg_forks_quietly(), imageio.get_writer(out, fps=fps, codec="libx264", macro_block_size=16) as writer:
             for frame in range(config.frames):
                 panels = []

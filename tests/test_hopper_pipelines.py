@@ -341,6 +341,10 @@ def test_video_of_the_trained_hopper_beside_its_worst_set(jax_run, tmp_path, cap
     scene = frames[0, video.LABEL_HEIGHT:].astype(np.float32)
     assert np.abs(scene[:, :video.PANEL_WIDTH] - scene[:, video.PANEL_WIDTH:]).mean() < 5
     assert made.clean_return != made.hidden_return
+    # Each panel's title names u by its indices (it said {0} for u = {10}: a 0/1 row's reading of indices).
+    assert video.panel_titles((3, 10), ("leg joint angle", "foot joint angular velocity"), 50) == [
+        "nothing hidden", "hidden {3,10} from step 50: leg joint angle, foot joint angular velocity"]
+    assert video.panel_titles((), (), 0)[1] == "hidden {}: nothing"
     # The same set's sensors failing at env step 19 (fail_at), after the 19 steps 20 frames show:
     # the hidden side sees everything, so it runs the clean episode; the file is named for both.
     late = video.render_video(video.VideoConfig(run_dir=jax_run.run_dir, frames=20, fail_at=19))
