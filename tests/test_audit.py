@@ -491,6 +491,9 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
             "| 5 (2 of 2) | 30.0 ± 0.0 | 30.0 ± 0.0 (0) | 30.0 |\n") in table
     printed = capfd.readouterr()
     assert "fail_at 2: k=1: worst 2 ([2]): a_u 21.0 ± 0.0" in printed.out and table in printed.out
+    from PIL import Image  # the chart, and beside it each feature's a_u by step: two panels side by side
+
+    assert Image.open(times / "failure_times.png").size[0] > 1.6 * Image.open(times / "fail0" / "scores_k1.png").size[0]
     assert "fail_at 5: warning: every clean episode had ended by env step 5" in printed.err
     # An exported policy (python -m admissable_jax.export), policy=FILE.npz: its run names the
     # Gymnasium env and the set sizes (k = 2 with up_to_k: 1 and 2) and its features' names,
@@ -874,13 +877,15 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
     assert late == json.loads(open(os.path.join(over_late, f"step{policy.step}", "audit.json")).read())
     assert "(N = 6 episodes per set, `rollout`, sensors failing at env step 3)" in open(
         os.path.join(over_late, "robustness_over_training.md")).read()
-    # ...and at steps 0 and 3 in one command: each as audited alone, then the page of both.
-    assert audit_main([short_run.run_dir, "k=1", "episodes=6", "seed=4", "fail_at=3,0"]) == 0
+    # ...and at steps 3 and 6 in one command: each as audited alone, then the page of both.
+    assert audit_main([short_run.run_dir, "k=1", "episodes=6", "seed=4", "fail_at=6,3"]) == 0
     times = os.path.join(short_run.run_dir, "audit-failure-times")
-    assert sorted(os.listdir(times)) == ["fail0", "fail3", "failure_times.md", "failure_times.png"]
+    assert sorted(os.listdir(times)) == ["fail3", "fail6", "failure_times.md", "failure_times.png"]
     assert json.loads(open(os.path.join(times, "fail3", "audit.json")).read()) == late
     ended = sum(length <= 3 for length in late["clean_lengths"])  # clean episodes over by step 3
-    assert f"\n| 3 ({ended} of 6) | {late['clean_score']:.1f} ± " in open(os.path.join(times, "failure_times.md")).read()
+    table = open(os.path.join(times, "failure_times.md")).read()
+    assert f"\n| 3 ({ended} of 6) | {late['clean_score']:.1f} ± " in table
+    assert "(N = 6 episodes per set, `rollout`): per k" in table  # (each row's own step, not the first's for all)
     shutil.rmtree(late_out), shutil.rmtree(over_late), shutil.rmtree(times)
     direct = score_missingness(ENV, policy.trainer.policy, policy.actor_params, jax.random.key(4),
                                jnp.asarray(candidate_sets(4, 1)), 6, fail_at=3)
