@@ -516,7 +516,7 @@ def interrupted(function, config, interrupted="interrupted"):
     return None, INTERRUPTED
 
 cli.run_from_cli = interrupted
-cli.parse_args = lambda *args, **kwargs: types.SimpleNamespace(run_dir="", policy=None, steps=0)
+cli.parse_args = lambda *args, **kwargs: types.SimpleNamespace(run_dir="", policy=None, steps=0, fail_at="0")
 runpy.run_module(sys.argv[1], run_name="__main__")
 """
 

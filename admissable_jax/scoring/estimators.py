@@ -62,7 +62,7 @@ def score_missingness(
         raise ValueError(f"score_estimator must be one of {', '.join(SCORE_ESTIMATORS)}, got {score_estimator!r}")
     if score_estimator != "rollout" and critic_fn is None:
         raise ValueError(f"score_estimator={score_estimator} needs the critic (critic_fn and critic_params)")
-    fail_at = check_fail_at(fail_at, env.max_episode_steps if max_steps is None else max_steps)
+    fail_at = check_fail_at(fail_at)  # (and against the episodes' length where the rollout knows it)
     if fail_at and score_estimator != "rollout":
         raise ValueError(f"fail_at={fail_at} needs score_estimator=rollout: the critic values each start with u "
                          f"hidden from it, not a sensor that fails later")
