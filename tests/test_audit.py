@@ -561,8 +561,8 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
          "fail_at must be an env step >= 0 (0: hidden from the start), got -1"),
         (["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "fail_at=soon"],
          "fail_at must be an env step or a comma list of them, e.g. 0,50,100; got 'soon'"),
-        (["some_run", "steps=all", "fail_at=0,50"], "a list of fail_at audits one policy (a run's checkpoint, its best, "
-                                                     "or policy=): give steps= or an experiment one fail_at"),
+        (["some_run", "steps=all", "fail_at=0,50"], "a list of fail_at audits one checkpoint (of a run, of an experiment's "
+                                                     "pairs, or policy=): give steps= one fail_at"),
         (["policy=test_wrappers:sum_of_visible", "gym=Hopper-v5", "fail_at=1000"],
          "fail_at=1000 is not below the episodes' 1000 steps: nothing would fail"),
         (["some_run", "search=beam", "ranker=critic", "fail_at=5"],

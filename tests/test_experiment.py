@@ -184,6 +184,23 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
         "# Robustness audit of an experiment: point_mass, each pair's best scoring (env steps "
         f"{', '.join(f'{step:,}' for step in sorted(set(best_steps.values())))})\n")
     assert "Each pair audited as its own report says (N = 2 episodes per set, `rollout`, sensors failing at env step 20)" in comparison
+    # ...and at steps 0 and 20 in one command: each step's audits of every pair, then the modes
+    # side by side by failure step, with adversarial − uniform at each.
+    assert audit_main([str(tmp_path / "straight"), "k=1", "episodes=2", "best=true", "fail_at=20,0"]) == 0
+    printed = capsys.readouterr().out
+    times = tmp_path / "straight" / "audit-failure-times-best"
+    assert sorted(os.listdir(times)) == ["fail0", "fail20", "failure_times.md", "failure_times.png"]
+    worst = {}
+    for pair, step in best_steps.items():
+        alone = json.loads((tmp_path / "straight" / pair / f"audit-best-step{step}-fail20" / "audit.json").read_text())
+        listed = json.loads((times / "fail20" / pair / "audit.json").read_text())
+        assert listed["sets"] == alone["sets"] and listed["fail_at"] == 20
+        worst.setdefault(pair.split("-")[0], []).append(min(entry["score"] for entry in listed["sets"]["1"]))
+    adversarial, uniform = np.array(worst["adversarial"]), np.array(worst["uniform"])
+    table = (times / "failure_times.md").read_text()
+    assert f"| 1 | 20 | {estimate(adversarial)} | {estimate(uniform)} |" in table
+    assert f"| 1 | 20 | adversarial | {adversarial.mean() - uniform.mean():+.1f} | [" in table
+    assert "fail_at 20, uniform seed 1: k=1: worst" in printed and table in printed
     assert said.strip().endswith(f"and {tmp_path / 'audits' / 'comparison.md'}")
     assert sorted(os.listdir(tmp_path / "audits")) == ["adversarial-s0", "adversarial-s1", "comparison.md",
                                                        "comparison.png", "uniform-s0", "uniform-s1"]

@@ -45,9 +45,10 @@ draws the worst
 
 ``fail_at=T`` lets every set's sensors fail at env step T of each episode, every feature seen
 before it, where the paper hides u from the start (a sensor that dies mid-run); a comma list
-(``fail_at=0,50,100``) audits the policy at each step, then writes ``failure_times.md`` and
-``.png``: the worst and mean a_u by failure step, and each single feature's
-(:func:`audit_failure_times`).
+(``fail_at=0,50,100``) audits the policy (or an experiment's pairs) at each step, then writes
+``failure_times.md`` and ``.png``: the worst and mean a_u by failure step, and each single
+feature's (an experiment: the modes' worst a_u by step, adversarial − uniform at each;
+:func:`audit_failure_times`).
 
 In Python, :func:`audit` takes any JAX ``policy_fn(params, masked_obs) -> action`` on any of
 our envs, :func:`audit_gymnasium` any Python policy on any Gymnasium env (Stable-Baselines3,

@@ -10,8 +10,9 @@ import os
 import sys
 from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 
-from admissable_jax.audit.report import BY_FAILURE_TIME, compare_modes, comparison_chart, dropout_line, \
-    pair_curves, robustness_chart, robustness_table, shapley_order, write_audit
+from admissable_jax.audit.report import BY_FAILURE_TIME, compare_modes, compare_modes_by_failure_time, \
+    comparison_chart, dropout_line, failure_time_chart_by_mode, pair_curves, robustness_chart, robustness_table, \
+    shapley_order, write_audit
 from admissable_jax.audit.sets import AuditResult, audit, audit_gymnasium, audit_sizes, check_audit_size, \
     check_failing_audit, check_search, gymnasium_features, rollout_sets, shapley_plan
 from admissable_jax.cli import enable_compilation_cache, parse_args, reporting, run_from_cli, setting
@@ -129,9 +130,9 @@ def check_audit_config(config: AuditConfig) -> None:
         raise ValueError(f"dropout_masks must be at least 2 for an interval, got {config.dropout_masks}")
     times = _fail_times(config.fail_at)
     check_failing_audit(max(times), config.score_estimator, config.ranker if config.search == "beam" else "rollout")
-    if len(times) > 1 and (config.steps or (config.run_dir and is_experiment(config.run_dir))):
-        raise ValueError("a list of fail_at audits one policy (a run's checkpoint, its best, or policy=): give steps= or "
-                         "an experiment one fail_at")
+    if len(times) > 1 and config.steps:
+        raise ValueError("a list of fail_at audits one checkpoint (of a run, of an experiment's pairs, or policy=): give "
+                         "steps= one fail_at")
 
 
 def _fail_times(text: str) -> tuple[int, ...]:
@@ -414,14 +415,16 @@ def _audit_each(jobs: list[tuple[AuditConfig, int | str | None]]) -> tuple[list[
 
 
 def audit_failure_times(config: AuditConfig) -> tuple[list[AuditResult], list[str]]:
-    """Audit one policy (a run's checkpoint, its best, or ``policy=``) once per env step in
-    ``fail_at`` (a comma list), each into ``<out>/fail<T>/`` as a single audit (each compiles
-    its rollout: the step is part of the program); then ``failure_times.md`` and ``.png`` (in
-    ``out``; default ``RUN_DIR/audit-failure-times`` with ``-best`` or ``-step<STEP>`` where
-    asked, or ``audit-<NAME>-failure-times`` for ``policy=``): per failure step and k, the worst
-    a_u and its set and the mean a_u over the sets, beside the clean return, and each single
-    feature's a_u by failure step. Training hides u from an episode's start; this says what a
-    sensor lost later costs, and which."""
+    """Audit one policy (a run's checkpoint, its best, or ``policy=``), or every pair of an
+    experiment, once per env step in ``fail_at`` (a comma list), each into ``<out>/fail<T>/``
+    as a single audit (each compiles its rollout: the step is part of the program); then
+    ``failure_times.md`` and ``.png`` (in ``out``; default ``RUN_DIR/audit-failure-times`` with
+    ``-best`` or ``-step<STEP>`` where asked, or ``audit-<NAME>-failure-times`` for
+    ``policy=``): for one policy, per failure step and k, the worst a_u and its set and the
+    mean a_u over the sets, beside the clean return, and each single feature's a_u by failure
+    step; for an experiment, the modes' worst a_u by failure step, and adversarial − uniform at
+    each. Training hides u from an episode's start; this says what a sensor lost later costs,
+    and which."""
     check_audit_config(config)
     which = "-best" if config.best else f"-step{config.step}" if config.step >= 0 else ""
     out = config.out or (f"audit-{_policy_name(config.policy)}-failure-times" if config.policy else
@@ -431,6 +434,16 @@ def audit_failure_times(config: AuditConfig) -> tuple[list[AuditResult], list[st
     if config.policy:
         audits = [audit_python_policy(job) for job in jobs]
         results, written = [result for result, _ in audits], [path for _, files in audits for path in files]
+    elif is_experiment(config.run_dir):
+        audits = [audit_experiment(job) for job in jobs]
+        by_time = {_fail_at(job): pairs for job, (pairs, _) in zip(jobs, audits)}
+        written = [path for _, files in audits for path in files]
+        written.append(failure_time_chart_by_mode(by_time, os.path.join(out, "failure_times.png")))
+        written.append(os.path.join(out, "failure_times.md"))
+        with open(written[-1], "w") as file:
+            file.write(compare_modes_by_failure_time(by_time) + "\n![the worst set by failure step, per mode]"
+                       "(failure_times.png)\n")
+        return [result for pairs in by_time.values() for result in pairs], written
     else:
         from admissable_jax.policies import requested_step
 
@@ -489,7 +502,7 @@ def main(argv: list[str]) -> int:
     several = experiment or config.steps or several_times  # audits, then a page that sets them side by side
     results, written = outcome if several else ([outcome[0]], outcome[1])
     for result, curve in zip(results, pair_curves(results) if experiment else [""] * len(results)):
-        pair = (f"{curve} seed {result.source['seed']}: " if experiment else
+        pair = (f"{f'fail_at {result.fail_at}, ' * several_times}{curve} seed {result.source['seed']}: " if experiment else
                 f"step {result.source['checkpoint (env step)']}: " if config.steps else
                 f"fail_at {result.fail_at}: " if several_times else "")
         if result.pilot is not None:

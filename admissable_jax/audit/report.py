@@ -561,6 +561,68 @@ def compare_modes(results: list[AuditResult]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def compare_modes_by_failure_time(by_time: dict[int, list[AuditResult]]) -> str:
+    """Markdown: an experiment's pairs audited at several failure steps (``fail_at=0,50,...``):
+    per k, failure step and mode, the pairs' worst a_u (mean ± 95% t-interval over the seeds)
+    beside their clean return; then adversarial − uniform per k and step (Welch's t). Does
+    training against the worst set hidden from the start also protect when a sensor fails later?"""
+    times, first = sorted(by_time), by_time[min(by_time)][0]
+    worst = {time: _worst_by_mode(results) for time, results in by_time.items()}
+    modes = sorted(worst[times[0]])
+    lines = [f"# Robustness by when the sensors fail, per mode: {first.env}, {audited_policies(by_time[times[0]])}", "",
+             f"Each pair audited at each failure step as its report says ({episodes_per_set(by_time[times[0]])}, "
+             f"`{first.estimator}`; the step's comparison.md beside it): per k, the pairs' worst a_u over the sets, "
+             "mean ± 95% t-interval over the seeds of a mode, with the sets' sensors failing at that env step of each "
+             "episode (0: hidden from the start, the paper's a_u).", "",
+             "| k | sensors fail at env step | " + " | ".join(modes) + " |", "|---|---|" + "---|" * len(modes)]
+    lines += [f"| {k} | {time} | " + " | ".join(estimate(worst[time][mode][k]) for mode in modes) + " |"
+              for k in first.sets for time in times]
+    adversarial = [mode for mode in modes if curve_mode(mode) == "adversarial"]
+    if adversarial and "uniform" in modes:
+        lines += ["", "Adversarial − uniform, the worst a_u:", "", *comparison_header("k", "fails at", "curve")]
+        lines += [f"| {k} | {time} | {curve} | "
+                  f"{Difference(f'k={k} fail_at={time} {curve}', worst[time][curve][k], worst[time]['uniform'][k]).cells()} |"
+                  for k in first.sets for time in times for curve in adversarial]
+    return "\n".join(lines) + "\n"
+
+
+def failure_time_chart_by_mode(by_time: dict[int, list[AuditResult]], path: str) -> str:
+    """Per mode, the pairs' worst a_u of the smallest k against the failure step: the mean with
+    its 95% t-interval shaded, and each pair's as dots."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from admissable_jax.plot import curve_colors
+
+    times = sorted(by_time)
+    worst = {time: _worst_by_mode(by_time[time]) for time in times}
+    modes, k = sorted(worst[times[0]]), min(by_time[times[0]][0].sets)
+    colors = curve_colors([(curve_mode(mode), mode) for mode in modes])
+    figure, ax = plt.subplots(figsize=(8, 4.5))
+    for mode in modes:
+        per_pair = np.array([worst[time][mode][k] for time in times]).T  # (seeds, times)
+        mean, low, high = mean_and_interval(per_pair)
+        color = colors[curve_mode(mode), mode]
+        ax.plot(times, mean, marker="o", color=color, label=f"{mode} ({len(per_pair)} seeds)")
+        ax.fill_between(times, low, high, color=color, alpha=0.2)
+        for seed_values in per_pair:
+            ax.plot(times, seed_values, ".", color=color, markersize=3)
+    from admissable_jax.plot import env_steps_axis
+
+    env_steps_axis(ax, "env step at which the sensors fail (0: from the start, the paper's a_u)")
+    ax.set_ylabel(f"worst $a_u$ over the sets of size {k}")
+    ax.set_title(f"{by_time[times[0]][0].env}: the worst set by when its sensors fail, per mode "
+                 "(mean, 95% CI; dots: pairs)", fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    figure.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(figure)
+    return path
+
+
 def episodes_per_set(results: list[AuditResult]) -> str:
     """N of several audits (an experiment's pairs, a run's checkpoints): one number, or their
     range where ``tell_apart`` chose each."""
