@@ -76,7 +76,8 @@ class AuditConfig:
     fail_at: str = setting("0", "the env step of each episode at which the hidden features' sensors fail, every feature "
                                 "seen before it (a sensor that dies mid-run); 0 = hidden from the start, as the paper "
                                 "and training hide them. Rollouts only; the default folders end in -fail<T>. A comma "
-                                "list (0,50,100) audits one policy at each, then failure_times.md/.png")
+                                "list (0,50,100) audits the policy, or an experiment's pairs, at each, then "
+                                "failure_times.md/.png")
 
 
 def _ks(text: str, trained_k: int = 1, up_to_k: bool = False) -> tuple[int, ...]:
