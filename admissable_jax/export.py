@@ -43,18 +43,17 @@ def check_export_config(config: ExportConfig) -> None:
 
 def _pair_dirs(config: ExportConfig) -> list[str]:
     """The run directories to export: the run's own, or each pair's of an experiment."""
+    from admissable_jax.run_directory import experiment_pairs, is_experiment  # (with JAX: not before the checks)
+
     root = config.run_dir
     if not os.path.isdir(root):
         raise FileNotFoundError(f"no run directory {root}")
-    if not os.path.isfile(os.path.join(root, "experiment.yaml")):
+    if not is_experiment(root):
         return [root]
     if config.out:
         raise ValueError(f"{root} is an experiment: each pair's policy goes into its own folder; give no out=, or "
                          f"export one pair (e.g. {os.path.join(root, 'adversarial-s0')})")
-    pairs = sorted(name for name in os.listdir(root) if os.path.isfile(os.path.join(root, name, "config.yaml")))
-    if not pairs:
-        raise FileNotFoundError(f"{root} holds an experiment.yaml but no pair directories")
-    return [os.path.join(root, name) for name in pairs]
+    return experiment_pairs(root)
 
 
 def export_policies(config: ExportConfig) -> list[tuple[str, ExportedPolicy]]:

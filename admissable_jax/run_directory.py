@@ -61,6 +61,15 @@ def is_experiment(path: str) -> bool:
     return os.path.isfile(os.path.join(path, "experiment.yaml"))
 
 
+def experiment_pairs(root: str) -> list[str]:
+    """The pair folders of the experiment in ``root`` (each with its ``config.yaml``), in name
+    order; FileNotFoundError in one line where it holds none (moved away)."""
+    pairs = sorted(name for name in os.listdir(root) if os.path.isfile(os.path.join(root, name, "config.yaml")))
+    if not pairs:
+        raise FileNotFoundError(f"{root} holds an experiment.yaml but no pair directories")
+    return [os.path.join(root, name) for name in pairs]
+
+
 def experiment_of(run_dir: str) -> str | None:
     """The folder of the experiment whose pair the run in ``run_dir`` is (a run without
     checkpoints of its own in a folder that holds an experiment, whose checkpoints hold

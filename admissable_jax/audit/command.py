@@ -18,10 +18,10 @@ from admissable_jax.audit.sets import AuditResult, audit, audit_gymnasium, audit
 from admissable_jax.cli import enable_compilation_cache, parse_args, reporting, run_from_cli, setting
 from admissable_jax.errors import make_directory, remove_if_unused
 from admissable_jax.method import check_fail_at, set_sizes
-from admissable_jax.run_directory import is_experiment
+from admissable_jax.run_directory import experiment_pairs, is_experiment
 from admissable_jax.scoring import SCORE_ESTIMATORS
 from admissable_jax.scoring.attribution import MIN_ORDERS, ShapleyPlan
-from admissable_jax.scoring.dropout import DropoutPlan, parse_rates, plan_dropout
+from admissable_jax.scoring.dropout import DropoutPlan, check_masks, parse_rates, plan_dropout
 
 if TYPE_CHECKING:  # for the annotations only
     import numpy as np
@@ -127,8 +127,8 @@ def check_audit_config(config: AuditConfig) -> None:
         raise ValueError(f"score_estimator must be one of {', '.join(SCORE_ESTIMATORS)} and score_horizon >= 1")
     check_search(config.search, config.beam_width, config.ranker)
     _shapley(config.shapley)
-    if parse_rates(config.dropout) and config.dropout_masks < 2:
-        raise ValueError(f"dropout_masks must be at least 2 for an interval, got {config.dropout_masks}")
+    if parse_rates(config.dropout):
+        check_masks(config.dropout_masks)
     times = _fail_times(config.fail_at)
     check_failing_audit(max(times), config.score_estimator, config.ranker if config.search == "beam" else "rollout")
     if len(times) > 1 and config.steps:
@@ -155,7 +155,8 @@ def _fail_at(config: AuditConfig) -> int:
 
 def _failing(config: AuditConfig) -> str:
     """The default folder's ending: ``-fail<T>`` where the sensors fail at env step T."""
-    return f"-fail{_fail_at(config)}" if _fail_at(config) else ""
+    time = _fail_at(config)
+    return f"-fail{time}" if time else ""
 
 
 def _shapley(text: str) -> int | str:
@@ -470,13 +471,10 @@ def audit_experiment(config: AuditConfig) -> tuple[list[AuditResult], list[str]]
     from admissable_jax.policies import requested_step
 
     root = config.run_dir
-    pairs = sorted(name for name in os.listdir(root) if os.path.isfile(os.path.join(root, name, "config.yaml")))
-    if not pairs:
-        raise FileNotFoundError(f"{root} holds an experiment.yaml but no pair directories")
     step = requested_step(config.step, config.best)
-    pair_out = lambda name: os.path.join(config.out, name) if config.out else ""
-    results, written = _audit_each([(dataclasses.replace(config, run_dir=os.path.join(root, name), out=pair_out(name)),
-                                     step) for name in pairs])
+    pair_out = lambda pair: os.path.join(config.out, os.path.basename(pair)) if config.out else ""
+    results, written = _audit_each([(dataclasses.replace(config, run_dir=pair, out=pair_out(pair)), step)
+                                    for pair in experiment_pairs(root)])
     audited = "audit-best" if config.best else f"audit-step{results[0].source['checkpoint (env step)']}"
     out = config.out or os.path.join(root, audited + _failing(config))
     make_directory(out, "audit folder")

@@ -563,9 +563,9 @@ def compare_modes(results: list[AuditResult]) -> str:
 
 def compare_modes_by_failure_time(by_time: dict[int, list[AuditResult]]) -> str:
     """Markdown: an experiment's pairs audited at several failure steps (``fail_at=0,50,...``):
-    per k, failure step and mode, the pairs' worst a_u (mean ± 95% t-interval over the seeds)
-    beside their clean return; then adversarial − uniform per k and step (Welch's t). Does
-    training against the worst set hidden from the start also protect when a sensor fails later?"""
+    per k, failure step and mode, the pairs' worst a_u (mean ± 95% t-interval over the seeds);
+    then adversarial − uniform per k and step (Welch's t). Does training against the worst set
+    hidden from the start also protect when a sensor fails later?"""
     times, first = sorted(by_time), by_time[min(by_time)][0]
     worst = {time: _worst_by_mode(results) for time, results in by_time.items()}
     modes = sorted(worst[times[0]])

@@ -58,13 +58,18 @@ def parse_rates(text: str) -> tuple[float, ...]:
     return rates
 
 
+def check_masks(masks: int) -> None:
+    """ValueError in one line for fewer than 2 masks per rate, which give no interval."""
+    if masks < 2:
+        raise ValueError(f"dropout_masks must be at least 2 for an interval, got {masks}")
+
+
 def plan_dropout(num_features: int, rates: tuple[float, ...], masks: int, seed: int) -> DropoutPlan | None:
     """M = ``masks`` masks per rate, each feature hidden with probability p, from ``seed``;
     None without rates."""
     if not rates:
         return None
-    if masks < 2:
-        raise ValueError(f"dropout_masks must be at least 2 for an interval, got {masks}")
+    check_masks(masks)
     draws = np.random.default_rng(seed).random((len(rates), masks, num_features))
     hidden = draws < np.asarray(rates)[:, None, None]
     return DropoutPlan(tuple(rates), masks, hidden.reshape(-1, num_features).astype(np.float32))
