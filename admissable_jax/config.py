@@ -18,7 +18,7 @@ from admissable_jax.agent import SACHyperparams
 from admissable_jax.cli import RUN_LOCATION, ConfigFile, check_at_least_one, setting
 from admissable_jax.envs import canonical_env_name, env_physics, observation_size, short_env_name
 from admissable_jax.loggers import parse_logger_names
-from admissable_jax.method import check_exact_size, num_candidate_sets
+from admissable_jax.method import check_exact_size, fail_steps, num_candidate_sets
 from admissable_jax.scoring import SCORE_ESTIMATORS
 
 SB3_SAC = SACHyperparams()
@@ -57,6 +57,9 @@ class RunSettings:
                                                 "false: the GPU's own order, maybe faster")
     lower_bound: float = setting(0.0, "l: return lower bound; scores below are clipped to it")
     epsilon: float = setting(1e-8, "eps in p_miss = 1/(a_u - l + eps), normalised")
+    fail_at: str = setting("0", "the env step of a training episode at which its hidden features' sensors fail, every "
+                                "feature seen until then: 0 = hidden from the start (the paper); a comma list (0,50,100): "
+                                "one step drawn uniformly per episode. Scoring (a_u, p_miss) hides u from the start")
     # run
     total_steps: int = setting(1_000_000, "env steps to train, over all envs (rounded up to a multiple of score_every)")
     num_envs: int = setting(0, "parallel envs; 0 = the largest divisor of score_every up to 8 on CPU, 128 on GPU (125 for 5000)")
@@ -114,9 +117,11 @@ class TrainConfig(RunSettings):
 
     def resolved(self) -> "TrainConfig":
         """A copy with the env name and physics backend canonical, ``num_envs``,
-        ``score_envs`` and ``out`` filled in, NumPy scalars as Python numbers, validated."""
-        config = dataclasses.replace(self, **python_numbers(self))
+        ``score_envs`` and ``out`` filled in, NumPy scalars as Python numbers, ``fail_at``
+        as its steps' sorted comma list (``[100, 0]`` → ``"0,100"``), validated."""
+        config = dataclasses.replace(self, **python_numbers(self), **comma_lists(self, ("fail_at",)))
         validate(config)
+        config.fail_at = ",".join(map(str, fail_steps(config.fail_at)))
         config.env = canonical_env_name(config.env)
         config.physics = env_physics(config.env, config.physics)
         check_sets(config)
@@ -144,6 +149,15 @@ def python_numbers(config) -> dict[str, int | float]:
             for field in dataclasses.fields(config) if isinstance(getattr(config, field.name), kinds.get(field.type, ()))}
 
 
+def comma_lists(config, names: tuple[str, ...]) -> dict[str, str]:
+    """The fields of ``names`` given as Python values where a config holds comma text: a
+    sequence (``["adversarial", "uniform"]``, ``np.linspace(0, 100, 3)``, ``[0, 50]``) as the
+    comma list the command line writes, an int (``fail_at=50``) as its digits."""
+    return {name: ",".join(map(str, value)) if isinstance(value, (list, tuple, np.ndarray)) else str(value)
+            for name in names if isinstance(value := getattr(config, name), (list, tuple, np.ndarray, np.integer, int))
+            and not isinstance(value, bool)}
+
+
 def run_out(config: TrainConfig) -> str:
     """A train run's directory: ``out``, or runs/<env>-<missingness>-s<seed>."""
     return config.out or f"runs/{short_env_name(config.env)}-{config.missingness}-s{config.seed}"
@@ -165,14 +179,12 @@ class ExperimentConfig(RunSettings):
     budget_only: bool = setting(False, "print the memory budget and stop")
 
     def resolved(self) -> "ExperimentConfig":
-        """A copy as the experiment runs and saves it: ``modes`` and ``lower_bounds`` given
-        as Python sequences (``["adversarial", "uniform"]``, ``np.linspace(0, 100, 3)``) as
-        the comma lists the command line writes, NumPy scalars as Python numbers; TypeError
+        """A copy as the experiment runs and saves it: ``modes``, ``lower_bounds`` and
+        ``fail_at`` given as Python values as the comma text the command line writes
+        (:func:`comma_lists`), NumPy scalars as Python numbers; TypeError
         in one line for an experiment-only field of another type (the shared ones are each
         pair's, checked by :meth:`TrainConfig.resolved` in :func:`pair_configs`)."""
-        lists = {name: ",".join(map(str, value)) for name in ("modes", "lower_bounds")
-                 if not isinstance(value := getattr(self, name), str) and isinstance(value, (list, tuple, np.ndarray))}
-        config = dataclasses.replace(self, **python_numbers(self), **lists)
+        config = dataclasses.replace(self, **python_numbers(self), **comma_lists(self, ("modes", "lower_bounds", "fail_at")))
         shared = {field.name for field in dataclasses.fields(RunSettings)}
         check_field_types(config, [field for field in dataclasses.fields(config) if field.name not in shared])
         return config
@@ -369,6 +381,7 @@ def validate(config: TrainConfig) -> None:
         )
     if config.episode_length > 1000:
         raise ValueError("episode_length must be <= 1000 (the v5 limit)")
+    fail_steps(config.fail_at, config.episode_length)
 
 
 def setting_warnings(config: TrainConfig) -> list[str]:

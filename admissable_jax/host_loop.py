@@ -222,6 +222,12 @@ class TrainingLoop:
         budget = self.compile()
         report(f"{self.num_runs} run(s) x {config.num_envs} envs of {config.env} on "
                f"{self.trainer.env.physics_name} physics: {budget.describe()}")
+        if self.trainer.failing:
+            steps = self.trainer.spec.fail_steps
+            when = f"{', '.join(map(str, steps[:-1]))} or {steps[-1]} (one drawn per episode)" if len(steps) > 1 \
+                else str(steps[0])
+            report(f"sensors fail mid-episode: each training episode hides its u from env step {when} on, every "
+                   f"feature seen before; scoring hides u from the start")
         if self.placement:
             report(self.placement.describe())
         self._check_disk(budget.state_bytes * self.num_devices)

@@ -222,11 +222,30 @@ def check_fail_at(fail_at, max_steps: int | None = None) -> int:
     return int(fail_at)
 
 
-def hidden_from_step(hidden, steps_taken, fail_at: int):
+def fail_steps(fail_at, max_steps: int | None = None) -> tuple[int, ...]:
+    """The env steps ``fail_at`` names, smallest first and each once: one step (an int), a
+    comma list (``"0,50,100"``) or a sequence of ints; ValueError in one line for an empty
+    list or a step :func:`check_fail_at` refuses."""
+    if isinstance(fail_at, str):
+        try:
+            steps = [int(part) for part in fail_at.split(",") if part.strip()]
+        except ValueError:
+            steps = []
+        if not steps:
+            raise ValueError(f"fail_at must be an env step or a comma list of them, e.g. 0,50,100; got {fail_at!r}")
+    else:
+        steps = list(fail_at) if isinstance(fail_at, (list, tuple, np.ndarray)) else [fail_at]
+    if not steps:
+        raise ValueError("fail_at must name at least one env step")
+    return tuple(sorted({check_fail_at(step, max_steps) for step in steps}))
+
+
+def hidden_from_step(hidden, steps_taken, fail_at):
     """u's 0/1 rows as each episode sees them after ``steps_taken`` env steps, when the sensors
     of u fail at env step ``fail_at``: nothing hidden before it, u from it on (the observation
     after ``fail_at`` steps is the first without them). ``fail_at`` = 0 is the paper's u, hidden
-    for the whole episode (§3). ``hidden`` (n, d), ``steps_taken`` (n,), NumPy or JAX."""
+    for the whole episode (§3). ``hidden`` (n, d), ``steps_taken`` (n,), ``fail_at`` one step
+    or each episode's (n,); NumPy or JAX."""
     xp = hidden.__array_namespace__()
     return hidden * xp.astype(steps_taken >= fail_at, hidden.dtype)[..., None]
 

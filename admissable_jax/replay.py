@@ -1,7 +1,10 @@
 """A fixed-capacity ring buffer of transitions that lives on the device.
 
 It stores the raw observation and the index of the episode's missing set rather than the
-2·d masked vector (half the memory, and the mask is applied once, at sampling). Inserts
+2·d masked vector (half the memory, and the mask is applied once, at sampling). Where u's
+sensors fail mid-episode (``fail_at``), each row also says how far past the failure its
+observation was, so that the sampler hides u from the observation and the next one on either
+side of it. Inserts
 write a whole batch of parallel-env transitions with one ``dynamic_update_slice``; the
 capacity is a multiple of that batch so a write never wraps mid-batch.
 """
@@ -24,6 +27,9 @@ class Transitions:
     reward: jax.Array  # (...,)
     next_obs: jax.Array  # (..., d) raw observation after the step (before any reset)
     terminated: jax.Array  # (...,) true termination only; truncation bootstraps
+    # (...,) int32: env steps taken before obs minus the episode's failure step (u hidden in
+    # obs from 0 on, in next_obs from -1 on); None where u is hidden from the start (the paper)
+    steps_past_failure: jax.Array | None = None
 
 
 @struct.dataclass
@@ -40,7 +46,8 @@ def buffer_capacity(requested: int, insert_batch: int) -> int:
     return max(insert_batch, requested // insert_batch * insert_batch)
 
 
-def init_buffer(capacity: int, obs_size: int, action_size: int) -> ReplayBuffer:
+def init_buffer(capacity: int, obs_size: int, action_size: int, failing: bool = False) -> ReplayBuffer:
+    """An empty buffer; ``failing``: with the column ``steps_past_failure`` (sensors that fail mid-episode)."""
     data = Transitions(
         obs=jnp.zeros((capacity, obs_size), jnp.float32),
         set_index=jnp.zeros((capacity,), jnp.int32),
@@ -48,6 +55,7 @@ def init_buffer(capacity: int, obs_size: int, action_size: int) -> ReplayBuffer:
         reward=jnp.zeros((capacity,), jnp.float32),
         next_obs=jnp.zeros((capacity, obs_size), jnp.float32),
         terminated=jnp.zeros((capacity,), bool),
+        steps_past_failure=jnp.zeros((capacity,), jnp.int32) if failing else None,
     )
     return ReplayBuffer(data=data, position=jnp.zeros((), jnp.int32), size=jnp.zeros((), jnp.int32))
 

@@ -15,6 +15,7 @@ import dataclasses
 from admissable_jax.agent import SACHyperparams
 from admissable_jax.config import TrainConfig
 from admissable_jax.envs import EnvOptions, observation_size
+from admissable_jax.method import fail_steps
 from admissable_jax.replay import buffer_capacity
 
 
@@ -39,6 +40,7 @@ class RunSpec:
     learning_starts: int
     sac: SACHyperparams
     epsilon: float  # ε
+    fail_steps: tuple[int, ...]  # env steps at which an episode's u fails, one drawn per episode; (0,): the paper's
 
     @classmethod
     def of(cls, config: TrainConfig, num_runs: int = 1) -> "RunSpec":
@@ -74,6 +76,7 @@ class RunSpec:
                 batch_size=config.batch_size, hidden_sizes=(config.hidden_size,) * config.hidden_layers,
             ),
             epsilon=config.epsilon,
+            fail_steps=fail_steps(config.fail_at, config.episode_length),
         )
 
 

@@ -4,6 +4,9 @@ An iteration steps all ``num_envs`` environments once (each observing its state 
 its own missing set u), writes the transitions to the replay buffer, starts new episodes
 where one ended (drawing a fresh u ~ p_miss for each, paper §3), and takes
 ``num_envs · utd`` SAC gradient steps once ``learning_starts`` env steps are collected.
+Beyond the paper, ``fail_at`` lets u's sensors fail mid-episode: each episode also draws the
+env step from which u is hidden (every feature seen before it); scoring still hides u from
+the start, so a_u, p_miss and the headline min_u a_u are the paper's.
 ``run_chunk`` scans iterations on the device; ``score_and_update`` scores every u in one
 batched rollout and applies the adversary's update.
 
@@ -39,6 +42,7 @@ from admissable_jax.agent import SAC, SACBatch, SACState
 from admissable_jax.branching import lazy_cond
 from admissable_jax.envs import EnvState, reset_where_done
 from admissable_jax.fingerprints import tree_fingerprint
+from admissable_jax.method import hidden_from_step
 from admissable_jax.missingness import SetNumbering, mask_observation, sample_distinct_sets, sample_set_indices
 from admissable_jax.run_spec import RunSpec
 from admissable_jax.scoring import MissingnessScores, beam_search_worst_sets, score_missingness
@@ -63,6 +67,9 @@ class TrainState:
     grad_steps: jax.Array  # () int32
     pool: jax.Array  # (P,) int32 indices into U of the sets scored and drawn by p_miss; (0,) = all of U
     lower_bound: jax.Array  # () float32: l of the adversary's update (pairs of one program may differ)
+    # (num_envs,) int32: the env step of each env's episode at which its u fails, drawn from
+    # the spec's fail_steps at the episode's start; None where u is hidden from the start (the paper)
+    failure_step: jax.Array | None = None
 
 
 class Trainer:
@@ -76,6 +83,7 @@ class Trainer:
         self.pooled = spec.pool_size > 0
         self.num_scored = spec.pool_size or self.num_sets  # P
         self.agent = SAC(2 * env.observation_size, env.action_low, env.action_high, spec.sac)
+        self.failing = spec.fail_steps != (0,)  # else the program is the paper's, unchanged
 
     # --- construction -------------------------------------------------------------------
     def init(self, seed: jax.Array, mode_adversarial: jax.Array, mode_masking: jax.Array,
@@ -94,7 +102,8 @@ class Trainer:
         adversarial = jnp.asarray(mode_adversarial, bool)
         return TrainState(
             sac=self.agent.init(agent_rng),
-            buffer=replay.init_buffer(self.spec.buffer_capacity, self.env.observation_size, self.env.action_size),
+            buffer=replay.init_buffer(self.spec.buffer_capacity, self.env.observation_size, self.env.action_size,
+                                      self.failing),
             env_states=jax.vmap(self.env.reset)(jax.random.split(env_rng, self.spec.num_envs)),
             set_index=self._draw_sets(set_rng, p_miss, pool, adversarial),
             p_miss=p_miss,
@@ -105,6 +114,7 @@ class Trainer:
             grad_steps=jnp.zeros((), jnp.int32),
             pool=pool,
             lower_bound=jnp.asarray(lower_bound, jnp.float32),
+            failure_step=self._draw_failure_steps(set_rng),
         )
 
     # --- pieces -------------------------------------------------------------------------
@@ -136,13 +146,30 @@ class Trainer:
         explore = jax.random.uniform(explore_rng, shape) < jnp.where(adversarial, self.spec.pool_explore, 1.0)
         return jnp.where(explore, anywhere, from_pool)
 
+    def _draw_failure_steps(self, set_rng: jax.Array) -> jax.Array | None:
+        """Each env's failure step for a new episode, uniform over the spec's ``fail_steps``
+        (None where u is hidden from the start). Its key is folded from the sets' key, so a
+        run's draws of u are those of the same seed without failures."""
+        if not self.failing:
+            return None
+        choice = jax.random.randint(jax.random.fold_in(set_rng, 1), (self.spec.num_envs,), 0, len(self.spec.fail_steps))
+        return jnp.asarray(self.spec.fail_steps, jnp.int32)[choice]
+
+    def hidden_now(self, state: TrainState) -> jax.Array:
+        """The (num_envs, d) 0/1 rows each env's policy has hidden at this step: its episode's
+        u, from its failure step on (:func:`~admissable_jax.method.hidden_from_step`)."""
+        hidden = self.hidden_rows(state, state.set_index)
+        if not self.failing:
+            return hidden
+        return hidden_from_step(hidden, state.env_states.step_count, state.failure_step)
+
     def policy(self, actor_params, masked_obs: jax.Array) -> jax.Array:
         """Deterministic policy on one masked observation, as scoring runs it."""
         return self.agent.deterministic_action(actor_params, masked_obs)
 
     def _act(self, state: TrainState, rng: jax.Array) -> jax.Array:
         random_rng, policy_rng = jax.random.split(rng)
-        masked = mask_observation(state.env_states.obs, self.hidden_rows(state, state.set_index))
+        masked = mask_observation(state.env_states.obs, self.hidden_now(state))
         policy_action, _ = self.agent.sample_action(state.sac.actor_params, masked, policy_rng)
         random_action = jax.random.uniform(
             random_rng, policy_action.shape, minval=self.env.action_low, maxval=self.env.action_high
@@ -176,14 +203,23 @@ class Trainer:
 
     def _minibatch(self, state: TrainState, rng: jax.Array) -> SACBatch:
         """A uniform replay minibatch, masked with each transition's own missing set."""
-        batch = replay.sample(state.buffer, rng, self.spec.sac.batch_size)
-        hidden = self.hidden_rows(state, batch.set_index)
+        return self.masked_batch(state, replay.sample(state.buffer, rng, self.spec.sac.batch_size))
+
+    def masked_batch(self, state: TrainState, transitions: replay.Transitions) -> SACBatch:
+        """Stored transitions as SAC learns from them: each observation masked by its
+        episode's u, hidden in obs and next_obs alike, or where u fails mid-episode, in each
+        from the failure step on (the transition across it: obs whole, next_obs without u)."""
+        hidden = self.hidden_rows(state, transitions.set_index)
+        obs_hidden = next_hidden = hidden
+        if self.failing:
+            obs_hidden = hidden_from_step(hidden, transitions.steps_past_failure, 0)
+            next_hidden = hidden_from_step(hidden, transitions.steps_past_failure + 1, 0)
         return SACBatch(
-            obs=mask_observation(batch.obs, hidden),
-            action=batch.action,
-            reward=batch.reward,
-            next_obs=mask_observation(batch.next_obs, hidden),
-            terminated=batch.terminated,
+            obs=mask_observation(transitions.obs, obs_hidden),
+            action=transitions.action,
+            reward=transitions.reward,
+            next_obs=mask_observation(transitions.next_obs, next_hidden),
+            terminated=transitions.terminated,
         )
 
     def _learning(self, state: TrainState) -> jax.Array:
@@ -192,7 +228,8 @@ class Trainer:
     # --- the iteration ------------------------------------------------------------------
     def iteration(self, state: TrainState, _=None) -> tuple[TrainState, dict[str, jax.Array]]:
         """One step of every env under its episode's u (paper §3: u is drawn from p_miss at
-        each episode start and held for the episode), the transitions stored with u's index,
+        each episode start and held for the episode; with ``fail_at``, hidden from the
+        episode's failure step on), the transitions stored with u's index,
         then ``updates_per_iteration`` SAC updates once learning has started. Pure: a
         ``lax.scan`` body (the second argument is the scanned-over slot, unused). Its parts
         carry JAX named scopes, by which a profile sums the device's time
@@ -212,6 +249,7 @@ class Trainer:
                     reward=stepped.reward,
                     next_obs=stepped.obs,
                     terminated=stepped.terminated,
+                    steps_past_failure=state.env_states.step_count - state.failure_step if self.failing else None,
                 ),
             )
         done = stepped.done
@@ -220,10 +258,12 @@ class Trainer:
                 self.env, stepped, jax.random.split(reset_rng, self.spec.num_envs)
             )
             new_sets = self._draw_sets(set_rng, state.p_miss, state.pool, state.adversarial)
+            new_failure_steps = self._draw_failure_steps(set_rng)
         state = state.replace(
             buffer=buffer,
             env_states=env_states,
             set_index=jnp.where(done, new_sets, state.set_index),
+            failure_step=jnp.where(done, new_failure_steps, state.failure_step) if self.failing else None,
             env_steps=state.env_steps + self.spec.num_envs,
             rng=rng,
         )

@@ -2,7 +2,8 @@
 for any Python policy. NumPy and Gymnasium only: nothing here imports JAX.
 
 - :class:`MissingnessObservation` hides a set u of observation features (zeroed) and
-  appends the 0/1 indicator of u (2·d features), for a fixed u or one chosen per episode.
+  appends the 0/1 indicator of u (2·d features), for a fixed u or one chosen per episode,
+  from the episode's start (the paper) or from the env step its sensors fail (``fail_at``).
 - :class:`AdversarialMissingness` draws u ~ p_miss at every reset (fixed for the episode)
   and applies the paper's p_miss update in :meth:`~AdversarialMissingness.update`.
 - :func:`score_policy` computes every a_u (and the clean return) for any policy on
@@ -15,13 +16,13 @@ other; the README shows SB3's SAC with a callback that scores every ζ steps.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, Sequence
 
 import gymnasium
 import numpy as np
 from tqdm.auto import tqdm
 
-from admissable_jax.method import MODES, candidate_sets, check_fail_at, hidden_from_step, hidden_row, \
+from admissable_jax.method import MODES, candidate_sets, check_fail_at, fail_steps, hidden_from_step, hidden_row, \
     inverse_score_p_miss, mask_observation
 
 HiddenChoice = Callable[[np.random.Generator], Iterable[int]]
@@ -34,11 +35,20 @@ class MissingnessObservation(gymnasium.ObservationWrapper, gymnasium.utils.Recor
     function ``choose(rng) -> indices`` called at every reset with this wrapper's own NumPy
     generator (seeded by ``reset(seed=...)``), for one u per episode. The current u is
     :attr:`hidden_row`, and ``info["hidden"]`` at reset lists its indices.
+
+    ``fail_at``: the env step of each episode at which u's sensors fail, every feature seen
+    (and the indicator 0) until then; 0, the paper's, hides u from the start. A sequence of
+    steps draws one per episode, uniformly, with the same generator (``info["fail_at"]`` at
+    reset, :attr:`fail_at`), as ``train fail_at=0,50,100`` does.
     """
 
-    def __init__(self, env: gymnasium.Env, hidden: Iterable[int] | HiddenChoice = ()):
-        gymnasium.utils.RecordConstructorArgs.__init__(self, hidden=hidden)  # for env specs (check_env)
+    def __init__(self, env: gymnasium.Env, hidden: Iterable[int] | HiddenChoice = (),
+                 fail_at: int | Sequence[int] = 0):
+        gymnasium.utils.RecordConstructorArgs.__init__(self, hidden=hidden, fail_at=fail_at)  # for env specs (check_env)
         super().__init__(env)
+        self.fail_steps = fail_steps(fail_at, getattr(env.spec, "max_episode_steps", None))
+        self.fail_at = self.fail_steps[0]  # this episode's
+        self._steps_taken = 0
         space = env.observation_space
         if not isinstance(space, gymnasium.spaces.Box) or len(space.shape) != 1:
             raise ValueError(f"MissingnessObservation needs a flat Box observation space, got {space}")
@@ -58,11 +68,19 @@ class MissingnessObservation(gymnasium.ObservationWrapper, gymnasium.utils.Recor
             self._rng = np.random.default_rng([seed, 0x6D61736B])  # apart from the env's own stream
         if self._choose is not None:
             self.hidden_row = hidden_row(self._choose(self._rng), self.num_features)
+        if len(self.fail_steps) > 1:
+            self.fail_at = int(self._rng.choice(self.fail_steps))
+        self._steps_taken = 0
         obs, info = self.env.reset(seed=seed, options=options)
-        return self.observation(obs), {**info, "hidden": np.flatnonzero(self.hidden_row).tolist()}
+        return self.observation(obs), {**info, "hidden": np.flatnonzero(self.hidden_row).tolist(), "fail_at": self.fail_at}
+
+    def step(self, action):
+        self._steps_taken += 1
+        return super().step(action)
 
     def observation(self, observation: np.ndarray) -> np.ndarray:
-        return mask_observation(np.asarray(observation, self.observation_space.dtype), self.hidden_row)
+        hidden = hidden_from_step(self.hidden_row[None], np.asarray([self._steps_taken]), self.fail_at)[0]
+        return mask_observation(np.asarray(observation, self.observation_space.dtype), hidden)
 
 
 class AdversarialMissingness(MissingnessObservation):
@@ -72,12 +90,13 @@ class AdversarialMissingness(MissingnessObservation):
     (what :func:`score_policy` returns, given the same ``k`` and ``up_to_k``), and sets
     p_miss(u) ∝ 1/(max(a_u, l) − l + ε) in ``mode="adversarial"``; ``"uniform"`` keeps p_miss
     uniform (the paper's baseline). In a vector env every copy holds its own p_miss:
-    ``envs.call("update", scores)`` updates them all.
+    ``envs.call("update", scores)`` updates them all. ``fail_at`` as in
+    :class:`MissingnessObservation`.
     """
 
     def __init__(self, env: gymnasium.Env, k: int = 1, mode: str = "adversarial", lower_bound: float = 0.0,
                  epsilon: float = 1e-8, include_empty_set: bool = False, seed: int | None = None,
-                 up_to_k: bool = False):
+                 up_to_k: bool = False, fail_at: int | Sequence[int] = 0):
         if mode not in MODES[:2]:
             raise ValueError(f"mode must be 'adversarial' or 'uniform', got {mode!r}")
         if not np.isfinite(lower_bound):
@@ -86,8 +105,8 @@ class AdversarialMissingness(MissingnessObservation):
             raise ValueError(f"epsilon must be > 0 and finite, got {epsilon}")
         gymnasium.utils.RecordConstructorArgs.__init__(self, k=k, mode=mode, lower_bound=lower_bound, epsilon=epsilon,
                                                         include_empty_set=include_empty_set, seed=seed,
-                                                        up_to_k=up_to_k)
-        super().__init__(env, hidden=self._draw)
+                                                        up_to_k=up_to_k, fail_at=fail_at)
+        super().__init__(env, hidden=self._draw, fail_at=fail_at)
         self.candidate_sets = candidate_sets(self.num_features, k, include_empty_set, up_to_k)
         self.mode, self.lower_bound, self.epsilon = mode, float(lower_bound), float(epsilon)
         self.p_miss = np.full(len(self.candidate_sets), 1.0 / len(self.candidate_sets))

@@ -29,7 +29,7 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
-from admissable_jax import TrainConfig, candidate_sets, make_env, mask_observation, score_missingness, train_fn
+from admissable_jax import TrainConfig, candidate_sets, make_env, mask_observation, replay, score_missingness, train_fn
 from admissable_jax.audit import main as audit_main
 from admissable_jax.best_policy import BestPolicyNotWritten, KeptPolicy, best_kept, write_best_policy
 from admissable_jax.branching import while_any
@@ -337,7 +337,7 @@ def test_load_policy_is_the_trainers_deterministic_policy(point_mass_run, monkey
         policy.masked(obs)  # unmasked rows (it said Flax's "ScopeParamShapeError ...")
 
 
-def test_missing_set_fixed_within_episode_and_drawn_from_p_miss():
+def test_missing_set_fixed_within_episode_and_drawn_from_p_miss_and_failing_from_a_drawn_step():
     env = make_env("point_mass", episode_length=5)  # many episode starts
     config = dataclasses.replace(POINT_MASS, num_envs=20, episode_length=5, hidden_size=32).resolved()
     trainer = Trainer(env, RunSpec.of(config))
@@ -358,6 +358,37 @@ def test_missing_set_fixed_within_episode_and_drawn_from_p_miss():
     frequencies = np.bincount(draws, minlength=4) / len(draws)
     tolerance = 4 * np.sqrt(np.asarray(p_miss) * (1 - np.asarray(p_miss)) / len(draws))
     assert (np.abs(frequencies - np.asarray(p_miss)) < tolerance).all(), frequencies
+    assert state.failure_step is None and state.buffer.data.steps_past_failure is None  # the paper's state
+
+    # fail_at=3,0: each episode also draws the env step its u fails, 0 or 3, held for the
+    # episode. The policy sees every feature until then; the replay hides u in obs and in
+    # next_obs each from that step on (the transition across it: obs whole, next_obs without u).
+    failing = Trainer(env, RunSpec.of(dataclasses.replace(config, fail_at="3,0").resolved()))
+    state = failing.init(0, True, True, 0.0).replace(p_miss=p_miss)
+
+    def record_failing(state, _):
+        seen = (failing.hidden_now(state), state.set_index, state.failure_step, state.env_states.step_count)
+        return failing.iteration(state)[0], seen
+
+    iterations = 100
+    state, (hidden, set_index, failure_step, step_count) = jax.jit(
+        lambda s: jax.lax.scan(record_failing, s, None, length=iterations))(state)
+    hidden, set_index, failure_step, step_count = map(np.asarray, (hidden, set_index, failure_step, step_count))
+    episode_start = step_count[1:] == 0
+    assert not ((failure_step[1:] != failure_step[:-1]) & ~episode_start).any(), "the failure step changed within an episode"
+    draws = failure_step[1:][episode_start]
+    assert set(draws) == {0, 3} and abs(np.mean(draws == 3) - 0.5) < 4 * np.sqrt(0.25 / len(draws))
+    u = candidate_sets(4, 1)[set_index]  # (iterations, envs, d)
+    np.testing.assert_array_equal(hidden, u * (step_count >= failure_step)[..., None])
+    stored = jax.tree.map(np.asarray, jax.device_get(replay.latest(state.buffer, iterations * config.num_envs)))
+    steps_past = (step_count - failure_step).reshape(-1)
+    np.testing.assert_array_equal(stored.steps_past_failure, steps_past)
+    learned_from = failing.masked_batch(state, replay.latest(state.buffer, iterations * config.num_envs))
+    u = u.reshape(-1, 4)
+    for masked, raw, hidden_rows in ((learned_from.obs, stored.obs, u * (steps_past >= 0)[:, None]),
+                                     (learned_from.next_obs, stored.next_obs, u * (steps_past >= -1)[:, None])):
+        np.testing.assert_array_equal(np.asarray(masked), np.concatenate([raw * (1 - hidden_rows), hidden_rows], axis=1))
+    assert (steps_past == -1).sum() > 100  # transitions across the failure, each masked on its own side
 
 
 def test_candidate_pool_for_k2_search_draws_and_records(tmp_path, monkeypatch):
@@ -568,11 +599,13 @@ def test_while_any_steps_every_member_while_any_runs():
 
 def test_checkpoint_resume_continues_exactly(tmp_path, capsys):
     """resume=true from a checkpoint, and fast_forward=true from the records alone (the run's
-    checkpoints left behind on another machine): both continue the run bit for bit."""
+    checkpoints left behind on another machine): both continue the run bit for bit. The run's
+    sensors fail mid-episode (fail_at), so its state holds each episode's failure step and the
+    replay's steps past it, which the checkpoint and the fingerprint must carry too."""
     from admissable_jax.fast_forward import FastForwardDiverged
 
     config = dataclasses.replace(POINT_MASS, total_steps=2000, score_every=500, learning_starts=500, checkpoint_every=1,
-                                 hidden_size=32, logger="none")
+                                 hidden_size=32, logger="none", fail_at="0,20")
     straight = train_fn(dataclasses.replace(config, out=str(tmp_path / "straight")))
     resumed_dir = str(tmp_path / "resumed")
     train_fn(dataclasses.replace(config, total_steps=1000, out=resumed_dir))
@@ -584,6 +617,9 @@ def test_checkpoint_resume_continues_exactly(tmp_path, capsys):
         train_fn(dataclasses.replace(config, out=resumed_dir, resume=True, seed=1))
     resumed = train_fn(dataclasses.replace(config, out=resumed_dir, resume=True))
 
+    assert straight.state.failure_step is not None and straight.state.buffer.data.steps_past_failure is not None
+    assert "sensors fail mid-episode: each training episode hides its u from env step 0 or 20 (one drawn per " \
+           "episode) on" in capsys.readouterr().err
     assert [r["scores"] for r in resumed.scores] == [r["scores"] for r in straight.scores]
     assert [r["p_miss"] for r in resumed.scores] == [r["p_miss"] for r in straight.scores]
     for a, b in zip(jax.tree.leaves(resumed.state), jax.tree.leaves(straight.state)):
@@ -733,6 +769,8 @@ def test_a_checkpoint_of_an_older_state_layout_is_named_and_its_networks_still_r
         (["episode_length=1001"], "episode_length must be <= 1000 (the v5 limit)"),
         (["fast_forward=true"], "fast_forward=true continues a run from its records: pass resume=true too"),
         (["score_every=1000", "num_envs=3"], "score_every (1000) must be a multiple of num_envs (3)"),
+        (["episode_length=200", "fail_at=0,200"], "fail_at=200 is not below the episodes' 200 steps: nothing would fail"),
+        (["fail_at=soon"], "fail_at must be an env step or a comma list of them, e.g. 0,50,100; got 'soon'"),
     ],
 )
 def test_cli_rejects_bad_input_with_one_line(args, message, tmp_path, capsys, monkeypatch):
@@ -785,15 +823,18 @@ def test_numpy_scalars_are_settings_as_python_numbers():
     assert (type(config.seed), type(config.lower_bound), type(config.gamma)) == (int, float, float)
     with pytest.raises(TypeError, match=r"^total_steps must be int, got np.float64\(1000.0\)$"):
         dataclasses.replace(POINT_MASS, total_steps=np.float64(1000)).resolved()
-    # An experiment from Python: modes and lower_bounds as sequences too (they failed deep
-    # inside: "'list' object has no attribute 'split'"), saved as the command line's comma lists.
+    # fail_at from Python as a step or a list of them: the sorted comma list a run saves.
+    assert [dataclasses.replace(POINT_MASS, fail_at=given).resolved().fail_at
+            for given in (np.int64(50), [50, 0, 50], np.array([20, 10]), " 30 , 5")] == ["50", "0,50", "10,20", "5,30"]
+    # An experiment from Python: modes, lower_bounds and fail_at as sequences too (they failed
+    # deep inside: "'list' object has no attribute 'split'"), saved as the command line's comma lists.
     from admissable_jax.config import ExperimentConfig, pair_configs
     from admissable_jax.experiment import run_experiment
 
     given = ExperimentConfig(env="point_mass", modes=["adversarial", "uniform"], lower_bounds=np.linspace(0, 50, 2),
-                             seeds=np.int64(2), out="sweep").resolved()
+                             seeds=np.int64(2), out="sweep", fail_at=(0, 20)).resolved()
     assert given == ExperimentConfig(env="point_mass", modes="adversarial,uniform", lower_bounds="0.0,50.0", seeds=2,
-                                     out="sweep")
+                                     out="sweep", fail_at="0,20")
     assert [os.path.basename(pair.out) for pair in pair_configs(given)] == [
         "adversarial-l0-s0", "adversarial-l0-s1", "adversarial-l50-s0", "adversarial-l50-s1", "uniform-s0", "uniform-s1"]
     with pytest.raises(TypeError, match=r"^seeds must be int, got '3'$"):

@@ -97,6 +97,18 @@ def test_masked_observation_and_its_space():
     assert drawn[0] == drawn[2]
     with pytest.raises(ValueError, match=r"hidden features must be in \[0, 3\)"):
         MissingnessObservation(ConstantFeatures(), hidden=[3])
+    # Sensors that fail at env step 2: every feature (and a 0 indicator) until then, u after.
+    failing = MissingnessObservation(ConstantFeatures(), hidden=[1], fail_at=2)
+    seen = [failing.reset(seed=0)[0]] + [failing.step(np.zeros(1))[0] for _ in range(3)]
+    np.testing.assert_array_equal(seen, [[1, 2, 3, 0, 0, 0]] * 2 + [[1, 0, 3, 0, 1, 0]] * 2)
+    assert failing.reset()[0].tolist() == [1, 2, 3, 0, 0, 0]  # a new episode sees u again until step 2
+    check_env(failing, skip_render_check=True)
+    # A list draws one step per episode from the wrapper's generator; steps past the limit are refused.
+    onsets = MissingnessObservation(gymnasium.make("ConstantFeatures-v0", max_episode_steps=5), hidden=[0], fail_at=[3, 0])
+    drawn = {onsets.reset(seed=seed)[1]["fail_at"] for seed in range(20)}
+    assert drawn == {0, 3} and onsets.fail_steps == (0, 3)
+    with pytest.raises(ValueError, match="^fail_at=5 is not below the episodes' 5 steps: nothing would fail$"):
+        MissingnessObservation(gymnasium.make("ConstantFeatures-v0", max_episode_steps=5), hidden=[0], fail_at=[0, 5])
     # One index is one feature; a string's characters, or a fraction, are no indices.
     np.testing.assert_array_equal(MissingnessObservation(ConstantFeatures(), hidden=2).hidden_row, [0, 0, 1])
     for hidden, error, message in (("12", TypeError, "hidden must be feature indices or a 0/1 row, got the string '12'"),

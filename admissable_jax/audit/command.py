@@ -17,7 +17,7 @@ from admissable_jax.audit.sets import AuditResult, audit, audit_gymnasium, audit
     check_failing_audit, check_search, gymnasium_features, rollout_sets, shapley_plan
 from admissable_jax.cli import enable_compilation_cache, parse_args, reporting, run_from_cli, setting
 from admissable_jax.errors import make_directory, remove_if_unused
-from admissable_jax.method import check_fail_at, set_sizes
+from admissable_jax.method import check_fail_at, fail_steps, set_sizes
 from admissable_jax.run_directory import experiment_pairs, is_experiment
 from admissable_jax.scoring import SCORE_ESTIMATORS
 from admissable_jax.scoring.attribution import MIN_ORDERS, ShapleyPlan
@@ -129,27 +129,16 @@ def check_audit_config(config: AuditConfig) -> None:
     _shapley(config.shapley)
     if parse_rates(config.dropout):
         check_masks(config.dropout_masks)
-    times = _fail_times(config.fail_at)
+    times = fail_steps(config.fail_at)
     check_failing_audit(max(times), config.score_estimator, config.ranker if config.search == "beam" else "rollout")
     if len(times) > 1 and config.steps:
         raise ValueError("a list of fail_at audits one checkpoint (of a run, of an experiment's pairs, or policy=): give "
                          "steps= one fail_at")
 
 
-def _fail_times(text: str) -> tuple[int, ...]:
-    """The env steps ``fail_at=`` names, smallest first: one, or a comma list."""
-    try:
-        times = sorted({int(part) for part in str(text).split(",") if part.strip()})
-    except ValueError:
-        times = []
-    if not times:
-        raise ValueError(f"fail_at must be an env step or a comma list of them, e.g. 0,50,100; got {text!r}")
-    return tuple(check_fail_at(time) for time in times)
-
-
 def _fail_at(config: AuditConfig) -> int:
     """The env step at which the sensors fail in one audit."""
-    (time,) = _fail_times(config.fail_at)
+    (time,) = fail_steps(config.fail_at)
     return time
 
 
@@ -361,7 +350,8 @@ def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
                             **({"kept as": f"its best scoring (training's min_u a_u {policy.best_min_score:.1f})"}
                                if best else {}),
                             "mode": train.missingness, "seed": train.seed,
-                            **({"lower_bound": train.lower_bound} if train.missingness == "adversarial" else {})},
+                            **({"lower_bound": train.lower_bound} if train.missingness == "adversarial" else {}),
+                            **({"trained with sensors failing at env step": train.fail_at} if train.fail_at != "0" else {})},
                            config.score_estimator, trainer.critic_values, policy.critic_params,
                            config.score_horizon, train.gamma, config.search, config.beam_width, config.ranker,
                            _shapley(config.shapley), progress=True, tell_apart=config.tell_apart, dropout=dropout,
@@ -432,7 +422,7 @@ def audit_failure_times(config: AuditConfig) -> tuple[list[AuditResult], list[st
     out = config.out or (f"audit-{_policy_name(config.policy)}-failure-times" if config.policy else
                          os.path.join(config.run_dir, f"audit-failure-times{which}"))
     jobs = [dataclasses.replace(config, fail_at=str(time), out=os.path.join(out, f"fail{time}"))
-            for time in _fail_times(config.fail_at)]
+            for time in fail_steps(config.fail_at)]
     if config.policy:
         audits = [audit_python_policy(job) for job in jobs]
         results, written = [result for result, _ in audits], [path for _, files in audits for path in files]
@@ -491,7 +481,7 @@ def main(argv: list[str]) -> int:
                         validate=check_audit_config, positional="run_dir")
     enable_compilation_cache()
     experiment = bool(config.run_dir) and is_experiment(config.run_dir)
-    several_times = len(_fail_times(config.fail_at)) > 1
+    several_times = len(fail_steps(config.fail_at)) > 1
     command = (audit_failure_times if several_times else audit_python_policy if config.policy
                else audit_over_training if config.steps else audit_experiment if experiment else audit_run)
     outcome, status = run_from_cli(command, config, interrupted="interrupted: the audit in progress wrote nothing; "
