@@ -623,12 +623,13 @@ def interrupted_policy(obs):
 @pytest.fixture(scope="module")
 def short_run(tmp_path_factory):
     """A short adversarial run whose scorings are 3-step horizon estimates (its scoring pool
-    of 16 slots more than the 10 episodes: those beyond never run)."""
+    of 16 slots more than the 10 episodes: those beyond never run), trained with its sensors
+    failing at env step 0 or 5 of each episode (which its audit's report names)."""
     out = str(tmp_path_factory.mktemp("audit") / "pm")
     return train_fn(TrainConfig(env="point_mass", total_steps=600, score_every=200, num_envs=4, learning_starts=200,
                                 episode_length=12, score_episodes=2, score_envs=16, batch_size=32, buffer_size=1000, hidden_size=16,
                                 score_estimator="horizon", score_horizon=3, checkpoint_every=1, keep_checkpoints=3,
-                                progress=False, out=out))
+                                progress=False, out=out, fail_at="5,0"))
 
 
 def test_training_scores_with_the_chosen_estimator(short_run):
@@ -693,6 +694,7 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
     with open(os.path.join(out, "audit.json")) as file:
         record = json.load(file)
     assert [len(record["sets"][k]) for k in ("1", "2")] == [4, 6]
+    assert record["source"]["trained with sensors failing at env step"] == "0,5"  # its config's sorted list
 
     # Every a_u is score_missingness's for the same policy, seed and N (k = 1 and k = 2).
     policy = load_policy(short_run.run_dir)
