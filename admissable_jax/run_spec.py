@@ -76,7 +76,7 @@ class RunSpec:
                 batch_size=config.batch_size, hidden_sizes=(config.hidden_size,) * config.hidden_layers,
             ),
             epsilon=config.epsilon,
-            fail_steps=fail_steps(config.fail_at, config.episode_length),
+            fail_steps=fail_steps(config.fail_at),  # (checked against episode_length by resolved())
         )
 
 
