@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import re
 import shutil
 import types
 
@@ -458,5 +459,7 @@ def test_quickstart_notebook_runs(tmp_path):
     assert "min_u a_u =" in outputs and "env steps: min_u a_u" in outputs
     assert "PointMass(obs 4, actions 2)" in outputs and "hidden; clean" in outputs
     images = [o for cell in notebook.cells if cell.cell_type == "code" for o in cell.outputs if "image/png" in o.get("data", {})]
-    assert len(images) == 3  # bar chart, Figure 1, p_miss
+    assert len(images) == 4  # bar chart, a_u by failure step, Figure 1, p_miss
+    failing = re.findall(r"^sensors fail at env step (\d+): k=1: worst ", outputs, re.M)
+    assert failing[0] == "0" and len(failing) >= 2, outputs  # from the start, then mid-episode
     assert os.path.exists(tmp_path / "quickstart" / "figures" / "min_score.pdf")
