@@ -1407,6 +1407,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "audit_report_hides_training_failures": ("admissable_jax/audit/command.py",
                                              '**({"trained with sensors failing at env step": train.fail_at} if train.fail_at != "0" else {})',
                                              "**{}", "test_audit.py"),
+    "notebook_audit_never_fails_mid_episode": ("notebooks/quickstart.ipynb", "feature_names=features, fail_at=fail_at)",
+                                               "feature_names=features)", "test_experiment.py"),
     "scoring_columns_of_any_shape": ("admissable_jax/results.py", "        except (TypeError, ValueError):  # ragged",
                                      "        except ImportError:  # ragged", "test_runs.py"),
     "score_estimators_of_one_episode": ("benchmarks/score_estimators.py", "if config.n_episodes < 2 or any(",
