@@ -380,10 +380,11 @@ def test_missing_set_fixed_within_episode_and_drawn_from_p_miss_and_failing_from
     assert set(draws) == {0, 3} and abs(np.mean(draws == 3) - 0.5) < 4 * np.sqrt(0.25 / len(draws))
     u = candidate_sets(4, 1)[set_index]  # (iterations, envs, d)
     np.testing.assert_array_equal(hidden, u * (step_count >= failure_step)[..., None])
-    stored = jax.tree.map(np.asarray, jax.device_get(replay.latest(state.buffer, iterations * config.num_envs)))
+    written = replay.latest(state.buffer, iterations * config.num_envs)
+    stored = jax.tree.map(np.asarray, written)
     steps_past = (step_count - failure_step).reshape(-1)
     np.testing.assert_array_equal(stored.steps_past_failure, steps_past)
-    learned_from = failing.masked_batch(state, replay.latest(state.buffer, iterations * config.num_envs))
+    learned_from = failing.masked_batch(state, written)
     u = u.reshape(-1, 4)
     for masked, raw, hidden_rows in ((learned_from.obs, stored.obs, u * (steps_past >= 0)[:, None]),
                                      (learned_from.next_obs, stored.next_obs, u * (steps_past >= -1)[:, None])):
