@@ -18,10 +18,12 @@ from admissable_jax.agent import SACHyperparams
 from admissable_jax.cli import RUN_LOCATION, ConfigFile, check_at_least_one, setting
 from admissable_jax.envs import canonical_env_name, env_physics, observation_size, short_env_name
 from admissable_jax.loggers import parse_logger_names
-from admissable_jax.method import check_exact_size, fail_steps, num_candidate_sets
+from admissable_jax.method import check_exact_size, fail_steps, num_candidate_sets, spread_fail_steps
 from admissable_jax.scoring import SCORE_ESTIMATORS
 
 SB3_SAC = SACHyperparams()
+# The settings that name env steps of an episode at which u's sensors fail: training's and scoring's.
+FAILURE_STEPS = ("fail_at", "score_fail_at")
 
 
 @dataclasses.dataclass
@@ -59,7 +61,12 @@ class RunSettings:
     epsilon: float = setting(1e-8, "eps in p_miss = 1/(a_u - l + eps), normalised")
     fail_at: str = setting("0", "the env step of a training episode at which its hidden features' sensors fail, every "
                                 "feature seen until then: 0 = hidden from the start (the paper); a comma list (0,50,100): "
-                                "one step drawn uniformly per episode. Scoring (a_u, p_miss) hides u from the start")
+                                "one step drawn uniformly per episode. Scoring (a_u, p_miss) hides u from the start, "
+                                "unless score_fail_at says otherwise")
+    score_fail_at: str = setting("0", "the env step of a scoring episode at which its hidden features' sensors fail: 0 = "
+                                      "from the start (the paper's a_u); a comma list (0,50,100) splits each set's N "
+                                      "episodes evenly over the steps (score_episodes a multiple of their number), so "
+                                      "a_u, p_miss and min_u a_u are of sensors failing as fail_at's do. Rollouts only")
     # run
     total_steps: int = setting(1_000_000, "env steps to train, over all envs (rounded up to a multiple of score_every)")
     num_envs: int = setting(0, "parallel envs; 0 = the largest divisor of score_every up to 8 on CPU, 128 on GPU (125 for 5000)")
@@ -118,10 +125,12 @@ class TrainConfig(RunSettings):
     def resolved(self) -> "TrainConfig":
         """A copy with the env name and physics backend canonical, ``num_envs``,
         ``score_envs`` and ``out`` filled in, NumPy scalars as Python numbers, ``fail_at``
-        as its steps' sorted comma list (``[100, 0]`` → ``"0,100"``), validated."""
-        config = dataclasses.replace(self, **python_numbers(self), **comma_lists(self, ("fail_at",)))
+        and ``score_fail_at`` as their steps' sorted comma lists (``[100, 0]`` → ``"0,100"``),
+        validated."""
+        config = dataclasses.replace(self, **python_numbers(self), **comma_lists(self, FAILURE_STEPS))
         validate(config)
-        config.fail_at = ",".join(map(str, fail_steps(config.fail_at)))
+        for name in FAILURE_STEPS:
+            setattr(config, name, ",".join(map(str, fail_steps(getattr(config, name)))))
         config.env = canonical_env_name(config.env)
         config.physics = env_physics(config.env, config.physics)
         check_sets(config)
@@ -184,7 +193,8 @@ class ExperimentConfig(RunSettings):
         (:func:`comma_lists`), NumPy scalars as Python numbers; TypeError
         in one line for an experiment-only field of another type (the shared ones are each
         pair's, checked by :meth:`TrainConfig.resolved` in :func:`pair_configs`)."""
-        config = dataclasses.replace(self, **python_numbers(self), **comma_lists(self, ("modes", "lower_bounds", "fail_at")))
+        config = dataclasses.replace(self, **python_numbers(self), **comma_lists(self, ("modes", "lower_bounds",
+                                                                                        *FAILURE_STEPS)))
         shared = {field.name for field in dataclasses.fields(RunSettings)}
         check_field_types(config, [field for field in dataclasses.fields(config) if field.name not in shared])
         return config
@@ -382,6 +392,11 @@ def validate(config: TrainConfig) -> None:
     if config.episode_length > 1000:
         raise ValueError("episode_length must be <= 1000 (the v5 limit)")
     fail_steps(config.fail_at, config.episode_length)
+    if fail_steps(config.score_fail_at, config.episode_length, "score_fail_at") != (0,):
+        if config.score_estimator != "rollout":
+            raise ValueError(f"score_fail_at={config.score_fail_at} needs score_estimator=rollout: the critic values each "
+                             "start with u hidden from it, not a sensor that fails later")
+        spread_fail_steps(config.score_fail_at, config.score_episodes, names=("score_fail_at", "score_episodes"))
 
 
 def setting_warnings(config: TrainConfig) -> list[str]:

@@ -100,6 +100,24 @@ def queue_pieces(run_piece: Callable[[TrainState], tuple[TrainState, Any]], stat
     return state, piece_metrics
 
 
+def failure_lines(spec: RunSpec) -> list[str]:
+    """The opening lines of a run whose sensors fail mid-episode (``fail_at``,
+    ``score_fail_at``): when u is hidden in training and in scoring; none for the paper's
+    u, hidden from the start in both."""
+    def steps_text(steps: tuple[int, ...], how: str) -> str:
+        return f"{', '.join(map(str, steps[:-1]))} or {steps[-1]} ({how})" if len(steps) > 1 else str(steps[0])
+
+    if spec.fail_steps == spec.score_fail_steps == (0,):
+        return []
+    scoring = ("scoring hides u from the start" if spec.score_fail_steps == (0,) else
+               f"scoring hides each set's u from env step {steps_text(spec.score_fail_steps, 'its N episodes split evenly')} on")
+    if spec.fail_steps == (0,):
+        return [f"sensors fail mid-episode in scoring: {scoring}, every feature seen before; training hides u from "
+                "the start"]
+    return [f"sensors fail mid-episode: each training episode hides its u from env step "
+            f"{steps_text(spec.fail_steps, 'one drawn per episode')} on, every feature seen before; {scoring}"]
+
+
 def take_pair(tree: Any, index: int) -> Any:
     """Run ``index``'s part of a pytree batched over runs (leading axis)."""
     return jax.tree.map(lambda leaf: leaf[index], tree)
@@ -222,12 +240,8 @@ class TrainingLoop:
         budget = self.compile()
         report(f"{self.num_runs} run(s) x {config.num_envs} envs of {config.env} on "
                f"{self.trainer.env.physics_name} physics: {budget.describe()}")
-        if self.trainer.failing:
-            steps = self.trainer.spec.fail_steps
-            when = f"{', '.join(map(str, steps[:-1]))} or {steps[-1]} (one drawn per episode)" if len(steps) > 1 \
-                else str(steps[0])
-            report(f"sensors fail mid-episode: each training episode hides its u from env step {when} on, every "
-                   f"feature seen before; scoring hides u from the start")
+        for line in failure_lines(self.trainer.spec):
+            report(line)
         if self.placement:
             report(self.placement.describe())
         self._check_disk(budget.state_bytes * self.num_devices)
@@ -329,7 +343,8 @@ class TrainingLoop:
         for index, run in enumerate(self.runs):
             pick = lambda tree: self.select_pair(tree, index)
             rows.append(score_row(env_steps, pick(scores), pick(p_miss), np.asarray(self.trainer.scored_sets(pick(pool))),
-                                  self.trainer.spec.score_estimator, listed=self.trainer.pooled))
+                                  self.trainer.spec.score_estimator, listed=self.trainer.pooled,
+                                  fail_steps=self.trainer.spec.score_fail_steps))
             run.append("scores.jsonl", rows[-1])
             run.append("metrics.jsonl", metrics_row(env_steps, int(pick(grad_steps)), pick(chunk_metrics), train_seconds,
                                                     score_seconds, self.config, self.num_runs, int(pick(fingerprint))))

@@ -211,18 +211,19 @@ def mask_observation(obs, hidden):
     return xp.concat([obs * (1 - hidden), hidden], axis=-1)
 
 
-def check_fail_at(fail_at, max_steps: int | None = None) -> int:
+def check_fail_at(fail_at, max_steps: int | None = None, name: str = "fail_at") -> int:
     """``fail_at`` as an int: the env step of each episode at which the sensors of u fail
-    (:func:`hidden_from_step`); ValueError in one line for one below 0, not whole, or at or
-    past ``max_steps`` (the episodes' step limit, where known), where nothing would fail."""
+    (:func:`hidden_from_step`); ValueError in one line (naming the setting ``name``) for one
+    below 0, not whole, or at or past ``max_steps`` (the episodes' step limit, where known),
+    where nothing would fail."""
     if not isinstance(fail_at, numbers.Integral) or isinstance(fail_at, bool) or fail_at < 0:
-        raise ValueError(f"fail_at must be an env step >= 0 (0: hidden from the start), got {fail_at!r}")
+        raise ValueError(f"{name} must be an env step >= 0 (0: hidden from the start), got {fail_at!r}")
     if max_steps is not None and fail_at >= max_steps:
-        raise ValueError(f"fail_at={fail_at} is not below the episodes' {max_steps} steps: nothing would fail")
+        raise ValueError(f"{name}={fail_at} is not below the episodes' {max_steps} steps: nothing would fail")
     return int(fail_at)
 
 
-def fail_steps(fail_at, max_steps: int | None = None) -> tuple[int, ...]:
+def fail_steps(fail_at, max_steps: int | None = None, name: str = "fail_at") -> tuple[int, ...]:
     """The env steps ``fail_at`` names, smallest first and each once: one step (an int), a
     comma list (``"0,50,100"``) or a sequence of ints; ValueError in one line for an empty
     list or a step :func:`check_fail_at` refuses."""
@@ -232,12 +233,26 @@ def fail_steps(fail_at, max_steps: int | None = None) -> tuple[int, ...]:
         except ValueError:
             steps = []
         if not steps:
-            raise ValueError(f"fail_at must be an env step or a comma list of them, e.g. 0,50,100; got {fail_at!r}")
+            raise ValueError(f"{name} must be an env step or a comma list of them, e.g. 0,50,100; got {fail_at!r}")
     else:
         steps = list(fail_at) if isinstance(fail_at, (list, tuple, np.ndarray)) else [fail_at]
     if not steps:
-        raise ValueError("fail_at must name at least one env step")
-    return tuple(sorted({check_fail_at(step, max_steps) for step in steps}))
+        raise ValueError(f"{name} must name at least one env step")
+    return tuple(sorted({check_fail_at(step, max_steps, name) for step in steps}))
+
+
+def spread_fail_steps(fail_at, n_episodes: int, max_steps: int | None = None,
+                      names: tuple[str, str] = ("fail_at", "n_episodes")) -> tuple[int, ...]:
+    """The failure step of each of a set's ``n_episodes`` scoring episodes when its sensors
+    fail at the m env steps ``fail_at`` names (:func:`fail_steps`): episode i at the (i mod
+    m)-th, so each step scores N/m episodes from the same start states for every set, and
+    a_u is the mean over the steps of each step's a_u. ValueError in one line (naming the
+    settings ``names``) where m does not divide N: the steps would weigh unevenly."""
+    steps = fail_steps(fail_at, max_steps, names[0])
+    if n_episodes % len(steps):
+        raise ValueError(f"{names[0]}={','.join(map(str, steps))} splits each set's {names[1]}={n_episodes} episodes "
+                         f"unevenly: give {names[1]} a multiple of {len(steps)}")
+    return tuple(steps[i % len(steps)] for i in range(n_episodes))
 
 
 def hidden_from_step(hidden, steps_taken, fail_at):

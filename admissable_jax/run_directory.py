@@ -177,7 +177,7 @@ def load_config(path: str, cls=TrainConfig):
 
 
 def score_row(env_steps: int, scores: MissingnessScores, p_miss, hidden_sets, estimator: str,
-              listed: bool = False) -> dict[str, Any]:
+              listed: bool = False, fail_steps: tuple[int, ...] = (0,)) -> dict[str, Any]:
     """One ``scores.jsonl`` row: every a_u, the minimum and its set, the clean score, p_miss,
     and which estimator made the scores (``rollout``: the paper's undiscounted returns;
     ``critic``/``horizon``: discounted values, whose ``mean_episode_length`` counts the
@@ -185,13 +185,16 @@ def score_row(env_steps: int, scores: MissingnessScores, p_miss, hidden_sets, es
     adds them as ``sets`` (a pool's sets change from row to row; U's are the same in all).
     A row that scores all of U also holds ``mean_score``, the mean of a_u over U: the
     average case beside the worst (the return when u is drawn uniformly from U, which is
-    what uniform training optimises); a pool's row has none, its sets being the worst found."""
+    what uniform training optimises); a pool's row has none, its sets being the worst found.
+    A row scored with sensors failing mid-episode (``fail_steps``, ``score_fail_at``) names
+    the steps as ``score_fail_at``."""
     argmin = int(scores.argmin)
     sets = {"sets": [describe_set(row) for row in np.asarray(hidden_sets)]} if listed else {}
     average = {} if listed else {"mean_score": float(scores.mean_score)}
     return {
         "env_steps": env_steps,
         "score_estimator": estimator,
+        **({"score_fail_at": ",".join(map(str, fail_steps))} if fail_steps != (0,) else {}),
         "min_score": float(scores.min_score),
         "argmin": argmin,
         "argmin_set": describe_set(np.asarray(hidden_sets[argmin])),

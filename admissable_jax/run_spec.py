@@ -41,6 +41,7 @@ class RunSpec:
     sac: SACHyperparams
     epsilon: float  # ε
     fail_steps: tuple[int, ...]  # env steps at which an episode's u fails, one drawn per episode; (0,): the paper's
+    score_fail_steps: tuple[int, ...]  # env steps at which a scoring episode's u fails, spread over N; (0,): the paper's
 
     @classmethod
     def of(cls, config: TrainConfig, num_runs: int = 1) -> "RunSpec":
@@ -76,7 +77,8 @@ class RunSpec:
                 batch_size=config.batch_size, hidden_sizes=(config.hidden_size,) * config.hidden_layers,
             ),
             epsilon=config.epsilon,
-            fail_steps=fail_steps(config.fail_at),  # (checked against episode_length by resolved())
+            fail_steps=fail_steps(config.fail_at),  # (both checked against episode_length by resolved())
+            score_fail_steps=fail_steps(config.score_fail_at),
         )
 
 

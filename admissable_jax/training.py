@@ -6,7 +6,9 @@ where one ended (drawing a fresh u ~ p_miss for each, paper §3), and takes
 ``num_envs · utd`` SAC gradient steps once ``learning_starts`` env steps are collected.
 Beyond the paper, ``fail_at`` lets u's sensors fail mid-episode: each episode also draws the
 env step from which u is hidden (every feature seen before it); scoring still hides u from
-the start, so a_u, p_miss and the headline min_u a_u are the paper's.
+the start, so a_u, p_miss and the headline min_u a_u are the paper's, unless
+``score_fail_at`` splits each set's N scoring episodes over failure steps too (then the
+adversary scores what training meets; the rollout alone: a pool's critic ranker values starts).
 ``run_chunk`` scans iterations on the device; ``score_and_update`` scores every u in one
 batched rollout and applies the adversary's update.
 
@@ -326,11 +328,13 @@ class Trainer:
         return tree_fingerprint((state.replace(buffer=state.buffer.replace(data=None)), written))
 
     def _score(self, state: TrainState, rng: jax.Array, hidden_sets: jax.Array, estimator: str) -> MissingnessScores:
-        """``hidden_sets``' scores by ``estimator`` with the state's actor and critic."""
+        """``hidden_sets``' scores by ``estimator`` with the state's actor and critic; a
+        rollout's sensors fail at the spec's ``score_fail_steps``."""
         return score_missingness(
             self.env, self.policy, state.sac.actor_params, rng, hidden_sets, self.spec.score_episodes,
             num_slots=self.spec.score_envs, score_estimator=estimator, critic_fn=self.critic_values,
             critic_params=state.sac.critic_params, score_horizon=self.spec.score_horizon, gamma=self.spec.sac.gamma,
+            fail_at=self.spec.score_fail_steps if estimator == "rollout" else 0,
         )
 
     def _search_pool(self, state: TrainState, rng: jax.Array) -> jax.Array:

@@ -22,8 +22,8 @@ import gymnasium
 import numpy as np
 from tqdm.auto import tqdm
 
-from admissable_jax.method import MODES, candidate_sets, check_fail_at, fail_steps, hidden_from_step, hidden_row, \
-    inverse_score_p_miss, mask_observation
+from admissable_jax.method import MODES, candidate_sets, fail_steps, hidden_from_step, hidden_row, \
+    inverse_score_p_miss, mask_observation, spread_fail_steps
 
 HiddenChoice = Callable[[np.random.Generator], Iterable[int]]
 
@@ -157,7 +157,8 @@ def _batch_of_actions(returned: Any, action_space: gymnasium.Space) -> np.ndarra
 def score_policy(env_id: str, policy: Callable[[np.ndarray], Any], k: int = 1, n_episodes: int = 10,
                  num_envs: int = 8, include_empty_set: bool = False, seed: int = 0,
                  vectorization_mode: str = "sync", hidden_sets: np.ndarray | None = None,
-                 progress: bool = False, up_to_k: bool = False, fail_at: int = 0, **env_kwargs) -> PolicyScores:
+                 progress: bool = False, up_to_k: bool = False, fail_at: int | str | Iterable[int] = 0,
+                 **env_kwargs) -> PolicyScores:
     """a_u for every set u of ``k`` features (of 1 to ``k`` with ``up_to_k``; paper §3): the
     mean undiscounted return of ``n_episodes`` episodes with u hidden, and the clean return,
     for any Python policy.
@@ -171,14 +172,17 @@ def score_policy(env_id: str, policy: Callable[[np.ndarray], Any], k: int = 1, n
     ``gymnasium.make_vec(env_id, ...)``, each slot starting the next unscored episode as its
     own ends; episode starts follow the vector env's seed. ``progress`` draws a bar over the
     episodes on stderr. ``fail_at``: the env step of each episode at which u's sensors fail,
-    seen until then (0, the paper's a_u: hidden from the start).
+    seen until then (0, the paper's a_u: hidden from the start); several steps split each
+    set's N episodes evenly over them, as :func:`~admissable_jax.score_missingness` does
+    (episode i at the (i mod m)-th of the m steps; N a multiple of m).
     """
     if n_episodes < 1 or num_envs < 1:
         raise ValueError("n_episodes and num_envs must be >= 1")
-    fail_at = check_fail_at(fail_at)
+    spread_fail_steps(fail_at, n_episodes)  # checked before the envs are made
     envs = gymnasium.make_vec(env_id, num_envs=num_envs, vectorization_mode=vectorization_mode, **env_kwargs)
     try:
-        check_fail_at(fail_at, env_kwargs.get("max_episode_steps", getattr(envs.spec, "max_episode_steps", None)))
+        episode_fail_steps = np.asarray(spread_fail_steps(
+            fail_at, n_episodes, env_kwargs.get("max_episode_steps", getattr(envs.spec, "max_episode_steps", None))))
         num_features = int(envs.single_observation_space.shape[0])
         if hidden_sets is None:
             hidden_sets = candidate_sets(num_features, k, include_empty_set, up_to_k)
@@ -198,7 +202,8 @@ def score_policy(env_id: str, policy: Callable[[np.ndarray], Any], k: int = 1, n
         with tqdm(total=total, unit="episode", disable=not progress, smoothing=0) as bar:  # closed before any error line
             while (episode_of_slot < total).any():
                 row_of_slot = np.minimum(episode_of_slot, total - 1) // n_episodes
-                hidden = hidden_from_step(rows[row_of_slot], running_length, fail_at)
+                repetition_of_slot = np.minimum(episode_of_slot, total - 1) % n_episodes
+                hidden = hidden_from_step(rows[row_of_slot], running_length, episode_fail_steps[repetition_of_slot])
                 masked = mask_observation(np.asarray(obs, np.float32), hidden)
                 actions = _batch_of_actions(policy(masked), envs.action_space)
                 obs, reward, terminated, truncated, _ = envs.step(actions)

@@ -119,9 +119,20 @@ def test_full_horizon_without_discount_is_the_papers_rollout():
             assert float(failing.returns[row_index, i]) == pytest.approx(total, rel=1e-5, abs=1e-5)
     assert not np.allclose(failing.scores, rollout.scores)  # (a failure at step 4 is not one from the start)
     np.testing.assert_array_equal(failing.returns[-1], rollout.returns[-1])  # nothing fails in the clean case
+    # Several failure steps split each set's N = 3 episodes: episode i fails at the i-th step,
+    # from its own start state, so each is the episode of the same start with that step alone.
+    late = score_missingness(ENV, steer, gain, rng, SETS, N, fail_at=8)
+    spread = score_missingness(ENV, steer, gain, rng, SETS, N, fail_at="8,0,4")
+    for i, alone in enumerate((rollout, failing, late)):
+        np.testing.assert_allclose(spread.returns[:, i], alone.returns[:, i], rtol=1e-6)
+    np.testing.assert_allclose(spread.scores, spread.returns[:-1].mean(axis=1), rtol=1e-6)
+    assert not any(np.allclose(spread.scores, alone.scores) for alone in (rollout, failing, late))  # (a mix of all three)
     for fail_at, estimator, message in ((12, "rollout", "fail_at=12 is not below the episodes' 12 steps"),
                                         (-1, "rollout", r"fail_at must be an env step >= 0 \(0: hidden from the start\)"),
-                                        (4, "critic", "fail_at=4 needs score_estimator=rollout")):
+                                        (4, "critic", "fail_at=4 needs score_estimator=rollout"),
+                                        ([8, 0, 4], "critic", "fail_at=0,4,8 needs score_estimator=rollout"),
+                                        ((0, 4), "rollout", "fail_at=0,4 splits each set's n_episodes=3 episodes "
+                                                            "unevenly: give n_episodes a multiple of 2")):
         with pytest.raises(ValueError, match=message):
             score_missingness(ENV, steer, gain, rng, SETS, N, fail_at=fail_at, score_estimator=estimator,
                               critic_fn=known_critic)
@@ -274,6 +285,15 @@ def test_gaps_to_the_worst_paired_and_by_welch(tmp_path):
     pairs = [dataclasses.replace(result, n_episodes=n, source={"mode": mode, "seed": 0, "checkpoint (env step)": 0})
              for n, mode in ((4, "adversarial"), (6, "uniform"))]
     assert "(N = 4–6 episodes per set, each audit's chosen by its pilot (`tell_apart`), `rollout`)" in compare_modes(pairs)
+    # Pairs trained with sensors failing mid-episode, and scored so in training: both comparisons say so.
+    from admissable_jax.audit.report import compare_modes_by_failure_time, training_failure_source
+
+    trained = TrainConfig(env="point_mass", fail_at="20,0", score_fail_at="20").resolved()
+    pairs = [dataclasses.replace(pair, source={**pair.source, **training_failure_source(trained)}) for pair in pairs]
+    said = ("The pairs were trained with sensors failing at env step 0,20 (`fail_at`) and scored in training with "
+            "sensors failing at env step 20 (`score_fail_at`).")
+    assert said in compare_modes(pairs) and said in compare_modes_by_failure_time({0: pairs, 20: pairs})
+    assert training_failure_source(TrainConfig(env="point_mass").resolved()) == {}
 
     # A set whose returns equal the worst's episode by episode (two hidden features the policy
     # ignores): a gap of 0 ± 0 tells nothing apart, and no N would.

@@ -201,6 +201,24 @@ def test_the_next_chunk_draws_from_the_p_miss_the_scoring_just_set(escape_radius
     assert (np.asarray(state.set_index) == 0).all()
 
 
+def test_scoring_with_sensors_failing_scores_what_score_missingness_does_with_those_steps(escape_radius):
+    """``score_fail_at``: the trainer's scoring round (and so p_miss) is score_missingness's with
+    each set's N = 2 episodes failing at env steps 0 and 3, not the paper's from-the-start
+    round; the pool's critic ranker would still value starts, so only rollouts take the steps."""
+    trainer = _trainer(score_fail_at="3,0")
+    assert trainer.spec.score_fail_steps == (0, 3)
+    trainer.policy = _controller
+    initial = trainer.init(1, True, True, 0.0)
+    state, scored = jax.jit(trainer.score_and_update)(initial)
+    direct = jax.jit(score_missingness, static_argnums=(0, 1, 5, 6, 7), static_argnames="fail_at")
+    arguments = (trainer.env, _controller, None, jax.random.split(initial.rng)[1],
+                 trainer.hidden_sets, trainer.spec.score_episodes, None, trainer.spec.score_envs)
+    np.testing.assert_allclose(np.asarray(scored.returns), np.asarray(direct(*arguments, fail_at=(0, 3)).returns), rtol=1e-6)
+    assert not np.allclose(np.asarray(scored.scores), np.asarray(direct(*arguments).scores))  # (the paper's round)
+    weights = 1 / (np.asarray(scored.scores) + 1e-8)
+    np.testing.assert_allclose(state.p_miss, weights / weights.sum(), rtol=1e-4)
+
+
 def test_up_to_two_missing_features_and_the_empty_set_in_training_and_scoring(escape_radius):
     """U = {u : |u| <= 2} with ``up_to_k``: the empty set, 4 single features, 6 pairs."""
     trainer = _trainer(k=2, include_empty_set=True, up_to_k=True)

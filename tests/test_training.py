@@ -602,11 +602,12 @@ def test_checkpoint_resume_continues_exactly(tmp_path, capsys):
     """resume=true from a checkpoint, and fast_forward=true from the records alone (the run's
     checkpoints left behind on another machine): both continue the run bit for bit. The run's
     sensors fail mid-episode (fail_at), so its state holds each episode's failure step and the
-    replay's steps past it, which the checkpoint and the fingerprint must carry too."""
+    replay's steps past it, which the checkpoint and the fingerprint must carry too; its
+    scoring's sensors fail too (score_fail_at), which its rows name."""
     from admissable_jax.fast_forward import FastForwardDiverged
 
     config = dataclasses.replace(POINT_MASS, total_steps=2000, score_every=500, learning_starts=500, checkpoint_every=1,
-                                 hidden_size=32, logger="none", fail_at="0,20")
+                                 hidden_size=32, logger="none", fail_at="0,20", score_fail_at="20,0")
     straight = train_fn(dataclasses.replace(config, out=str(tmp_path / "straight")))
     resumed_dir = str(tmp_path / "resumed")
     train_fn(dataclasses.replace(config, total_steps=1000, out=resumed_dir))
@@ -620,7 +621,9 @@ def test_checkpoint_resume_continues_exactly(tmp_path, capsys):
 
     assert straight.state.failure_step is not None and straight.state.buffer.data.steps_past_failure is not None
     assert "sensors fail mid-episode: each training episode hides its u from env step 0 or 20 (one drawn per " \
-           "episode) on" in capsys.readouterr().err
+           "episode) on, every feature seen before; scoring hides each set's u from env step 0 or 20 (its N episodes " \
+           "split evenly) on" in capsys.readouterr().err
+    assert {row["score_fail_at"] for row in straight.scores} == {"0,20"}
     assert [r["scores"] for r in resumed.scores] == [r["scores"] for r in straight.scores]
     assert [r["p_miss"] for r in resumed.scores] == [r["p_miss"] for r in straight.scores]
     for a, b in zip(jax.tree.leaves(resumed.state), jax.tree.leaves(straight.state)):
@@ -772,6 +775,10 @@ def test_a_checkpoint_of_an_older_state_layout_is_named_and_its_networks_still_r
         (["score_every=1000", "num_envs=3"], "score_every (1000) must be a multiple of num_envs (3)"),
         (["episode_length=200", "fail_at=0,200"], "fail_at=200 is not below the episodes' 200 steps: nothing would fail"),
         (["fail_at=soon"], "fail_at must be an env step or a comma list of them, e.g. 0,50,100; got 'soon'"),
+        (["score_fail_at=0,20,50"], "score_fail_at=0,20,50 splits each set's score_episodes=10 episodes unevenly: give "
+                                    "score_episodes a multiple of 3"),
+        (["score_fail_at=20", "score_estimator=critic"], "score_fail_at=20 needs score_estimator=rollout"),
+        (["episode_length=200", "score_fail_at=200"], "score_fail_at=200 is not below the episodes' 200 steps"),
     ],
 )
 def test_cli_rejects_bad_input_with_one_line(args, message, tmp_path, capsys, monkeypatch):
@@ -824,18 +831,20 @@ def test_numpy_scalars_are_settings_as_python_numbers():
     assert (type(config.seed), type(config.lower_bound), type(config.gamma)) == (int, float, float)
     with pytest.raises(TypeError, match=r"^total_steps must be int, got np.float64\(1000.0\)$"):
         dataclasses.replace(POINT_MASS, total_steps=np.float64(1000)).resolved()
-    # fail_at from Python as a step or a list of them: the sorted comma list a run saves.
+    # fail_at and score_fail_at from Python as a step or a list of them: the sorted comma lists a run saves.
     assert [dataclasses.replace(POINT_MASS, fail_at=given).resolved().fail_at
             for given in (np.int64(50), [50, 0, 50], np.array([20, 10]), " 30 , 5")] == ["50", "0,50", "10,20", "5,30"]
+    assert [dataclasses.replace(POINT_MASS, score_fail_at=given).resolved().score_fail_at
+            for given in (np.int64(50), [50, 0, 50], " 30 , 5")] == ["50", "0,50", "5,30"]
     # An experiment from Python: modes, lower_bounds and fail_at as sequences too (they failed
     # deep inside: "'list' object has no attribute 'split'"), saved as the command line's comma lists.
     from admissable_jax.config import ExperimentConfig, pair_configs
     from admissable_jax.experiment import run_experiment
 
     given = ExperimentConfig(env="point_mass", modes=["adversarial", "uniform"], lower_bounds=np.linspace(0, 50, 2),
-                             seeds=np.int64(2), out="sweep", fail_at=(0, 20)).resolved()
+                             seeds=np.int64(2), out="sweep", fail_at=(0, 20), score_fail_at=[20, 0]).resolved()
     assert given == ExperimentConfig(env="point_mass", modes="adversarial,uniform", lower_bounds="0.0,50.0", seeds=2,
-                                     out="sweep", fail_at="0,20")
+                                     out="sweep", fail_at="0,20", score_fail_at="20,0")
     assert [os.path.basename(pair.out) for pair in pair_configs(given)] == [
         "adversarial-l0-s0", "adversarial-l0-s1", "adversarial-l50-s0", "adversarial-l50-s1", "uniform-s0", "uniform-s1"]
     with pytest.raises(TypeError, match=r"^seeds must be int, got '3'$"):

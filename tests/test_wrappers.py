@@ -58,6 +58,13 @@ def test_score_policy_gives_the_papers_a_u_for_a_numpy_policy(capsys):
     failing = score_policy("ConstantFeatures-v0", sum_of_visible, k=1, n_episodes=2, num_envs=3, fail_at=2)
     np.testing.assert_allclose(failing.scores, [27.0, 24.0, 21.0])  # 2 · 6 + 3 · (6 − 1, 2 or 3)
     assert failing.clean_score == 30.0
+    # Failing at env step 2 or 4: each set's 4 episodes split, episode i failing at the (i mod 2)-th
+    # step: at 2 (as above) or at 4 (4 · 6 + 1 · (6 − v)); the clean row fails nowhere.
+    spread = score_policy("ConstantFeatures-v0", sum_of_visible, k=1, n_episodes=4, num_envs=3, fail_at=[4, 2])
+    np.testing.assert_allclose(spread.returns, [[27.0, 29.0] * 2, [24.0, 28.0] * 2, [21.0, 27.0] * 2, [30.0] * 4])
+    with pytest.raises(ValueError, match=r"^fail_at=0,2,4 splits each set's n_episodes=2 episodes unevenly: give "
+                                         r"n_episodes a multiple of 3$"):
+        score_policy("ConstantFeatures-v0", sum_of_visible, n_episodes=2, fail_at="0,2,4")
     with pytest.raises(ValueError, match=r"^fail_at must be an env step >= 0 \(0: hidden from the start\), got -1$"):
         score_policy("ConstantFeatures-v0", sum_of_visible, fail_at=-1)
     with pytest.raises(ValueError, match="^fail_at=1000 is not below the episodes' 1000 steps: nothing would fail$"):

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 
 from admissable_jax.audit.report import BY_FAILURE_TIME, compare_modes, compare_modes_by_failure_time, \
     comparison_chart, dropout_line, failure_time_chart_by_mode, pair_curves, robustness_chart, robustness_table, \
-    shapley_order, write_audit
+    shapley_order, training_failure_source, write_audit
 from admissable_jax.audit.sets import AuditResult, audit, audit_gymnasium, audit_sizes, check_audit_size, \
     check_failing_audit, check_search, gymnasium_features, rollout_sets, shapley_plan
 from admissable_jax.cli import enable_compilation_cache, parse_args, reporting, run_from_cli, setting
@@ -351,7 +351,7 @@ def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
                                if best else {}),
                             "mode": train.missingness, "seed": train.seed,
                             **({"lower_bound": train.lower_bound} if train.missingness == "adversarial" else {}),
-                            **({"trained with sensors failing at env step": train.fail_at} if train.fail_at != "0" else {})},
+                            **training_failure_source(train)},
                            config.score_estimator, trainer.critic_values, policy.critic_params,
                            config.score_horizon, train.gamma, config.search, config.beam_width, config.ranker,
                            _shapley(config.shapley), progress=True, tell_apart=config.tell_apart, dropout=dropout,

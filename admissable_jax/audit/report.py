@@ -18,6 +18,26 @@ from admissable_jax.config import curve_mode, curve_names
 from admissable_jax.results import Difference, comparison_header, estimate, mean_and_interval, seeds_sentence
 from admissable_jax.scoring.attribution import ShapleyAttribution
 
+# What an audited run's source says of its training with sensors failing mid-episode, per
+# setting: training's episodes (``fail_at``) and the scoring rounds that set its p_miss.
+TRAINING_FAILURES = {"fail_at": "trained with sensors failing at env step",
+                     "score_fail_at": "scored in training with sensors failing at env step"}
+
+
+def training_failure_source(train) -> dict[str, str]:
+    """The source entries of a run (its ``TrainConfig``) whose sensors failed mid-episode in
+    training or in its scoring rounds: the steps, under :data:`TRAINING_FAILURES`' words;
+    none for the paper's u, hidden from the start in both."""
+    return {words: getattr(train, name) for name, words in TRAINING_FAILURES.items() if getattr(train, name) != "0"}
+
+
+def training_failures_sentence(results: list[AuditResult]) -> str:
+    """An experiment's comparison's word on how its pairs (which share their settings) met
+    failing sensors in training, from the first pair's source; "" for the paper's."""
+    source = results[0].source
+    said = [f"{words} {source[words]} (`{name}`)" for name, words in TRAINING_FAILURES.items() if words in source]
+    return f" The pairs were {' and '.join(said)}." if said else ""
+
 
 
 def write_audit(result: AuditResult, out: str, top: int = 10) -> list[str]:
@@ -529,7 +549,8 @@ def compare_modes(results: list[AuditResult]) -> str:
              f"Each pair audited as its own report says ({audit_settings(results)}); "
              "here, per pair, the worst a_u over the sets of each size and the mean a_u over them (the average case, "
              "u drawn uniformly), then mean ± 95% t-interval over the seeds of a mode. Where a k was searched "
-             "(`search=beam`), the worst found is an upper bound on the worst, and there is no mean.", "",
+             f"(`search=beam`), the worst found is an upper bound on the worst, and there is no mean."
+             f"{training_failures_sentence(results)}", "",
              "| k | mode | seeds | worst a_u | mean a_u over the sets | most often worst | clean return |",
              "|---|---|---|---|---|---|---|"]
     measures = {"worst a_u": _worst_by_mode(results), "mean a_u": _per_pair_by_mode(results, AuditResult.mean)}
@@ -573,7 +594,7 @@ def compare_modes_by_failure_time(by_time: dict[int, list[AuditResult]]) -> str:
              f"Each pair audited at each failure step as its report says ({episodes_per_set(by_time[times[0]])}, "
              f"`{first.estimator}`; the step's comparison.md beside it): per k, the pairs' worst a_u over the sets, "
              "mean ± 95% t-interval over the seeds of a mode, with the sets' sensors failing at that env step of each "
-             "episode (0: hidden from the start, the paper's a_u).", "",
+             f"episode (0: hidden from the start, the paper's a_u).{training_failures_sentence(by_time[times[0]])}", "",
              "| k | sensors fail at env step | " + " | ".join(modes) + " |", "|---|---|" + "---|" * len(modes)]
     lines += [f"| {k} | {time} | " + " | ".join(estimate(worst[time][mode][k]) for mode in modes) + " |"
               for k in first.sets for time in times]

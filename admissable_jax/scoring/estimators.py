@@ -12,13 +12,13 @@ from __future__ import annotations
 
 import functools
 import numbers
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from admissable_jax.method import check_fail_at
+from admissable_jax.method import fail_steps, spread_fail_steps
 from admissable_jax.missingness import check_zero_one
 from admissable_jax.scoring.rollout_scores import MissingnessScores, PolicyFn, score_by_rollout
 from admissable_jax.scoring.value_estimates import CriticFn, estimate_scores
@@ -43,7 +43,7 @@ def score_missingness(
     score_horizon: int = 100,
     gamma: float = 0.99,
     progress: Callable[[jax.Array], None] | None = None,
-    fail_at: int = 0,
+    fail_at: int | str | Sequence[int] = 0,
 ) -> MissingnessScores:
     """Score every u in ``hidden_sets`` ((|U|, d) 0/1 rows) and the clean case, N =
     ``n_episodes`` from the same N start states, by ``score_estimator``. ``max_steps``,
@@ -51,7 +51,9 @@ def score_missingness(
     masked_obs, action) -> (2,)`` twin Q, ``score_horizon`` (H) and ``gamma`` the other two.
     ``progress(finished)``: the ``rollout``'s episodes finished so far, told from inside it.
     ``fail_at`` (``rollout`` only): the env step of each episode at which u's sensors fail,
-    seen until then; 0, the paper's a_u, hides them from the start.
+    seen until then; 0, the paper's a_u, hides them from the start; several steps (a list
+    or comma text) split each set's N episodes evenly over them (N a multiple of their
+    number; see ``score_by_rollout``).
     Called directly it runs as one program, compiled once per env, function, setting and
     shape of ``hidden_sets`` (op by op, each call compiled its rollout again and each eager
     op of its start states once); inside a caller's jit it is part of the caller's program."""
@@ -62,10 +64,11 @@ def score_missingness(
         raise ValueError(f"score_estimator must be one of {', '.join(SCORE_ESTIMATORS)}, got {score_estimator!r}")
     if score_estimator != "rollout" and critic_fn is None:
         raise ValueError(f"score_estimator={score_estimator} needs the critic (critic_fn and critic_params)")
-    fail_at = check_fail_at(fail_at)  # (and against the episodes' length where the rollout knows it)
-    if fail_at and score_estimator != "rollout":
-        raise ValueError(f"fail_at={fail_at} needs score_estimator=rollout: the critic values each start with u "
-                         f"hidden from it, not a sensor that fails later")
+    fail_at = fail_steps(fail_at)  # (and against the episodes' length where the rollout knows it)
+    spread_fail_steps(fail_at, n_episodes)  # ValueError where the steps would split the N episodes unevenly
+    if fail_at != (0,) and score_estimator != "rollout":
+        raise ValueError(f"fail_at={','.join(map(str, fail_at))} needs score_estimator=rollout: the critic values each "
+                         f"start with u hidden from it, not a sensor that fails later")
     return _scores(env, policy_fn, params, rng, hidden_sets, int(n_episodes), max_steps, num_slots, steps_per_check,
                    score_estimator, critic_fn, critic_params, score_horizon, gamma, progress, fail_at)
 
@@ -74,7 +77,7 @@ def score_missingness(
 def _scores(env, policy_fn: PolicyFn, params: Any, rng: jax.Array, hidden_sets: jax.Array, n_episodes: int,
             max_steps: int | None, num_slots: int | None, steps_per_check: int, score_estimator: str,
             critic_fn: CriticFn | None, critic_params: Any, score_horizon: int, gamma: float,
-            progress: Callable[[jax.Array], None] | None, fail_at: int) -> MissingnessScores:
+            progress: Callable[[jax.Array], None] | None, fail_at: tuple[int, ...]) -> MissingnessScores:
     """:func:`score_missingness` once its arguments are checked (everything but the
     parameters, the key and the sets static)."""
     if score_estimator == "rollout":

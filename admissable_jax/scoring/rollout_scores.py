@@ -23,7 +23,7 @@ result (``loop_steps`` counts only steps with an episode running), at most
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import chex
 import jax
@@ -31,7 +31,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from admissable_jax.branching import while_any
-from admissable_jax.method import check_fail_at, hidden_from_step
+from admissable_jax.method import hidden_from_step, spread_fail_steps
 from admissable_jax.missingness import mask_observation
 
 PolicyFn = Callable[[Any, jax.Array], jax.Array]  # (params, masked_obs (2·d,)) -> action
@@ -73,7 +73,7 @@ def score_by_rollout(
     num_slots: int | None = None,
     steps_per_check: int = 1,
     progress: Callable[[jax.Array], None] | None = None,
-    fail_at: int = 0,
+    fail_at: int | str | Sequence[int] = 0,
 ) -> MissingnessScores:
     """Score every u in ``hidden_sets`` ((|U|, d) 0/1 rows) and the clean case.
 
@@ -87,9 +87,12 @@ def score_by_rollout(
     whether any episode still runs (module docstring). ``progress(finished)``: told the
     episodes finished after each check (module docstring). ``fail_at``: the env step of each
     episode at which u's sensors fail, seen until then (0: hidden from the start, the paper's
-    a_u; :func:`~admissable_jax.method.hidden_from_step`). Jit-able with ``env``,
-    ``policy_fn``, ``n_episodes``, ``max_steps``, ``num_slots``, ``steps_per_check``,
-    ``progress`` and ``fail_at`` static.
+    a_u; :func:`~admissable_jax.method.hidden_from_step`); several steps (a list or comma
+    text) split each set's N episodes evenly over them, episode i failing at the (i mod m)-th
+    of the m steps, so a_u is the mean of the steps' a_u
+    (:func:`~admissable_jax.method.spread_fail_steps`; N must be a multiple of m). Jit-able
+    with ``env``, ``policy_fn``, ``n_episodes``, ``max_steps``, ``num_slots``,
+    ``steps_per_check``, ``progress`` and ``fail_at`` static.
     """
     if steps_per_check < 1:
         raise ValueError(f"steps_per_check must be >= 1, got {steps_per_check}")
@@ -99,7 +102,7 @@ def score_by_rollout(
     max_steps = env.max_episode_steps if max_steps is None else max_steps
     if max_steps < 1:  # (at 0, every episode would still take its first step)
         raise ValueError(f"max_steps must be >= 1, got {max_steps}")
-    fail_at = check_fail_at(fail_at, max_steps)
+    episode_fail_steps = spread_fail_steps(fail_at, n_episodes, max_steps)  # of the N start states
     num_rows = num_sets + 1
     num_episodes = num_rows * n_episodes  # episode e: set row e // N, initial state e % N
     max_batch = env.options.max_batch
@@ -125,8 +128,9 @@ def score_by_rollout(
     def step(carry, params, episode_hidden, initial):
         states, episode, alive = carry["states"], carry["episode"], carry["alive"]
         hidden = episode_hidden[episode]
-        if fail_at:  # (at 0 the program is the paper's, as training compiles it)
-            hidden = hidden_from_step(hidden, states.step_count, fail_at)
+        if any(episode_fail_steps):  # (at 0 the program is the paper's, as training compiles it)
+            hidden = hidden_from_step(hidden, states.step_count,
+                                      jnp.asarray(episode_fail_steps, jnp.int32)[episode % n_episodes])
         with jax.named_scope("score_policy"):
             actions = policy(params, mask_observation(states.obs, hidden))
         with jax.named_scope("score_env_step"):
