@@ -47,7 +47,8 @@ class ExportedPolicy:
     action_low: np.ndarray
     action_high: np.ndarray
     observation_names: tuple[str, ...]
-    source: dict[str, Any]  # where it came from: run, env, gymnasium_id, missingness, seed, k, env_steps, ...
+    # where it came from: run, env, gymnasium_id, missingness, seed, k, env_steps, ...; fail_at and score_fail_at where not 0
+    source: dict[str, Any]
 
     def __post_init__(self):
         inputs = [weight.shape[0] for weight in self.weights]

@@ -22,7 +22,7 @@ import numpy as np
 
 from admissable_jax.best_policy import read_best_policy
 from admissable_jax.checkpointing import Checkpoints
-from admissable_jax.config import TrainConfig
+from admissable_jax.config import FAILURE_STEPS, TrainConfig
 from admissable_jax.config import ExperimentConfig, pair_configs
 from admissable_jax.envs import observation_names
 from admissable_jax.exported_policy import ExportedPolicy
@@ -87,7 +87,8 @@ class TrainedPolicy:
         train, env = self.config, self.trainer.env
         source = {"run": os.path.abspath(train.out), "env": train.env, "gymnasium_id": env.gymnasium_id,
                   "missingness": train.missingness, "seed": train.seed, "k": train.k, "up_to_k": train.up_to_k,
-                  "env_steps": self.step, "best_min_score": self.best_min_score}
+                  "env_steps": self.step, "best_min_score": self.best_min_score,
+                  **{name: getattr(train, name) for name in FAILURE_STEPS if getattr(train, name) != "0"}}
         return ExportedPolicy(tuple(np.asarray(layers[name]["kernel"], np.float32) for name in order),
                               tuple(np.asarray(layers[name]["bias"], np.float32) for name in order),
                               np.asarray(env.action_low, np.float32), np.asarray(env.action_high, np.float32),

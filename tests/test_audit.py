@@ -289,11 +289,11 @@ def test_gaps_to_the_worst_paired_and_by_welch(tmp_path):
     from admissable_jax.audit.report import compare_modes_by_failure_time, training_failure_source
 
     trained = TrainConfig(env="point_mass", fail_at="20,0", score_fail_at="20").resolved()
-    pairs = [dataclasses.replace(pair, source={**pair.source, **training_failure_source(trained)}) for pair in pairs]
+    pairs = [dataclasses.replace(pair, source={**pair.source, **training_failure_source(vars(trained))}) for pair in pairs]
     said = ("The pairs were trained with sensors failing at env step 0,20 (`fail_at`) and scored in training with "
             "sensors failing at env step 20 (`score_fail_at`).")
     assert said in compare_modes(pairs) and said in compare_modes_by_failure_time({0: pairs, 20: pairs})
-    assert training_failure_source(TrainConfig(env="point_mass").resolved()) == {}
+    assert training_failure_source(vars(TrainConfig(env="point_mass").resolved())) == {}
 
     # A set whose returns equal the worst's episode by episode (two hidden features the policy
     # ignores): a gap of 0 ± 0 tells nothing apart, and no N would.
@@ -523,7 +523,7 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
                               np.array([100.0], np.float32), ("one", "two", "three"),
                               {"run": "runs/x", "env": "constant", "gymnasium_id": "ConstantFeatures-v0",
                                "missingness": "uniform", "seed": 3, "k": 2, "up_to_k": True, "env_steps": 500,
-                               "best_min_score": 4.25})
+                               "best_min_score": 4.25, "score_fail_at": "0,2"})
     exported.save(str(tmp_path / "constant.npz"))
     assert audit_main([f"policy={tmp_path / 'constant.npz'}", "episodes=2", f"out={tmp_path / 'exported'}"]) == 0
     record = json.loads((tmp_path / "exported" / "audit.json").read_text())
@@ -538,7 +538,8 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
                                                                               rel=1e-5)
     assert record["source"] == {"Gymnasium env": "ConstantFeatures-v0", "policy": str(tmp_path / "constant.npz"),
                                 "exported from": "runs/x (uniform, seed 3) at env step 500, its best scoring "
-                                                 "(training's min_u a_u 4.2)"}
+                                                 "(training's min_u a_u 4.2)",
+                                "scored in training with sensors failing at env step": "0,2"}
     # tell_apart: every return here is constant, so no gap needs more episodes than the pilot's 2.
     assert audit_main(["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "k=1,2", "episodes=2",
                        "tell_apart=true", f"out={tmp_path / 'told'}"]) == 0

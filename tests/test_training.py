@@ -624,6 +624,8 @@ def test_checkpoint_resume_continues_exactly(tmp_path, capsys):
            "episode) on, every feature seen before; scoring hides each set's u from env step 0 or 20 (its N episodes " \
            "split evenly) on" in capsys.readouterr().err
     assert {row["score_fail_at"] for row in straight.scores} == {"0,20"}
+    exported = load_policy(straight.run_dir).exported().source  # (what an audit of the exported file names)
+    assert (exported["fail_at"], exported["score_fail_at"]) == ("0,20", "0,20")
     assert [r["scores"] for r in resumed.scores] == [r["scores"] for r in straight.scores]
     assert [r["p_miss"] for r in resumed.scores] == [r["p_miss"] for r in straight.scores]
     for a, b in zip(jax.tree.leaves(resumed.state), jax.tree.leaves(straight.state)):

@@ -240,7 +240,8 @@ def _exported(config: AuditConfig) -> GymnasiumPolicy:
                                                                           f"{best:.1f})"))
     return GymnasiumPolicy(exported.masked, _policy_name(config.policy), gym,
                            _ks(config.k, trained.get("k", 1), trained.get("up_to_k", False)),
-                           {"exported from": came_from}, list(exported.observation_names))
+                           {"exported from": came_from, **training_failure_source(trained)},
+                           list(exported.observation_names))
 
 
 def _policy_name(policy: str) -> str:
@@ -351,7 +352,7 @@ def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
                                if best else {}),
                             "mode": train.missingness, "seed": train.seed,
                             **({"lower_bound": train.lower_bound} if train.missingness == "adversarial" else {}),
-                            **training_failure_source(train)},
+                            **training_failure_source(vars(train))},
                            config.score_estimator, trainer.critic_values, policy.critic_params,
                            config.score_horizon, train.gamma, config.search, config.beam_width, config.ranker,
                            _shapley(config.shapley), progress=True, tell_apart=config.tell_apart, dropout=dropout,

@@ -9,7 +9,7 @@ import dataclasses
 import json
 import math
 import os
-from typing import Any, Callable, NamedTuple
+from typing import Any, Callable, Mapping, NamedTuple
 
 import numpy as np
 
@@ -24,11 +24,12 @@ TRAINING_FAILURES = {"fail_at": "trained with sensors failing at env step",
                      "score_fail_at": "scored in training with sensors failing at env step"}
 
 
-def training_failure_source(train) -> dict[str, str]:
-    """The source entries of a run (its ``TrainConfig``) whose sensors failed mid-episode in
-    training or in its scoring rounds: the steps, under :data:`TRAINING_FAILURES`' words;
+def training_failure_source(settings: Mapping[str, Any]) -> dict[str, str]:
+    """The source entries of a run whose sensors failed mid-episode in training or in its
+    scoring rounds, from its settings (its config's fields, or an exported policy's source,
+    which holds those that are not 0): the steps, under :data:`TRAINING_FAILURES`' words;
     none for the paper's u, hidden from the start in both."""
-    return {words: getattr(train, name) for name, words in TRAINING_FAILURES.items() if getattr(train, name) != "0"}
+    return {words: settings[name] for name, words in TRAINING_FAILURES.items() if settings.get(name, "0") != "0"}
 
 
 def training_failures_sentence(results: list[AuditResult]) -> str:
