@@ -240,8 +240,10 @@ def curve_name(mode: str, lower_bound: float, swept: bool) -> str:
 
 
 def curve_mode(curve: str) -> str:
-    """The mode of a :func:`curve_name` (``adversarial`` for ``adversarial-l50``)."""
-    return curve.partition("-")[0]
+    """The mode of a :func:`curve_name` (``adversarial`` for ``adversarial-l50``), or of a
+    curve that runs' settings name (``adversarial`` for ``adversarial, fail_at=0,50``:
+    :attr:`~admissable_jax.results.Run.curve`)."""
+    return curve.partition(",")[0].partition("-")[0]
 
 
 def curve_names(modes_and_bounds: list[tuple[str, float]]) -> list[str]:

@@ -12,6 +12,7 @@ import itertools
 import json
 import math
 import os
+import pathlib
 import re
 import shutil
 
@@ -24,6 +25,8 @@ from admissable_jax import TrainConfig, candidate_sets, make_env, mask_observati
 from admissable_jax.audit import audit, main as audit_main
 from admissable_jax.exported_policy import ExportedPolicy
 from admissable_jax.policies import load_policy
+from admissable_jax.config import curve_mode
+from admissable_jax.results import estimate
 from admissable_jax.scoring import beam_search_worst_sets, estimate_scores
 from admissable_jax.scoring.set_search import first_copies
 from admissable_jax.scoring.attribution import ShapleyPlan, plan_shapley, shapley_attribution
@@ -646,11 +649,51 @@ def short_run(tmp_path_factory):
     """A short adversarial run whose scorings are 3-step horizon estimates (its scoring pool
     of 16 slots more than the 10 episodes: those beyond never run), trained with its sensors
     failing at env step 0 or 5 of each episode (which its audit's report names)."""
-    out = str(tmp_path_factory.mktemp("audit") / "pm")
-    return train_fn(TrainConfig(env="point_mass", total_steps=600, score_every=200, num_envs=4, learning_starts=200,
-                                episode_length=12, score_episodes=2, score_envs=16, batch_size=32, buffer_size=1000, hidden_size=16,
-                                score_estimator="horizon", score_horizon=3, checkpoint_every=1, keep_checkpoints=3,
-                                progress=False, out=out, fail_at="5,0"))
+    return train_fn(dataclasses.replace(SHORT_RUN, out=str(tmp_path_factory.mktemp("audit") / "pm")))
+
+
+SHORT_RUN = TrainConfig(env="point_mass", total_steps=600, score_every=200, num_envs=4, learning_starts=200,
+                        episode_length=12, score_episodes=2, score_envs=16, batch_size=32, buffer_size=1000, hidden_size=16,
+                        score_estimator="horizon", score_horizon=3, checkpoint_every=1, keep_checkpoints=3,
+                        progress=False, fail_at="5,0")
+
+
+def test_several_runs_audited_each_and_compared_by_curve(short_run, tmp_path, capsys):
+    """``audit RUN RUN RUN``: each run audited as it would be alone (into its own folder), then
+    comparison.md sets their curves side by side, as plot names them: the mode and the settings
+    the runs differ in (here fail_at), each curve's runs its seeds; with a list of fail_at, the
+    curves' worst a_u by failure step. Runs of two envs are refused in one line."""
+    runs = [shutil.copytree(short_run.run_dir, tmp_path / "failing-s0"),
+            train_fn(dataclasses.replace(SHORT_RUN, seed=1, out=str(tmp_path / "failing-s1"))).run_dir,
+            train_fn(dataclasses.replace(SHORT_RUN, fail_at="0", out=str(tmp_path / "from-start"))).run_dir]
+    assert audit_main([*map(str, runs), "k=1", "episodes=2", f"out={tmp_path / 'compared'}"]) == 0
+    printed = capsys.readouterr().out
+    worst = {}
+    for run in runs:
+        record = json.loads((pathlib.Path(run) / "audit-step600" / "audit.json").read_text())
+        worst[os.path.basename(run)] = min(entry["score"] for entry in record["sets"]["1"])
+    comparison = (tmp_path / "compared" / "comparison.md").read_text()
+    assert comparison.startswith("# Robustness audit of 3 runs: point_mass, checkpoint 600\n")
+    failing = np.array([worst["failing-s0"], worst["failing-s1"]])
+    assert f"| 1 | adversarial, fail_at=0,5 | 2 | {estimate(failing)} |" in comparison
+    assert f"| 1 | adversarial, fail_at=0 | 1 | {estimate(np.array([worst['from-start']]))} |" in comparison
+    assert "The pairs were" not in comparison  # (they differ in it: the curves say how)
+    assert curve_mode("adversarial, fail_at=0,5") == "adversarial"  # (its colours: the mode's shades)
+    assert "adversarial, fail_at=0,5 seed 1: k=1: worst" in printed and comparison in printed
+    # At two failure steps: every run at each, then the curves by failure step.
+    assert audit_main([*map(str, runs), "k=1", "episodes=2", "fail_at=3,0", f"out={tmp_path / 'times'}"]) == 0
+    table = (tmp_path / "times" / "failure_times.md").read_text()
+    for step in (0, 3):
+        late = [min(entry["score"] for entry in json.loads(
+            (pathlib.Path(run) / f"audit-step600{'-fail3' * bool(step)}" / "audit.json").read_text())["sets"]["1"])
+            for run in runs]
+        assert f"| 1 | {step} | {estimate(np.array(late[2:]))} | {estimate(np.array(late[:2]))} |" in table
+    other_env = shutil.copytree(short_run.run_dir, tmp_path / "hopper")  # (refused before its policy is read)
+    config_path = other_env / "config.yaml"
+    config_path.write_text(config_path.read_text().replace("env: point_mass", "env: Hopper-v5"))
+    assert audit_main([str(runs[0]), str(other_env), "k=1", "episodes=2"]) == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1] == ("error: the runs compared must share one env, got "
+                                                                "Hopper-v5, point_mass: audit each env's apart")
 
 
 def test_training_scores_with_the_chosen_estimator(short_run):
@@ -686,10 +729,10 @@ def test_score_estimators_benchmark_compares_each_estimator_with_the_rollout(sho
                  for horizon in (0, 3)]
     assert [(record["estimator"], record["horizon"], record["physics_steps"]) for record in records] == [
         ("critic", 0, 0), ("horizon", 3, 3)]
-    for record, estimate in zip(records, estimates):
+    for record, estimated in zip(records, estimates):
         assert record["checkpoint"] == policy.step and record["sets"] == 4 and record["n_episodes"] == 2
         np.testing.assert_allclose(record["rollout_scores"], rollout.scores, rtol=1e-5)
-        np.testing.assert_allclose(record["scores"], estimate.scores, rtol=1e-5)
+        np.testing.assert_allclose(record["scores"], estimated.scores, rtol=1e-5)
         assert record["rollout_physics_steps"] == int(rollout.loop_steps)
         assert record["spearman"] == pytest.approx(stats.spearmanr(record["scores"], record["rollout_scores"]).statistic)
         assert record["argmin_agrees"] == (np.argmin(record["scores"]) == np.argmin(record["rollout_scores"]))

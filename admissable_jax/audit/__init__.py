@@ -2,6 +2,7 @@
 
     python -m admissable_jax.audit RUN_DIR k=1,2 episodes=50 out=DIR [step=N]
     python -m admissable_jax.audit EXPERIMENT_DIR k=1,2      # every pair, then comparison.md
+    python -m admissable_jax.audit RUN_DIR RUN_DIR ... k=1   # each run, then comparison.md of their curves
     python -m admissable_jax.audit policy=MODULE:NAME gym=Hopper-v5 k=1,2   # any Python policy
 
 For every u with |u| in ``k`` (all C(d, |u|) sets, scored exactly: one batched rollout for
@@ -41,7 +42,10 @@ Given an experiment's folder, every pair is audited so (into ``PAIR/audit-step<S
 modes side by side per k: each pair's worst a_u and mean a_u over the sets, mean ± 95%
 interval over seeds, and adversarial − uniform with Welch's interval; ``comparison.png``
 draws the worst
-(:func:`audit_experiment`).
+(:func:`audit_experiment`). Given several run directories, each run is audited into its own
+folder and ``comparison.md`` (in ``audit-comparison`` or ``out``) sets their curves side by
+side as the experiment's modes are, a curve being a mode and the settings the runs differ in,
+as ``plot`` names its curves (:func:`audit_runs`).
 
 ``fail_at=T`` lets every set's sensors fail at env step T of each episode, every feature seen
 before it, where the paper hides u from the start (a sensor that dies mid-run); a comma list
@@ -60,9 +64,10 @@ itself), :mod:`~admissable_jax.audit.report` writes what an audit found, and
 """
 
 from admissable_jax.audit.command import AuditConfig, audit_experiment, audit_failure_times, audit_over_training, \
-    audit_python_policy, audit_run, main
+    audit_python_policy, audit_run, audit_runs, main
 from admissable_jax.audit.report import compare_modes, write_audit
 from admissable_jax.audit.sets import AuditResult, GapToWorst, SetScore, audit, audit_gymnasium
 
 __all__ = ["AuditConfig", "AuditResult", "GapToWorst", "SetScore", "audit", "audit_experiment", "audit_failure_times",
-           "audit_gymnasium", "audit_over_training", "audit_python_policy", "audit_run", "compare_modes", "main", "write_audit"]
+           "audit_gymnasium", "audit_over_training", "audit_python_policy", "audit_run", "audit_runs", "compare_modes", "main",
+           "write_audit"]

@@ -35,7 +35,9 @@ if TYPE_CHECKING:  # for the annotations only
 @dataclasses.dataclass
 class AuditConfig:
     run_dir: str = setting("", "a train run directory, an experiment pair's, or an experiment's folder (every pair, "
-                               "then comparison.md of the modes); may be given first, without run_dir=")
+                               "then comparison.md of the modes); may be given first, without run_dir=. Several (one "
+                               "after another, or comma separated; folders of runs too): each run audited, then "
+                               "comparison.md of their curves (mode and the settings they differ in), as plot groups them")
     k: str = setting("", "set sizes to audit, comma separated (e.g. 1,2); default: the sizes of the run's U (its k, "
                          "or 1 to k with up_to_k), 1 with policy=")
     episodes: int = setting(50, "N: deterministic episodes per set (the CI narrows as 1/sqrt(N))")
@@ -107,6 +109,9 @@ def check_audit_config(config: AuditConfig) -> None:
             raise ValueError("a Python policy is audited by rollouts of every set (it has no critic to estimate with)")
     elif not config.run_dir:
         raise ValueError("give the run directory: python -m admissable_jax.audit RUN_DIR [k=1,2] [episodes=50]")
+    if len(_run_paths(config)) > 1 and config.steps:
+        raise ValueError("several runs are audited each at one checkpoint (the latest, step= or best=true): give steps= "
+                         "one run")
     if config.steps and (config.step >= 0 or config.policy or is_experiment(config.run_dir)):
         raise ValueError("steps= audits several checkpoints of one run (a train run or one pair of an experiment), "
                          "without step= or policy=")
@@ -269,6 +274,11 @@ def _episodes_asked(config: AuditConfig) -> str:
             if config.tell_apart else f"{config.episodes} episodes per set")
 
 
+def _run_paths(config: AuditConfig) -> list[str]:
+    """The run directories ``run_dir`` names: one, or several comma separated."""
+    return [path for path in config.run_dir.split(",") if path]
+
+
 def audit_run(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     """Audit the run in ``config.run_dir`` at ``config.step``; write the report."""
     check_audit_config(config)
@@ -408,27 +418,28 @@ def _audit_each(jobs: list[tuple[AuditConfig, int | str | None]]) -> tuple[list[
 
 
 def audit_failure_times(config: AuditConfig) -> tuple[list[AuditResult], list[str]]:
-    """Audit one policy (a run's checkpoint, its best, or ``policy=``), or every pair of an
-    experiment, once per env step in ``fail_at`` (a comma list), each into ``<out>/fail<T>/``
+    """Audit one policy (a run's checkpoint, its best, or ``policy=``), every pair of an
+    experiment, or several runs, once per env step in ``fail_at`` (a comma list), each into ``<out>/fail<T>/``
     as a single audit (each compiles its rollout: the step is part of the program); then
     ``failure_times.md`` and ``.png`` (in ``out``; default ``RUN_DIR/audit-failure-times`` with
     ``-best`` or ``-step<STEP>`` where asked, or ``audit-<NAME>-failure-times`` for
     ``policy=``): for one policy, per failure step and k, the worst a_u and its set and the
     mean a_u over the sets, beside the clean return, and each single feature's a_u by failure
-    step; for an experiment, the modes' worst a_u by failure step, and adversarial − uniform at
-    each. Training hides u from an episode's start; this says what a sensor lost later costs,
+    step; for an experiment (or several runs: ``audit-comparison-failure-times``), the modes'
+    (curves') worst a_u by failure step, and adversarial − uniform at each. Training hides u from an episode's start; this says what a sensor lost later costs,
     and which."""
     check_audit_config(config)
     which = "-best" if config.best else f"-step{config.step}" if config.step >= 0 else ""
     out = config.out or (f"audit-{_policy_name(config.policy)}-failure-times" if config.policy else
+                         f"audit-comparison-failure-times{which}" if len(_run_paths(config)) > 1 else
                          os.path.join(config.run_dir, f"audit-failure-times{which}"))
     jobs = [dataclasses.replace(config, fail_at=str(time), out=os.path.join(out, f"fail{time}"))
             for time in fail_steps(config.fail_at)]
     if config.policy:
         audits = [audit_python_policy(job) for job in jobs]
         results, written = [result for result, _ in audits], [path for _, files in audits for path in files]
-    elif is_experiment(config.run_dir):
-        audits = [audit_experiment(job) for job in jobs]
+    elif is_experiment(config.run_dir) or len(_run_paths(config)) > 1:
+        audits = [(audit_runs if len(_run_paths(config)) > 1 else audit_experiment)(job) for job in jobs]
         by_time = {_fail_at(job): pairs for job, (pairs, _) in zip(jobs, audits)}
         written = [path for _, files in audits for path in files]
         written.append(failure_time_chart_by_mode(by_time, os.path.join(out, "failure_times.png")))
@@ -467,24 +478,55 @@ def audit_experiment(config: AuditConfig) -> tuple[list[AuditResult], list[str]]
     results, written = _audit_each([(dataclasses.replace(config, run_dir=pair, out=pair_out(pair)), step)
                                     for pair in experiment_pairs(root)])
     audited = "audit-best" if config.best else f"audit-step{results[0].source['checkpoint (env step)']}"
-    out = config.out or os.path.join(root, audited + _failing(config))
+    return results, written + _write_comparison(results, config.out or os.path.join(root, audited + _failing(config)))
+
+
+def audit_runs(config: AuditConfig) -> tuple[list[AuditResult], list[str]]:
+    """Audit each of several runs (``run_dir``'s comma list: train runs, experiments' pairs,
+    folders of them) as :func:`audit_run` does, each into its own folder, then compare their
+    curves in ``comparison.md`` (in ``out``; default ``audit-comparison`` with ``-fail<T>``
+    where the sensors fail mid-episode): a curve is a mode and the settings in which the runs
+    differ (:func:`~admissable_jax.results.label_variants`, as ``plot`` names its curves), its
+    runs its seeds. Runs trained with ``fail_at`` beside runs trained without, or with
+    ``score_fail_at``, compared by one command."""
+    check_audit_config(config)
+    from admissable_jax.results import find_runs, label_variants, load_runs
+
+    runs = label_variants(load_runs(find_runs(_run_paths(config))))
+    envs = sorted({run.env for run in runs})
+    if len(envs) > 1:
+        raise ValueError(f"the runs compared must share one env, got {', '.join(envs)}: audit each env's apart")
+    results, written = [], []
+    for run in runs:
+        result, files = audit_run(dataclasses.replace(config, run_dir=run.path, out=""))
+        results.append(dataclasses.replace(result, source={**result.source, "curve": run.curve}))
+        written += files
+    return results, written + _write_comparison(results, config.out or f"audit-comparison{_failing(config)}")
+
+
+def _write_comparison(results: list[AuditResult], out: str) -> list[str]:
+    """``comparison.md`` and ``comparison.png`` of audited pairs or runs, by curve, into ``out``."""
     make_directory(out, "audit folder")
-    written.append(comparison_chart(results, os.path.join(out, "comparison.png")))
-    written.append(os.path.join(out, "comparison.md"))
+    written = [comparison_chart(results, os.path.join(out, "comparison.png")), os.path.join(out, "comparison.md")]
     with open(written[-1], "w") as file:
         file.write(compare_modes(results) + "\n![worst a_u per k and mode](comparison.png)\n")
-    return results, written
+    return written
 
 
 def main(argv: list[str]) -> int:
+    paths = [arg for arg in argv if "=" not in arg and not arg.startswith("-")]
+    if len(paths) > 1:  # several runs, one after another: run_dir's comma list
+        argv = [",".join(paths), *[arg for arg in argv if arg not in paths]]
     config = parse_args(AuditConfig, argv, "admissable_jax.audit",
                         "Which sensors break a policy? a_u of every set of k hidden features, with CIs, on one page.",
                         validate=check_audit_config, positional="run_dir")
     enable_compilation_cache()
-    experiment = bool(config.run_dir) and is_experiment(config.run_dir)
+    several_runs = len(_run_paths(config)) > 1
+    experiment = several_runs or (bool(config.run_dir) and is_experiment(config.run_dir))  # pairs by curve
     several_times = len(fail_steps(config.fail_at)) > 1
     command = (audit_failure_times if several_times else audit_python_policy if config.policy
-               else audit_over_training if config.steps else audit_experiment if experiment else audit_run)
+               else audit_over_training if config.steps else audit_runs if several_runs
+               else audit_experiment if experiment else audit_run)
     outcome, status = run_from_cli(command, config, interrupted="interrupted: the audit in progress wrote nothing; "
                                                                 "audit folders finished before it are kept")
     if status:
@@ -512,7 +554,7 @@ def main(argv: list[str]) -> int:
     if several:
         with open(written[-1]) as file:
             print(file.read())
-        each = "pair" if experiment else "checkpoint" if config.steps else "failure time"
+        each = "run" if several_runs else "pair" if experiment else "checkpoint" if config.steps else "failure time"
         print(f"wrote each {each}'s report, audit.json and figures into its audit folder, and {written[-1]}")
     else:
         print(f"wrote {', '.join(written)}")

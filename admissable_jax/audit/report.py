@@ -33,10 +33,14 @@ def training_failure_source(settings: Mapping[str, Any]) -> dict[str, str]:
 
 
 def training_failures_sentence(results: list[AuditResult]) -> str:
-    """An experiment's comparison's word on how its pairs (which share their settings) met
-    failing sensors in training, from the first pair's source; "" for the paper's."""
-    source = results[0].source
-    said = [f"{words} {source[words]} (`{name}`)" for name, words in TRAINING_FAILURES.items() if words in source]
+    """A comparison's word on how its pairs met failing sensors in training, where they all
+    met them alike (an experiment's pairs share their settings); "" for the paper's, and for
+    runs that differ in it (their curves name the settings: :func:`pair_curves`)."""
+    met = {tuple(result.source.get(words) for words in TRAINING_FAILURES.values()) for result in results}
+    if len(met) != 1:
+        return ""
+    (steps,) = met
+    said = [f"{words} {step} (`{name}`)" for (name, words), step in zip(TRAINING_FAILURES.items(), steps) if step]
     return f" The pairs were {' and '.join(said)}." if said else ""
 
 
@@ -472,7 +476,10 @@ def _single_features_by_time(ax, results: list[AuditResult], times: list[int]) -
 
 def pair_curves(results: list[AuditResult]) -> list[str]:
     """The curve of each audited pair of an experiment: its mode, or ``adversarial-l<l>``
-    where the experiment's adversarial pairs sweep l (:func:`~admissable_jax.config.curve_names`)."""
+    where the experiment's adversarial pairs sweep l (:func:`~admissable_jax.config.curve_names`);
+    of several runs audited together, the curve their source names (``audit_runs``)."""
+    if all("curve" in result.source for result in results):
+        return [result.source["curve"] for result in results]
     return curve_names([(result.source["mode"], result.source.get("lower_bound", 0.0)) for result in results])
 
 
@@ -530,9 +537,15 @@ def audited_policies(results: list[AuditResult]) -> str:
     """Which policy of each pair was audited: one checkpoint, or each pair's best scoring's
     (``audit best=true``: the pairs' own env steps)."""
     steps = sorted({result.source["checkpoint (env step)"] for result in results})
-    if not any("kept as" in result.source for result in results):
-        return f"checkpoint {steps[0]}"
-    return f"each pair's best scoring (env steps {', '.join(f'{step:,}' for step in steps)})"
+    listed = ", ".join(f"{step:,}" for step in steps)
+    if any("kept as" in result.source for result in results):
+        return f"each pair's best scoring (env steps {listed})"
+    return f"checkpoint {steps[0]}" if len(steps) == 1 else f"each run's checkpoint (env steps {listed})"
+
+
+def _audited_together(results: list[AuditResult]) -> str:
+    """What a comparison compares: an experiment's pairs, or several runs by curve."""
+    return f"{len(results)} runs" if all("curve" in result.source for result in results) else "an experiment"
 
 
 def compare_modes(results: list[AuditResult]) -> str:
@@ -546,7 +559,7 @@ def compare_modes(results: list[AuditResult]) -> str:
     for result, curve in zip(results, pair_curves(results)):
         by_mode.setdefault(curve, []).append(result)
     first = results[0]
-    lines = [f"# Robustness audit of an experiment: {first.env}, {audited_policies(results)}", "",
+    lines = [f"# Robustness audit of {_audited_together(results)}: {first.env}, {audited_policies(results)}", "",
              f"Each pair audited as its own report says ({audit_settings(results)}); "
              "here, per pair, the worst a_u over the sets of each size and the mean a_u over them (the average case, "
              "u drawn uniformly), then mean ± 95% t-interval over the seeds of a mode. Where a k was searched "
