@@ -419,15 +419,16 @@ def _audit_each(jobs: list[tuple[AuditConfig, int | str | None]]) -> tuple[list[
 
 def audit_failure_times(config: AuditConfig) -> tuple[list[AuditResult], list[str]]:
     """Audit one policy (a run's checkpoint, its best, or ``policy=``), every pair of an
-    experiment, or several runs, once per env step in ``fail_at`` (a comma list), each into ``<out>/fail<T>/``
-    as a single audit (each compiles its rollout: the step is part of the program); then
-    ``failure_times.md`` and ``.png`` (in ``out``; default ``RUN_DIR/audit-failure-times`` with
-    ``-best`` or ``-step<STEP>`` where asked, or ``audit-<NAME>-failure-times`` for
-    ``policy=``): for one policy, per failure step and k, the worst a_u and its set and the
+    experiment, or several runs, once per env step in ``fail_at`` (a comma list), each into
+    ``<out>/fail<T>/`` as a single audit (each compiles its rollout: the step is part of the
+    program); then ``failure_times.md`` and ``.png`` (in ``out``; default
+    ``RUN_DIR/audit-failure-times`` with ``-best`` or ``-step<STEP>`` where asked,
+    ``audit-<NAME>-failure-times`` for ``policy=``, ``audit-comparison-failure-times`` for
+    several runs): for one policy, per failure step and k, the worst a_u and its set and the
     mean a_u over the sets, beside the clean return, and each single feature's a_u by failure
-    step; for an experiment (or several runs: ``audit-comparison-failure-times``), the modes'
-    (curves') worst a_u by failure step, and adversarial − uniform at each. Training hides u from an episode's start; this says what a sensor lost later costs,
-    and which."""
+    step; for an experiment or several runs, the modes' (curves') worst a_u by failure step,
+    and adversarial − uniform at each. Training hides u from an episode's start; this says
+    what a sensor lost later costs, and which."""
     check_audit_config(config)
     which = "-best" if config.best else f"-step{config.step}" if config.step >= 0 else ""
     out = config.out or (f"audit-{_policy_name(config.policy)}-failure-times" if config.policy else
