@@ -659,13 +659,18 @@ SHORT_RUN = TrainConfig(env="point_mass", total_steps=600, score_every=200, num_
 
 
 def test_several_runs_audited_each_and_compared_by_curve(short_run, tmp_path, capsys):
-    """``audit RUN RUN RUN``: each run audited as it would be alone (into its own folder), then
+    """``audit RUN RUN ...``: each run audited as it would be alone (into its own folder), then
     comparison.md sets their curves side by side, as plot names them: the mode and the settings
-    the runs differ in (here fail_at), each curve's runs its seeds; with a list of fail_at, the
-    curves' worst a_u by failure step. Runs of two envs are refused in one line."""
+    the runs differ in (here fail_at, and l, which uniform runs do not read), each curve's runs
+    its seeds, and each adversarial curve against the uniform curve of its other settings, where
+    there is one; with a list of
+    fail_at, the curves' worst a_u by failure step. Runs of two envs are refused in one line."""
+    uniform = dataclasses.replace(SHORT_RUN, missingness="uniform")
     runs = [shutil.copytree(short_run.run_dir, tmp_path / "failing-s0"),
             train_fn(dataclasses.replace(SHORT_RUN, seed=1, out=str(tmp_path / "failing-s1"))).run_dir,
-            train_fn(dataclasses.replace(SHORT_RUN, fail_at="0", out=str(tmp_path / "from-start"))).run_dir]
+            train_fn(dataclasses.replace(SHORT_RUN, fail_at="0", lower_bound=1.0, out=str(tmp_path / "from-start"))).run_dir,
+            *[train_fn(dataclasses.replace(uniform, seed=seed, out=str(tmp_path / f"uniform-s{seed}"))).run_dir
+              for seed in (0, 1)]]
     assert audit_main([*map(str, runs), "k=1", "episodes=2", f"out={tmp_path / 'compared'}"]) == 0
     printed = capsys.readouterr().out
     worst = {}
@@ -673,13 +678,19 @@ def test_several_runs_audited_each_and_compared_by_curve(short_run, tmp_path, ca
         record = json.loads((pathlib.Path(run) / "audit-step600" / "audit.json").read_text())
         worst[os.path.basename(run)] = min(entry["score"] for entry in record["sets"]["1"])
     comparison = (tmp_path / "compared" / "comparison.md").read_text()
-    assert comparison.startswith("# Robustness audit of 3 runs: point_mass, checkpoint 600\n")
+    assert comparison.startswith("# Robustness audit of 5 runs: point_mass, checkpoint 600\n")
     failing = np.array([worst["failing-s0"], worst["failing-s1"]])
-    assert f"| 1 | adversarial, fail_at=0,5 | 2 | {estimate(failing)} |" in comparison
-    assert f"| 1 | adversarial, fail_at=0 | 1 | {estimate(np.array([worst['from-start']]))} |" in comparison
+    baseline = np.array([worst["uniform-s0"], worst["uniform-s1"]])
+    assert f"| 1 | adversarial, fail_at=0,5, lower_bound=0 | 2 | {estimate(failing)} |" in comparison
+    assert f"| 1 | adversarial, fail_at=0, lower_bound=1 | 1 | {estimate(np.array([worst['from-start']]))} |" in comparison
+    assert f"| 1 | uniform, fail_at=0,5 | 2 | {estimate(baseline)} |" in comparison
+    differences = comparison.split("adversarial − uniform")[-1]  # (fail_at=0 has no uniform curve: no row)
+    assert (f"| 1 | worst a_u (adversarial, fail_at=0,5, lower_bound=0) | {failing.mean() - baseline.mean():+.1f} | ["
+            in differences)
+    assert "(adversarial, fail_at=0, lower_bound=1)" not in differences
     assert "The pairs were" not in comparison  # (they differ in it: the curves say how)
-    assert curve_mode("adversarial, fail_at=0,5") == "adversarial"  # (its colours: the mode's shades)
-    assert "adversarial, fail_at=0,5 seed 1: k=1: worst" in printed and comparison in printed
+    assert curve_mode("adversarial, fail_at=0,5, lower_bound=0") == "adversarial"  # (its colours: the mode's shades)
+    assert "adversarial, fail_at=0,5, lower_bound=0 seed 1: k=1: worst" in printed and comparison in printed
     # At two failure steps: every run at each, then the curves by failure step.
     assert audit_main([*map(str, runs), "k=1", "episodes=2", "fail_at=3,0", f"out={tmp_path / 'times'}"]) == 0
     table = (tmp_path / "times" / "failure_times.md").read_text()
@@ -687,7 +698,10 @@ def test_several_runs_audited_each_and_compared_by_curve(short_run, tmp_path, ca
         late = [min(entry["score"] for entry in json.loads(
             (pathlib.Path(run) / f"audit-step600{'-fail3' * bool(step)}" / "audit.json").read_text())["sets"]["1"])
             for run in runs]
-        assert f"| 1 | {step} | {estimate(np.array(late[2:]))} | {estimate(np.array(late[:2]))} |" in table
+        assert (f"| 1 | {step} | {estimate(np.array(late[2:3]))} | {estimate(np.array(late[:2]))} | "
+                f"{estimate(np.array(late[3:]))} |") in table
+        assert (f"| 1 | {step} | adversarial, fail_at=0,5, lower_bound=0 | {np.mean(late[:2]) - np.mean(late[3:]):+.1f} | ["
+                in table)
     other_env = shutil.copytree(short_run.run_dir, tmp_path / "hopper")  # (refused before its policy is read)
     config_path = other_env / "config.yaml"
     config_path.write_text(config_path.read_text().replace("env: point_mass", "env: Hopper-v5"))

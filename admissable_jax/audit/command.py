@@ -500,7 +500,8 @@ def audit_runs(config: AuditConfig) -> tuple[list[AuditResult], list[str]]:
     results, written = [], []
     for run in runs:
         result, files = audit_run(dataclasses.replace(config, run_dir=run.path, out=""))
-        results.append(dataclasses.replace(result, source={**result.source, "curve": run.curve}))
+        baseline = f"uniform, {run.baseline_variant}" if run.baseline_variant else "uniform"  # (Run.curve's form)
+        results.append(dataclasses.replace(result, source={**result.source, "curve": run.curve, "baseline": baseline}))
         written += files
     return results, written + _write_comparison(results, config.out or f"audit-comparison{_failing(config)}")
 

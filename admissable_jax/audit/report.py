@@ -474,6 +474,17 @@ def _single_features_by_time(ax, results: list[AuditResult], times: list[int]) -
     ax.set_title("which sensor hurts when: $a_u$ of each feature hidden alone", fontsize=10)
 
 
+def _baselines(results: list[AuditResult]) -> dict[str, str]:
+    """Each adversarial curve's uniform curve, where that was audited too: an experiment's
+    ``uniform`` (every value of a sweep of l against it), or, for several runs, the uniform
+    curve of the same other settings that their source names (``baseline``: as ``plot`` pairs
+    them, :attr:`~admissable_jax.results.Run.baseline_variant`)."""
+    curves = pair_curves(results)
+    pairs = {curve: result.source.get("baseline", "uniform") for result, curve in zip(results, curves)
+             if curve_mode(curve) == "adversarial"}
+    return {curve: baseline for curve, baseline in pairs.items() if baseline in curves}
+
+
 def pair_curves(results: list[AuditResult]) -> list[str]:
     """The curve of each audited pair of an experiment: its mode, or ``adversarial-l<l>``
     where the experiment's adversarial pairs sweep l (:func:`~admissable_jax.config.curve_names`);
@@ -577,13 +588,13 @@ def compare_modes(results: list[AuditResult]) -> str:
             lines.append(f"| {k} | {mode} | {len(group)} | {estimate(measures['worst a_u'][mode][k])} | "
                          f"{'—' if np.isnan(average).any() else estimate(average)} | {common} "
                          f"({names.count(common)} of {len(group)}) | {estimate(clean)} |")
-    adversarial = [curve for curve in by_mode if curve_mode(curve) == "adversarial"]  # several in a sweep of l
-    if adversarial and "uniform" in by_mode:
+    baselines = _baselines(results)  # several adversarial curves in a sweep of l, or of runs' settings
+    if baselines:
         lines += ["", *comparison_header("k", "measure")]
         swept = lambda curve: f" ({curve})" if curve != "adversarial" else ""
         compared = [(k, name + swept(curve), Difference(f"k={k} {name}{swept(curve)}", per_mode[curve][k],
-                                                        per_mode["uniform"][k]))
-                    for curve in adversarial for k in first.sets for name, per_mode in measures.items()
+                                                        per_mode[baseline][k]))
+                    for curve, baseline in baselines.items() for k in first.sets for name, per_mode in measures.items()
                     if not np.isnan(per_mode[curve][k]).any()]
         lines += [f"| {k} | {name} | {difference.cells()} |" for k, name, difference in compared]
         sentence = seeds_sentence([(difference.metric, difference) for _, _, difference in compared])
@@ -592,7 +603,7 @@ def compare_modes(results: list[AuditResult]) -> str:
     if all(result.shapley is not None for result in results):
         lines += _shapley_by_mode(by_mode, first.feature_names)
     if all(result.dropout is not None for result in results):
-        lines += _dropout_by_mode(by_mode, adversarial)
+        lines += _dropout_by_mode(by_mode, baselines)
     return "\n".join(lines) + "\n"
 
 
@@ -612,12 +623,12 @@ def compare_modes_by_failure_time(by_time: dict[int, list[AuditResult]]) -> str:
              "| k | sensors fail at env step | " + " | ".join(modes) + " |", "|---|---|" + "---|" * len(modes)]
     lines += [f"| {k} | {time} | " + " | ".join(estimate(worst[time][mode][k]) for mode in modes) + " |"
               for k in first.sets for time in times]
-    adversarial = [mode for mode in modes if curve_mode(mode) == "adversarial"]
-    if adversarial and "uniform" in modes:
+    baselines = _baselines(by_time[times[0]])
+    if baselines:
         lines += ["", "Adversarial − uniform, the worst a_u:", "", *comparison_header("k", "fails at", "curve")]
         lines += [f"| {k} | {time} | {curve} | "
-                  f"{Difference(f'k={k} fail_at={time} {curve}', worst[time][curve][k], worst[time]['uniform'][k]).cells()} |"
-                  for k in first.sets for time in times for curve in adversarial]
+                  f"{Difference(f'k={k} fail_at={time} {curve}', worst[time][curve][k], worst[time][baseline][k]).cells()} |"
+                  for k in first.sets for time in times for curve, baseline in baselines.items()]
     return "\n".join(lines) + "\n"
 
 
@@ -666,9 +677,10 @@ def episodes_per_set(results: list[AuditResult]) -> str:
             f"N = {low}–{high} episodes per set, each audit's chosen by its pilot (`tell_apart`)")
 
 
-def _dropout_by_mode(by_mode: dict[str, list[AuditResult]], adversarial: list[str]) -> list[str]:
+def _dropout_by_mode(by_mode: dict[str, list[AuditResult]], baselines: dict[str, str]) -> list[str]:
     """Markdown: the expected return under random sensor failure per rate and mode, mean ±
-    95% t-interval over the mode's pairs; then adversarial − uniform per rate (Welch's t)."""
+    95% t-interval over the mode's pairs; then each adversarial curve − its uniform one
+    (``baselines``: :func:`_baselines`) per rate (Welch's t)."""
     first = next(iter(by_mode.values()))[0]
     rates = [entry.rate for entry in first.dropout]
     values = {mode: np.array([[entry.score for entry in result.dropout] for result in group])
@@ -679,11 +691,11 @@ def _dropout_by_mode(by_mode: dict[str, list[AuditResult]], adversarial: list[st
              "| failure rate p | " + " | ".join(values) + " |", "|---|" + "---|" * len(values)]
     lines += [f"| {rate:g} | " + " | ".join(estimate(per_pair[:, column]) for per_pair in values.values()) + " |"
               for column, rate in enumerate(rates)]
-    if adversarial and "uniform" in values:
+    if baselines:
         lines += ["", *comparison_header("failure rate p", "curve")]
         lines += [f"| {rate:g} | {curve} | "
-                  f"{Difference(f'p={rate:g} {curve}', values[curve][:, column], values['uniform'][:, column]).cells()} |"
-                  for curve in adversarial for column, rate in enumerate(rates)]
+                  f"{Difference(f'p={rate:g} {curve}', values[curve][:, column], values[baseline][:, column]).cells()} |"
+                  for curve, baseline in baselines.items() for column, rate in enumerate(rates)]
     return lines
 
 
