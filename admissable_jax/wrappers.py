@@ -201,8 +201,7 @@ def score_policy(env_id: str, policy: Callable[[np.ndarray], Any], k: int = 1, n
         loop_steps = 0
         with tqdm(total=total, unit="episode", disable=not progress, smoothing=0) as bar:  # closed before any error line
             while (episode_of_slot < total).any():
-                row_of_slot = np.minimum(episode_of_slot, total - 1) // n_episodes
-                repetition_of_slot = np.minimum(episode_of_slot, total - 1) % n_episodes
+                row_of_slot, repetition_of_slot = np.divmod(np.minimum(episode_of_slot, total - 1), n_episodes)
                 hidden = hidden_from_step(rows[row_of_slot], running_length, episode_fail_steps[repetition_of_slot])
                 masked = mask_observation(np.asarray(obs, np.float32), hidden)
                 actions = _batch_of_actions(policy(masked), envs.action_space)

@@ -109,7 +109,7 @@ def check_audit_config(config: AuditConfig) -> None:
             raise ValueError("a Python policy is audited by rollouts of every set (it has no critic to estimate with)")
     elif not config.run_dir:
         raise ValueError("give the run directory: python -m admissable_jax.audit RUN_DIR [k=1,2] [episodes=50]")
-    if len(_run_paths(config)) > 1 and config.steps:
+    if _several_runs(config) and config.steps:
         raise ValueError("several runs are audited each at one checkpoint (the latest, step= or best=true): give steps= "
                          "one run")
     if config.steps and (config.step >= 0 or config.policy or is_experiment(config.run_dir)):
@@ -279,6 +279,11 @@ def _run_paths(config: AuditConfig) -> list[str]:
     return [path for path in config.run_dir.split(",") if path]
 
 
+def _several_runs(config: AuditConfig) -> bool:
+    """Whether ``run_dir`` names several runs, audited each and compared (:func:`audit_runs`)."""
+    return len(_run_paths(config)) > 1
+
+
 def audit_run(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     """Audit the run in ``config.run_dir`` at ``config.step``; write the report."""
     check_audit_config(config)
@@ -432,15 +437,15 @@ def audit_failure_times(config: AuditConfig) -> tuple[list[AuditResult], list[st
     check_audit_config(config)
     which = "-best" if config.best else f"-step{config.step}" if config.step >= 0 else ""
     out = config.out or (f"audit-{_policy_name(config.policy)}-failure-times" if config.policy else
-                         f"audit-comparison-failure-times{which}" if len(_run_paths(config)) > 1 else
+                         f"audit-comparison-failure-times{which}" if _several_runs(config) else
                          os.path.join(config.run_dir, f"audit-failure-times{which}"))
     jobs = [dataclasses.replace(config, fail_at=str(time), out=os.path.join(out, f"fail{time}"))
             for time in fail_steps(config.fail_at)]
     if config.policy:
         audits = [audit_python_policy(job) for job in jobs]
         results, written = [result for result, _ in audits], [path for _, files in audits for path in files]
-    elif is_experiment(config.run_dir) or len(_run_paths(config)) > 1:
-        audits = [(audit_runs if len(_run_paths(config)) > 1 else audit_experiment)(job) for job in jobs]
+    elif is_experiment(config.run_dir) or _several_runs(config):
+        audits = [(audit_runs if _several_runs(config) else audit_experiment)(job) for job in jobs]
         by_time = {_fail_at(job): pairs for job, (pairs, _) in zip(jobs, audits)}
         written = [path for _, files in audits for path in files]
         written.append(failure_time_chart_by_mode(by_time, os.path.join(out, "failure_times.png")))
@@ -523,7 +528,7 @@ def main(argv: list[str]) -> int:
                         "Which sensors break a policy? a_u of every set of k hidden features, with CIs, on one page.",
                         validate=check_audit_config, positional="run_dir")
     enable_compilation_cache()
-    several_runs = len(_run_paths(config)) > 1
+    several_runs = _several_runs(config)
     experiment = several_runs or (bool(config.run_dir) and is_experiment(config.run_dir))  # pairs by curve
     several_times = len(fail_steps(config.fail_at)) > 1
     command = (audit_failure_times if several_times else audit_python_policy if config.policy

@@ -485,11 +485,17 @@ def _baselines(results: list[AuditResult]) -> dict[str, str]:
     return {curve: baseline for curve, baseline in pairs.items() if baseline in curves}
 
 
+def _compared_as_runs(results: list[AuditResult]) -> bool:
+    """Whether the results are several runs audited together, each source naming its curve
+    (``audit_runs``), rather than an experiment's pairs."""
+    return all("curve" in result.source for result in results)
+
+
 def pair_curves(results: list[AuditResult]) -> list[str]:
     """The curve of each audited pair of an experiment: its mode, or ``adversarial-l<l>``
     where the experiment's adversarial pairs sweep l (:func:`~admissable_jax.config.curve_names`);
     of several runs audited together, the curve their source names (``audit_runs``)."""
-    if all("curve" in result.source for result in results):
+    if _compared_as_runs(results):
         return [result.source["curve"] for result in results]
     return curve_names([(result.source["mode"], result.source.get("lower_bound", 0.0)) for result in results])
 
@@ -556,7 +562,7 @@ def audited_policies(results: list[AuditResult]) -> str:
 
 def _audited_together(results: list[AuditResult]) -> str:
     """What a comparison compares: an experiment's pairs, or several runs by curve."""
-    return f"{len(results)} runs" if all("curve" in result.source for result in results) else "an experiment"
+    return f"{len(results)} runs" if _compared_as_runs(results) else "an experiment"
 
 
 def compare_modes(results: list[AuditResult]) -> str:
