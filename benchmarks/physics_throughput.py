@@ -2,6 +2,7 @@
 
     python benchmarks/physics_throughput.py env=hopper physics=jax,warp batches=8,32 steps=50
     python benchmarks/physics_throughput.py env=ant physics=warp batches=125 graph_modes=default,WARP,WARP_STAGED
+    python benchmarks/physics_throughput.py env=walker2d physics=jax batches=64 worlds_per_call=0,8,16,32,64
 
 For every (backend, batch) pair: a batched random-policy rollout through our env (obs,
 reward, termination, automatic resets: ``admissable_jax.rollout.random_rollout``) and the
@@ -16,6 +17,9 @@ deterministic mode's buffers after each launch, see ``EnvOptions.graph_mode``).
 ``deterministic`` (Warp only; default true, as runs) is MuJoCo Warp's deterministic mode;
 ``deterministic=false`` times the GPU's own order, and with ``ADMISSABLE_MJX_OWN_WARP=1``
 MJX's own copy of MuJoCo Warp, as every record before 2026-12-04.
+``worlds_per_call`` (JAX only) repeats each JAX measurement per piece size
+(``EnvOptions.worlds_per_call``: 0 = the default, on a CPU from the world's data size; a
+size at or above the batch = one call): where the per-world cost jumps on your CPU.
 """
 
 from __future__ import annotations
@@ -40,6 +44,7 @@ class PhysicsBenchConfig:
     steps: int = dataclasses.field(default=50, metadata={"help": "batched steps per timed run"})
     graph_modes: str = dataclasses.field(default="default", metadata={"help": "comma-separated Warp graph modes: default, WARP, WARP_STAGED, NONE"})
     deterministic: bool = dataclasses.field(default=True, metadata={"help": "Warp: its deterministic mode (deterministic_physics)"})
+    worlds_per_call: str = dataclasses.field(default="0", metadata={"help": "JAX: comma-separated most worlds per physics call (0 = the default)"})
 
 
 def _graph_modes(bench: PhysicsBenchConfig) -> list[str | None]:
@@ -54,6 +59,12 @@ def _validate(bench: PhysicsBenchConfig) -> None:
         raise ValueError("batches and steps must be >= 1")
     for mode in _graph_modes(bench):
         EnvOptions(graph_mode=mode)  # validates the name
+    for worlds in _worlds_per_call(bench):
+        EnvOptions(worlds_per_call=worlds)
+
+
+def _worlds_per_call(bench: PhysicsBenchConfig) -> list[int]:
+    return [int(worlds) for worlds in bench.worlds_per_call.split(",")]
 
 
 def _bare_rollout(env, num_envs: int, steps: int, rng: jax.Array):
@@ -78,12 +89,14 @@ def _time(function, *args) -> tuple[float, float]:
 def main(argv: list[str]) -> None:
     bench = parse_args(PhysicsBenchConfig, argv, "benchmarks/physics_throughput.py", __doc__.splitlines()[0], _validate)
     rng = jax.random.key(0)
-    cases = [(physics.strip(), batch, mode) for physics in bench.physics.split(",")
-             for batch in (int(b) for b in bench.batches.split(",")) for mode in _graph_modes(bench)]
-    for physics, batch, mode in cases:
-        env = make_env(bench.env, physics=physics, max_batch=batch, graph_mode=mode, deterministic=bench.deterministic)
-        if env.physics_name != "warp" and mode != _graph_modes(bench)[0]:
-            continue  # graph modes are Warp's: measure the JAX backend once
+    cases = [(resolve_physics(physics.strip()), batch, mode, worlds) for physics in bench.physics.split(",")
+             for batch in (int(b) for b in bench.batches.split(",")) for mode in _graph_modes(bench)
+             for worlds in _worlds_per_call(bench)]
+    for physics, batch, mode, worlds in cases:
+        if (physics == "warp" and worlds != _worlds_per_call(bench)[0]) or (physics != "warp" and mode != _graph_modes(bench)[0]):
+            continue  # graph modes are Warp's, pieces JAX's: measure the other backend once
+        env = make_env(bench.env, physics=physics, max_batch=batch, graph_mode=mode, deterministic=bench.deterministic,
+                       worlds_per_call=0 if physics == "warp" else worlds)
         env_compile_s, env_s = _time(random_rollout, env, batch, bench.steps, rng)
         bare_compile_s, bare_s = _time(_bare_rollout, env, batch, bench.steps, rng)
         record = {
@@ -91,6 +104,7 @@ def main(argv: list[str]) -> None:
             "graph_mode": mode if env.physics_name == "warp" else None,
             "deterministic": bench.deterministic if env.physics_name == "warp" else None,
             "mujoco_warp": warp_package.which() if env.physics_name == "warp" else None,
+            "worlds_per_call": env.physics.worlds_per_call,
             "env_ms_per_step": round(1000 * env_s / bench.steps, 3),
             "bare_ms_per_step": round(1000 * bare_s / bench.steps, 3),
             "env_steps_per_s": round(batch * bench.steps / env_s, 1),
@@ -99,8 +113,9 @@ def main(argv: list[str]) -> None:
             "env_compile_s": round(env_compile_s, 1), "bare_compile_s": round(bare_compile_s, 1),
         }
         append_record("physics_throughput", record)
+        pieces = f" in pieces of {env.physics.worlds_per_call}" if batch > (env.physics.worlds_per_call or batch) else ""
         print(
-            f"{env.gymnasium_id} {env.physics_name:4s} {record['graph_mode'] or '':11s} x {batch:6d}: env {record['env_ms_per_step']:8.2f} ms/step "
+            f"{env.gymnasium_id} {env.physics_name:4s} {record['graph_mode'] or '':11s} x {batch:6d}{pieces}: env {record['env_ms_per_step']:8.2f} ms/step "
             f"({record['env_steps_per_s']:,.0f} env steps/s), bare physics {record['bare_ms_per_step']:8.2f} ms/step "
             f"-> env/bare {record['env_over_bare']:.2f}; compile {env_compile_s:.1f} s / {bare_compile_s:.1f} s"
         )

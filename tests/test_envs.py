@@ -341,6 +341,13 @@ def test_one_flat_batch_under_nested_vmap():
     np.testing.assert_array_equal(np.asarray(out), np.asarray(x * scale[:, None]))
     assert np.asarray(in_one_flat_batch(world)(x[0, 0, 0], scale[0])).tolist() == np.asarray(x[0, 0, 0]).tolist()
     assert seen_batches[-1] == ()
+    # In pieces (the JAX physics on a CPU): 24 worlds at most 5 a call are 5 even pieces of 5,
+    # one after another, the last padded with a copy of the last world; each keeps its result.
+    seen_batches.clear()
+    pieces = jax.jit(jax.vmap(jax.vmap(in_one_flat_batch(world, worlds_per_call=5), in_axes=(0, None))))
+    out = pieces(x.reshape(6, 4, 5), scale[0] + jnp.arange(6.0))
+    assert seen_batches == [(5,)] * 5
+    np.testing.assert_array_equal(np.asarray(out), np.asarray(x.reshape(6, 4, 5) * (scale[0] + jnp.arange(6.0))[:, None, None]))
 
 
 def test_warp_frame_loop_runs_one_flat_batch_under_nested_vmap():
@@ -386,6 +393,8 @@ def test_make_env_names_and_spaces(tmp_path, monkeypatch, capfd):
     ):
         env = make_env(alias)
         assert env.name == name
+        # On a CPU the JAX physics steps at most 256 KiB of worlds' data a call (EnvOptions.worlds_per_call).
+        assert env.physics.worlds_per_call == {"hopper": 32, "walker2d": 16, "ant": 8, "halfcheetah": 16}[name]
         assert (env.observation_size, env.action_size) == (obs_size, action_size)
         with settotalmass_warning_dropped():
             gym_env = gymnasium.make(alias)
@@ -418,7 +427,9 @@ def test_make_env_names_and_spaces(tmp_path, monkeypatch, capfd):
                          (dict(solver_iterations=0), "solver_iterations"),
                          (dict(deterministic="false"), "deterministic must be a bool, got 'false'"),
                          (dict(terminate_when_unhealthy=0), "terminate_when_unhealthy must be a bool, got 0"),
-                         (dict(graph_mode="FAST"), "graph_mode must be None or one of WARP, WARP_STAGED, NONE, got 'FAST'")):
+                         (dict(graph_mode="FAST"), "graph_mode must be None or one of WARP, WARP_STAGED, NONE, got 'FAST'"),
+                         (dict(worlds_per_call=-1), r"worlds_per_call must be an int >= 0 \(0: from the world's size\), got -1"),
+                         (dict(physics="warp", worlds_per_call=4), "^worlds_per_call=4 splits the JAX physics' batch; MuJoCo Warp")):
         with pytest.raises(ValueError, match=message):
             make_env("hopper", **bad)
     # A CUDA-graph mode on the CPU: refused in one line when the env is made, not at its first step.

@@ -47,7 +47,8 @@ class MjxEnv(CatalogEntry, abc.ABC):
             self.mj_model.opt.ls_iterations = self.options.ls_iterations
         self.physics = Physics(self.mj_model, self.options.resolved_physics, self.frame_skip,
                                self.options.max_batch, contact_forces=self.reads_contact_forces,
-                               graph_mode=self.options.graph_mode, deterministic=self.options.deterministic)
+                               graph_mode=self.options.graph_mode, deterministic=self.options.deterministic,
+                               worlds_per_call=self.options.worlds_per_call)
         self.dt = float(self.mj_model.opt.timestep) * self.frame_skip
         self.init_qpos = jnp.asarray(self.mj_model.qpos0, dtype=jnp.float32)
         self.init_qvel = jnp.zeros(self.mj_model.nv, dtype=jnp.float32)

@@ -53,6 +53,14 @@ class EnvOptions:
             in a fixed order, towards a GPU repeating a run bit for bit (which continuing a
             run on another machine needs, :mod:`admissable_jax.fast_forward`). ``False``:
             the GPU's own order, which may be faster. One setting per process.
+        worlds_per_call: JAX physics only: the most worlds one vectorised physics call
+            steps; a larger batch (every vmapped axis together: pairs × envs) is stepped in
+            pieces of at most this many, one after another: the same physics world by world
+            (to float rounding, where XLA vectorises a piece otherwise than the whole).
+            ``0``: on a CPU, the largest power of two whose worlds' data fit 256 KiB
+            (Hopper 32, Walker2d 16, Ant 8), since past about that a call costs 2.5-3× as
+            much per world on the CPU we measured (``benchmarks/NOTES.md``); on an
+            accelerator, one call. MuJoCo Warp always steps one flat batch.
     """
 
     episode_length: int = MAX_EPISODE_STEPS
@@ -63,6 +71,7 @@ class EnvOptions:
     terminate_when_unhealthy: bool = True
     graph_mode: str | None = None
     deterministic: bool = True
+    worlds_per_call: int = 0
 
     def __post_init__(self) -> None:
         for name in ("episode_length", "max_batch"):
@@ -79,6 +88,8 @@ class EnvOptions:
         for name in ("terminate_when_unhealthy", "deterministic"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{name} must be a bool, got {getattr(self, name)!r}")
+        if not isinstance(self.worlds_per_call, int) or isinstance(self.worlds_per_call, bool) or self.worlds_per_call < 0:
+            raise ValueError(f"worlds_per_call must be an int >= 0 (0: from the world's size), got {self.worlds_per_call!r}")
         if self.graph_mode is not None and self.graph_mode not in WARP_GRAPH_MODES:
             raise ValueError(f"graph_mode must be None or one of {', '.join(WARP_GRAPH_MODES)}, got {self.graph_mode!r}")
 

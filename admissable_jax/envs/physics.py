@@ -28,12 +28,18 @@ lives here:
   ``mj_step``, and XLA then copies each of the data's fields into and out of the call, every
   frame. So a Warp :meth:`Physics.step` flattens the batch once per env step instead
   (:func:`in_one_flat_batch`).
+- On a CPU, a JAX physics call costs 2.5-3× as much per world once its worlds' data pass
+  about 256 KiB (measured on 2 cores: Hopper between 32 and 48 worlds, Walker2d between 16
+  and 24, Ant between 12 and 16; ``benchmarks/NOTES.md``), so a larger batch (an
+  experiment's pairs × envs, a scoring round's slots) is flattened the same way and stepped
+  in pieces below that size, one after another (``EnvOptions.worlds_per_call``).
 """
 
 from __future__ import annotations
 
 import contextlib
 import io
+import math
 from typing import Any, Callable
 
 import jax
@@ -65,6 +71,9 @@ if warp_installed():
     warp.config.log_level = max(warp.config.log_level, warp.LOG_WARNING)  # nor a line per kernel module
     contact_frames.install_warp()  # before the first Warp collision kernel is built
 
+# The most data a JAX physics call steps at once on a CPU (module docstring).
+CPU_CALL_BYTES = 256 * 1024
+
 # Warp's overflow flags that mean a buffer was too small (not: solver iteration limits).
 _CAPACITY_FLAGS = {
     "NEFC": "constraint rows per world (njmax)",
@@ -91,7 +100,8 @@ class Physics:
     """A MuJoCo model on one backend (``impl``: ``"jax"`` or ``"warp"``)."""
 
     def __init__(self, mj_model: mujoco.MjModel, impl: str, frame_skip: int, max_batch: int,
-                 contact_forces: bool, graph_mode: str | None = None, *, deterministic: bool):
+                 contact_forces: bool, graph_mode: str | None = None, *, deterministic: bool,
+                 worlds_per_call: int = 0):
         self.impl, self.frame_skip, self.max_batch = impl, frame_skip, max_batch
         self.contact_forces = contact_forces
         condim = collision_driver.make_condim(mj_model)
@@ -120,14 +130,20 @@ class Physics:
             self._capacity_mask = _capacity_mask()
         else:
             raise ValueError(f"unknown physics implementation {impl!r}")
-        # Warp's FFI calls: one flat batch whatever the vmaps (see the module's docstring).
-        batched = in_one_flat_batch if impl == "warp" else (lambda world_fn: world_fn)
+        self.worlds_per_call = _worlds_per_call(impl, worlds_per_call, self.data_template)
+        # Warp's FFI calls, and JAX's in pieces: one flat batch whatever the vmaps (module docstring).
+        if impl == "warp" or self.worlds_per_call:
+            batched = lambda world_fn: in_one_flat_batch(world_fn, self.worlds_per_call)
+        else:
+            batched = lambda world_fn: world_fn
         self._data, self._step = batched(self._world_data), batched(self._world_step)
 
     def __repr__(self) -> str:
         sizes = ""
         if self.impl == "warp":
             sizes = f", naconmax {self.data_template._impl.naconmax}, njmax {self.data_template._impl.njmax}"
+        if self.worlds_per_call:
+            sizes = f", {self.worlds_per_call} worlds per call"
         return f"Physics({self.impl}, max_batch {self.max_batch}{sizes})"
 
     def data(self, qpos: jax.Array, qvel: jax.Array) -> mjx.Data:
@@ -233,9 +249,26 @@ def _rungekutta4_step(model: mjx.Model, data: mjx.Data) -> mjx.Data:
     return mjx_forward._advance(model, last, act_dot_sum, qacc_sum, qvel_sum)  # pylint: disable=protected-access
 
 
-def in_one_flat_batch(world_fn: Callable[..., Any]) -> Callable[..., Any]:
+def _worlds_per_call(impl: str, asked: int, data_template: mjx.Data) -> int | None:
+    """The most worlds one physics call steps (None: the whole batch): ``asked``, or on a
+    CPU's JAX physics the largest power of two whose worlds' data fit :data:`CPU_CALL_BYTES`."""
+    if impl == "warp":
+        if asked:
+            raise ValueError(f"worlds_per_call={asked} splits the JAX physics' batch; MuJoCo Warp steps one flat batch "
+                             "(leave worlds_per_call at 0, or use physics=jax)")
+        return None
+    if asked:
+        return asked
+    if jax.default_backend() != "cpu":
+        return None
+    world_bytes = sum(leaf.nbytes for leaf in jax.tree.leaves(data_template))
+    return 2 ** int(math.log2(max(1, CPU_CALL_BYTES // world_bytes)))
+
+
+def in_one_flat_batch(world_fn: Callable[..., Any], worlds_per_call: int | None = None) -> Callable[..., Any]:
     """``world_fn`` (one world's arrays in, one world's out) that, under any nesting of
-    ``vmap``, runs as a single ``vmap`` over one flat batch of all the worlds.
+    ``vmap``, runs as a single ``vmap`` over one flat batch of all the worlds, or with
+    ``worlds_per_call`` as ``vmap``s over pieces of at most that many worlds, one after another.
 
     Each vmap level's batch axis is merged into the next one's by a reshape around the whole
     call, not inside it, and unbatched inputs are broadcast to the batch (a Warp call writes
@@ -244,7 +277,7 @@ def in_one_flat_batch(world_fn: Callable[..., Any]) -> Callable[..., Any]:
 
     @custom_vmap
     def worlds(*args):  # every leaf: worlds on its leading axis
-        return jax.vmap(world_fn)(*args)
+        return in_pieces(jax.vmap(world_fn), args, worlds_per_call)
 
     @worlds.def_vmap
     def worlds_batched(axis_size: int, in_batched: list[Any], *args):
@@ -264,6 +297,25 @@ def in_one_flat_batch(world_fn: Callable[..., Any]) -> Callable[..., Any]:
         return out, jax.tree.map(lambda _: True, out)
 
     return world
+
+
+def in_pieces(batch_fn: Callable[..., Any], args: tuple[Any, ...], worlds_per_call: int | None) -> Any:
+    """``batch_fn(*args)`` (every leaf: worlds on its leading axis) in as few even pieces of
+    at most ``worlds_per_call`` worlds as hold them, one after another (``lax.map``); the
+    last piece is padded with copies of the last world, whose results are dropped."""
+    num_worlds = jax.tree.leaves(args)[0].shape[0]
+    if worlds_per_call is None or num_worlds <= worlds_per_call:
+        return batch_fn(*args)
+    num_pieces = -(-num_worlds // worlds_per_call)
+    piece = -(-num_worlds // num_pieces)  # even pieces: fewer padded worlds than pieces
+    padded = num_pieces * piece
+
+    def split(leaf: jax.Array) -> jax.Array:
+        leaf = jnp.concatenate([leaf, jnp.repeat(leaf[-1:], padded - num_worlds, axis=0)])
+        return leaf.reshape((num_pieces, piece, *leaf.shape[1:]))
+
+    out = jax.lax.map(lambda pieces_args: batch_fn(*pieces_args), jax.tree.map(split, args))
+    return jax.tree.map(lambda leaf: leaf.reshape((padded, *leaf.shape[2:]))[:num_worlds], out)
 
 
 def _warp_graph_mode(name: str | None):
