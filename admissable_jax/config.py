@@ -303,10 +303,11 @@ def default_num_envs(score_every: int) -> int:
 
 
 def default_score_envs(num_episodes: int) -> int:
-    """Scoring envs stepped at once: on a CPU, where a batched MJX step costs about its
-    batch size times a per-env cost that is lowest at 16-32 envs (benchmarks/NOTES.md), a pool
-    of 32 whose slots start the next episode as theirs end; on an accelerator every episode
-    at once (a step costs nearly the same for any batch that fits)."""
+    """Scoring envs stepped at once: on a CPU, where a batched MJX step costs its batch size
+    times a per-env cost (the physics steps large batches in pieces: ``EnvOptions.worlds_per_call``),
+    a pool of 32 whose slots start the next episode as theirs end, so that finished episodes
+    are not stepped until the longest ends (benchmarks/NOTES.md); on an accelerator every
+    episode at once (a step costs nearly the same for any batch that fits)."""
     return min(num_episodes, 32) if jax.default_backend() == "cpu" else num_episodes
 
 

@@ -64,7 +64,10 @@ def _validate(bench: PhysicsBenchConfig) -> None:
 
 
 def _worlds_per_call(bench: PhysicsBenchConfig) -> list[int]:
-    return [int(worlds) for worlds in bench.worlds_per_call.split(",")]
+    try:
+        return [int(worlds) for worlds in bench.worlds_per_call.split(",")]
+    except ValueError:
+        raise ValueError(f"worlds_per_call must be comma-separated ints, got {bench.worlds_per_call!r}") from None
 
 
 def _bare_rollout(env, num_envs: int, steps: int, rng: jax.Array):

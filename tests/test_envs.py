@@ -367,6 +367,22 @@ def test_warp_frame_loop_runs_one_flat_batch_under_nested_vmap():
         assert (2, 3) not in batch_shapes and (6,) in {shape[:1] for shape in batch_shapes}, batch_shapes
 
 
+def test_jax_physics_steps_a_batch_past_worlds_per_call_in_pieces():
+    """On a CPU a JAX physics call past ~256 KiB of worlds' data costs 2.5-3x as much per
+    world (``EnvOptions.worlds_per_call``): pairs × envs = 2 × 3 worlds at most 4 a call are
+    stepped as a loop over 2 pieces, each piece's frame loop over 3 worlds."""
+    env = make_env("hopper", physics="jax", worlds_per_call=4)
+    states = jax.vmap(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), 6).reshape(2, 3))
+    jaxpr = jax.make_jaxpr(jax.vmap(jax.vmap(env.step)))(states, jnp.zeros((2, 3, env.action_size)))
+    nq = env.mj_model.nq
+    piece_loops = [eqn for eqn in _equations(jaxpr.jaxpr) if eqn.primitive.name == "scan" and eqn.params["length"] == 2
+                   and any(var.aval.shape == (2, 3, nq) for var in eqn.outvars)]
+    assert len(piece_loops) == 1, "no loop over pieces around the physics"
+    frame_loops = [eqn for eqn in _equations(piece_loops[0]) if eqn.primitive.name in ("scan", "while")
+                   and any(var.aval.shape == (3, nq) for var in eqn.outvars)]
+    assert frame_loops, "no frame loop over a piece of 3 worlds"
+
+
 def _equations(jaxpr_or_equation):
     """Every equation inside a jaxpr or an equation (its loop bodies, calls, branches), however deep."""
     if isinstance(jaxpr_or_equation, jax.extend.core.JaxprEqn):
