@@ -14,7 +14,7 @@ file passes, the whole suite. It prints one JSON line per mutation (with what th
 test said: a test failing for another reason than the bug shows there) and exits 1 if any
 survives, naming it. Only a failed test is a catch: pytest stopping without one (a
 collection error, a crash: a broken mutation or environment) counts as a survivor, with
-pytest's reason. Record of the passes and rounds: ``tests/data/mutations.jsonl``; their
+pytest's reason. Record of the passes and rounds: ``tests/data/mutations.jsonl.xz`` (``xz -dc``); their
 story, and what each bug that passed the whole suite showed: ``tests/MUTATIONS.md``.
 
 Not part of the test command (pytest collects ``test_*.py`` only): each mutation recompiles
