@@ -132,11 +132,10 @@ class Physics:
             raise ValueError(f"unknown physics implementation {impl!r}")
         self.worlds_per_call = _worlds_per_call(impl, worlds_per_call, self.data_template)
         # Warp's FFI calls, and JAX's in pieces: one flat batch whatever the vmaps (module docstring).
+        self._data, self._step = self._world_data, self._world_step
         if impl == "warp" or self.worlds_per_call:
-            batched = lambda world_fn: in_one_flat_batch(world_fn, self.worlds_per_call)
-        else:
-            batched = lambda world_fn: world_fn
-        self._data, self._step = batched(self._world_data), batched(self._world_step)
+            self._data, self._step = (in_one_flat_batch(world_fn, self.worlds_per_call)
+                                      for world_fn in (self._data, self._step))
 
     def __repr__(self) -> str:
         sizes = ""
@@ -272,12 +271,13 @@ def in_one_flat_batch(world_fn: Callable[..., Any], worlds_per_call: int | None 
 
     Each vmap level's batch axis is merged into the next one's by a reshape around the whole
     call, not inside it, and unbatched inputs are broadcast to the batch (a Warp call writes
-    every world's data). Results equal ``world_fn``'s under the same vmaps, world by world.
+    every world's data). Results equal ``world_fn``'s under the same vmaps, world by world
+    (to float rounding, where XLA vectorises the flat batch or a piece otherwise).
     """
 
     @custom_vmap
     def worlds(*args):  # every leaf: worlds on its leading axis
-        return in_pieces(jax.vmap(world_fn), args, worlds_per_call)
+        return _in_pieces(jax.vmap(world_fn), args, worlds_per_call)
 
     @worlds.def_vmap
     def worlds_batched(axis_size: int, in_batched: list[Any], *args):
@@ -299,7 +299,7 @@ def in_one_flat_batch(world_fn: Callable[..., Any], worlds_per_call: int | None 
     return world
 
 
-def in_pieces(batch_fn: Callable[..., Any], args: tuple[Any, ...], worlds_per_call: int | None) -> Any:
+def _in_pieces(batch_fn: Callable[..., Any], args: tuple[Any, ...], worlds_per_call: int | None) -> Any:
     """``batch_fn(*args)`` (every leaf: worlds on its leading axis) in as few even pieces of
     at most ``worlds_per_call`` worlds as hold them, one after another (``lax.map``); the
     last piece is padded with copies of the last world, whose results are dropped."""
