@@ -76,9 +76,9 @@ def help_text(config_cls: type, program: str, summary: str, config_file: ConfigF
 # Keys that say where a run is and whether it continues: never taken from a config file.
 RUN_LOCATION = ("out", "resume", "resume_step", "fast_forward")
 # Keys of a resumed run's settings that belong to the invocation and machine that wrote them,
-# not to the run: its wall-time budget, progress bar and budget-only look, and the devices
-# and scoring envs sized for that machine.
-PER_INVOCATION = ("time_limit", "progress", "budget_only", "devices", "score_envs")
+# not to the run: its wall-time budget, progress bar and budget-only look, and the devices,
+# scoring envs and physics pieces sized for that machine.
+PER_INVOCATION = ("time_limit", "progress", "budget_only", "devices", "score_envs", "worlds_per_call")
 
 
 def check_at_least_one(config: Any, names: tuple[str, ...]) -> None:

@@ -16,7 +16,7 @@ import numpy as np
 from admissable_jax.adversary import MODES
 from admissable_jax.agent import SACHyperparams
 from admissable_jax.cli import RUN_LOCATION, ConfigFile, check_at_least_one, setting
-from admissable_jax.envs import canonical_env_name, env_physics, observation_size, short_env_name
+from admissable_jax.envs import canonical_env_name, check_worlds_per_call, env_physics, observation_size, short_env_name
 from admissable_jax.loggers import parse_logger_names
 from admissable_jax.method import check_exact_size, fail_steps, num_candidate_sets, spread_fail_steps
 from admissable_jax.scoring import SCORE_ESTIMATORS
@@ -57,6 +57,11 @@ class RunSettings:
                                                 "sums and slots in a fixed order), towards a GPU repeating a run bit for "
                                                 "bit, so that a run can continue on another machine (fast_forward); "
                                                 "false: the GPU's own order, maybe faster")
+    worlds_per_call: int = setting(0, "jax physics: the most envs one physics call steps; a larger batch (an experiment's "
+                                      "pairs x envs, a scoring round's slots) goes in pieces of at most this many, one after "
+                                      "another; 0 = on a CPU the largest power of two whose envs' data fit 256 KiB (Hopper 32, "
+                                      "Walker2d 16, Ant 8), else one call. benchmarks/physics_throughput.py worlds_per_call=... "
+                                      "finds your CPU's")
     lower_bound: float = setting(0.0, "l: return lower bound; scores below are clipped to it")
     epsilon: float = setting(1e-8, "eps in p_miss = 1/(a_u - l + eps), normalised")
     fail_at: str = setting("0", "the env step of a training episode at which its hidden features' sensors fail, every "
@@ -365,9 +370,10 @@ def validate(config: TrainConfig) -> None:
     positive = ("k", "score_every", "score_episodes", "score_horizon", "total_steps", "episode_length",
                 "batch_size", "hidden_size", "hidden_layers", "buffer_size", "checkpoint_every", "keep_checkpoints")
     check_at_least_one(config, positive)
-    for name in ("num_envs", "score_envs"):
+    for name in ("num_envs", "score_envs", "worlds_per_call"):
         if getattr(config, name) < 0:
             raise ValueError(f"{name} must be >= 0, got {getattr(config, name)}")
+    check_worlds_per_call(config.worlds_per_call, env_physics(config.env, config.physics))
     if config.fast_forward and not config.resume:
         raise ValueError("fast_forward=true continues a run from its records: pass resume=true too")
     if config.resume_step < -1:

@@ -43,11 +43,11 @@ from admissable_jax.scoring.worst_set import samples_to_separate
 
 # Config keys that change neither what a run learns nor how it is scored: runs that differ
 # only in these are seeds of one curve (``physics``: both backends pass the same parity
-# tests; ``score_envs``: the same scores, tested). Runs differing in any other key are
-# separate curves, named by it (``label_variants``).
+# tests; ``score_envs``: the same scores, tested; ``worlds_per_call``: the same physics in
+# pieces). Runs differing in any other key are separate curves, named by it (``label_variants``).
 NOT_SETTINGS = frozenset({"env", "missingness", "seed", "out", "resume", "resume_step", "fast_forward", "progress", "logger",
                           "time_limit", "checkpoint_every", "keep_checkpoints", "total_steps", "score_envs",
-                          "physics"})
+                          "worlds_per_call", "physics"})
 # Settings that only the adversarial mode reads (its p_miss update, paper §3; the pool's
 # exploration share): runs of the other modes that differ only in these are seeds of one
 # curve, the baseline of every adversarial curve that shares their other settings.

@@ -34,10 +34,11 @@ from admissable_jax.provenance import INVOCATIONS
 from admissable_jax.scoring import MissingnessScores
 
 # Settings that may change when a run is resumed; any other difference is refused.
-# score_envs only changes how many episodes a scoring round steps at once, not its scores;
+# score_envs only changes how many episodes a scoring round steps at once, not its scores,
+# and worlds_per_call how many envs one physics call steps (the same physics, to float rounding);
 # out is wherever the run directory is now (it may have been moved or copied).
 RESUMABLE_CHANGES = ("resume", "resume_step", "fast_forward", "total_steps", "progress", "checkpoint_every",
-                     "keep_checkpoints", "score_envs", "out", "time_limit", "logger")
+                     "keep_checkpoints", "score_envs", "worlds_per_call", "out", "time_limit", "logger")
 
 
 OBSERVATION_NAMES = "observation_names.json"

@@ -55,6 +55,7 @@ class RunSpec:
                 episode_length=config.episode_length,
                 physics=config.physics,
                 deterministic=config.deterministic_physics,
+                worlds_per_call=config.worlds_per_call,
                 max_batch=num_runs * max(config.num_envs, config.score_envs, horizon_ranker_batch(config)),
             ),
             k=config.k,

@@ -747,6 +747,9 @@ def test_a_checkpoint_of_an_older_state_layout_is_named_and_its_networks_still_r
         (["missingness=sometimes"], "missingness must be one of"),
         (["env=hopper", "k=11"], "k must satisfy 1 <= k < d = 11"),
         (["score_envs=-1"], "score_envs must be >= 0"),
+        (["worlds_per_call=-1"], "worlds_per_call must be >= 0, got -1"),
+        (["env=hopper", "physics=warp", "worlds_per_call=4"],
+         "worlds_per_call=4 splits the JAX physics' batch; MuJoCo Warp steps one flat batch"),
         (["physics=cuda"], "physics must be one of auto, jax, warp"),
         (["logger=tensorboard,mlflow"], "logger must be none or a comma list of tensorboard, wandb, got 'tensorboard,mlflow'"),
         (["score_estimator=guess"], "score_estimator must be one of rollout, critic, horizon"),
@@ -881,20 +884,20 @@ def test_config_file_sets_keys_the_command_line_overrides(tmp_path, capsys, monk
 
     # resume=true without config=: the resumed run's own config.yaml gives the keys, so that
     # resume=true out=DIR needs no other; the invocation's and machine's own keys (time_limit,
-    # progress, score_envs) are not taken from it. Where out is not given, it is the run of
+    # progress, score_envs, worlds_per_call) are not taken from it. Where out is not given, it is the run of
     # env, missingness and seed; config= names the file instead.
     run = tmp_path / "runs" / "point_mass-uniform-s4"
     run.mkdir(parents=True)
     OmegaConf.save(OmegaConf.structured(dataclasses.replace(
         POINT_MASS, k=2, score_episodes=5, missingness="uniform", seed=4, time_limit=60.0, progress=False,
-        score_envs=6, out=str(run)).resolved()), run / "config.yaml")
+        score_envs=6, worlds_per_call=4, out=str(run)).resolved()), run / "config.yaml")
     monkeypatch.chdir(tmp_path)
     for argv in (["resume=true", f"out={run}", "total_steps=9000"],
                  ["resume=true", "env=point_mass", "missingness=uniform", "seed=4", "total_steps=9000"]):
         resumed = parse_args(TrainConfig, argv, "t", "", config_file=config_file_of(TrainConfig))
         assert (resumed.env, resumed.k, resumed.score_episodes, resumed.missingness, resumed.seed, resumed.total_steps,
-                resumed.time_limit, resumed.progress, resumed.score_envs, resumed.resume) == (
-            "point_mass", 2, 5, "uniform", 4, 9000, 0.0, True, 0, True), argv
+                resumed.time_limit, resumed.progress, resumed.score_envs, resumed.worlds_per_call, resumed.resume) == (
+            "point_mass", 2, 5, "uniform", 4, 9000, 0.0, True, 0, 0, True), argv
         said = capsys.readouterr().err
         assert said == f"resume=true: the run's settings from {run_out(resumed)}/config.yaml; keys given here override them\n"
     resumed = parse_args(TrainConfig, [f"config={saved}", "resume=true", f"out={run}"], "t", "",
@@ -902,6 +905,8 @@ def test_config_file_sets_keys_the_command_line_overrides(tmp_path, capsys, monk
     assert (resumed.score_episodes, resumed.out) == (3, str(run)) and "not taken from it" in capsys.readouterr().err
     fresh = parse_args(TrainConfig, [f"out={run}"], "t", "", config_file=config_file_of(TrainConfig))
     assert (fresh.env, fresh.k) == (TrainConfig.env, TrainConfig.k) and not capsys.readouterr().err
+    # worlds_per_call, a machine's setting, reaches the env the run builds (EnvOptions.worlds_per_call).
+    assert RunSpec.of(dataclasses.replace(POINT_MASS, worlds_per_call=4).resolved()).env_options.worlds_per_call == 4
 
     # Step counts as researchers write them: 1e6 on the command line (a float to OmegaConf),
     # 2e5 in YAML (a string to it), both taken as ints; 1234.5 is refused (above).
