@@ -1502,10 +1502,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                          "if not isinstance(self.worlds_per_call, int) or isinstance(self.worlds_per_call, "
                                          "bool) or self.worlds_per_call < 0:",
                                          "if not isinstance(self.worlds_per_call, int):", "test_envs.py"),
-    "worlds_per_call_taken_with_warp": ("admissable_jax/envs/physics.py",
-                                        '        if asked:\n            raise ValueError(f"worlds_per_call={asked}',
-                                        '        if False:\n            raise ValueError(f"worlds_per_call={asked}',
-                                        "test_envs.py"),
+    "worlds_per_call_taken_with_warp": ("admissable_jax/envs/options.py", 'if worlds_per_call and physics == "warp":',
+                                        'if False and physics == "warp":', "test_envs.py"),
     "train_worlds_per_call_never_reaches_the_env": ("admissable_jax/run_spec.py",
                                                     "                worlds_per_call=config.worlds_per_call,\n", "",
                                                     "test_training.py"),
