@@ -16,7 +16,7 @@ import numpy as np
 from admissable_jax.adversary import MODES
 from admissable_jax.agent import SACHyperparams
 from admissable_jax.cli import RUN_LOCATION, ConfigFile, check_at_least_one, setting
-from admissable_jax.envs import canonical_env_name, check_worlds_per_call, env_physics, observation_size, short_env_name
+from admissable_jax.envs import canonical_env_name, env_physics, observation_size, short_env_name
 from admissable_jax.loggers import parse_logger_names
 from admissable_jax.method import check_exact_size, fail_steps, num_candidate_sets, spread_fail_steps
 from admissable_jax.scoring import SCORE_ESTIMATORS
@@ -373,7 +373,6 @@ def validate(config: TrainConfig) -> None:
     for name in ("num_envs", "score_envs", "worlds_per_call"):
         if getattr(config, name) < 0:
             raise ValueError(f"{name} must be >= 0, got {getattr(config, name)}")
-    check_worlds_per_call(config.worlds_per_call, env_physics(config.env, config.physics))
     if config.fast_forward and not config.resume:
         raise ValueError("fast_forward=true continues a run from its records: pass resume=true too")
     if config.resume_step < -1:

@@ -1502,8 +1502,10 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                          "if not isinstance(self.worlds_per_call, int) or isinstance(self.worlds_per_call, "
                                          "bool) or self.worlds_per_call < 0:",
                                          "if not isinstance(self.worlds_per_call, int):", "test_envs.py"),
-    "worlds_per_call_taken_with_warp": ("admissable_jax/envs/options.py", 'if worlds_per_call and physics == "warp":',
-                                        'if False and physics == "warp":', "test_envs.py"),
+    "worlds_per_call_taken_with_warp": ("admissable_jax/envs/physics.py",
+                                        '        if asked:\n            raise ValueError(f"worlds_per_call={asked}',
+                                        '        if False:\n            raise ValueError(f"worlds_per_call={asked}',
+                                        "test_envs.py"),
     "train_worlds_per_call_never_reaches_the_env": ("admissable_jax/run_spec.py",
                                                     "                worlds_per_call=config.worlds_per_call,\n", "",
                                                     "test_training.py"),
@@ -1513,10 +1515,6 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "train_worlds_per_call_below_zero_left_to_the_env": ("admissable_jax/config.py",
                                                          'for name in ("num_envs", "score_envs", "worlds_per_call"):',
                                                          'for name in ("num_envs", "score_envs"):', "test_training.py"),
-    "train_worlds_per_call_with_warp_left_to_the_env": ("admissable_jax/config.py",
-                                                        "    check_worlds_per_call(config.worlds_per_call, "
-                                                        "env_physics(config.env, config.physics))\n", "",
-                                                        "test_training.py"),
     "scoring_columns_of_any_shape": ("admissable_jax/results.py", "        except (TypeError, ValueError):  # ragged",
                                      "        except ImportError:  # ragged", "test_runs.py"),
     "score_estimators_of_one_episode": ("benchmarks/score_estimators.py", "if config.n_episodes < 2 or any(",

@@ -32,8 +32,7 @@ from admissable_jax.envs.catalog import (
     settotalmass_warning_dropped,
     short_env_name,
 )
-from admissable_jax.envs.options import (MAX_EPISODE_STEPS, PHYSICS_CHOICES, EnvOptions, check_worlds_per_call,
-                                         resolve_physics)
+from admissable_jax.envs.options import MAX_EPISODE_STEPS, PHYSICS_CHOICES, EnvOptions, resolve_physics
 from admissable_jax.envs.state import EnvState, reset_where_done
 
 if TYPE_CHECKING:
@@ -108,7 +107,6 @@ __all__ = [
     "PointMass",
     "Walker2d",
     "canonical_env_name",
-    "check_worlds_per_call",
     "env_class",
     "env_physics",
     "env_spec",

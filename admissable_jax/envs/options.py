@@ -99,14 +99,6 @@ class EnvOptions:
         return resolve_physics(self.physics)
 
 
-def check_worlds_per_call(worlds_per_call: int, physics: str) -> None:
-    """ValueError in one line for pieces asked of MuJoCo Warp (``physics``: the resolved
-    backend), which steps one flat batch."""
-    if worlds_per_call and physics == "warp":
-        raise ValueError(f"worlds_per_call={worlds_per_call} splits the JAX physics' batch; MuJoCo Warp steps one flat "
-                         "batch (leave worlds_per_call at 0, or use physics=jax)")
-
-
 def resolve_physics(physics: str) -> str:
     """``"warp"`` or ``"jax"`` for a ``physics`` choice; ValueError for an unknown choice, or
     for warp when ``warp-lang`` is not installed."""

@@ -61,7 +61,7 @@ from mujoco.mjx._src.types import IntegratorType  # noqa: E402
 
 from admissable_jax.branching import broadcast_unbatched  # noqa: E402
 from admissable_jax.envs import contact_frames  # noqa: E402
-from admissable_jax.envs.options import CUDA_GRAPH_MODES, check_worlds_per_call, warp_installed  # noqa: E402
+from admissable_jax.envs.options import CUDA_GRAPH_MODES, warp_installed  # noqa: E402
 
 contact_frames.install()
 if warp_installed():
@@ -251,8 +251,10 @@ def _rungekutta4_step(model: mjx.Model, data: mjx.Data) -> mjx.Data:
 def _worlds_per_call(impl: str, asked: int, data_template: mjx.Data) -> int | None:
     """The most worlds one physics call steps (None: the whole batch): ``asked``, or on a
     CPU's JAX physics the largest power of two whose worlds' data fit :data:`CPU_CALL_BYTES`."""
-    check_worlds_per_call(asked, impl)
     if impl == "warp":
+        if asked:
+            raise ValueError(f"worlds_per_call={asked} splits the JAX physics' batch; MuJoCo Warp steps one flat batch "
+                             "(leave worlds_per_call at 0, or use physics=jax)")
         return None
     if asked:
         return asked
