@@ -35,16 +35,18 @@ def _validate(config: RolloutConfig) -> None:
         raise ValueError(f"seed must be >= 0, got {config.seed}")
 
 
+def random_actions(env: MjxEnv, num_envs: int, rng: jax.Array) -> jax.Array:
+    """``num_envs`` actions drawn uniformly from the env's action box."""
+    return jax.random.uniform(rng, (num_envs, env.action_size), minval=env.action_low, maxval=env.action_high)
+
+
 def random_rollout(env: MjxEnv, num_envs: int, steps: int, rng: jax.Array):
     """Final states and the summed reward of a batched random-policy rollout."""
 
     def step(carry, rng):
         states, total_reward = carry
         action_rng, reset_rng = jax.random.split(rng)
-        actions = jax.random.uniform(
-            action_rng, (num_envs, env.action_size), minval=env.action_low, maxval=env.action_high
-        )
-        states = jax.vmap(env.step)(states, actions)
+        states = jax.vmap(env.step)(states, random_actions(env, num_envs, action_rng))
         total_reward = total_reward + states.reward.sum()
         reset_keys = jax.random.split(reset_rng, num_envs)
         return (jax.vmap(reset_where_done, (None, 0, 0))(env, states, reset_keys), total_reward), None
