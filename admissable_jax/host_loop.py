@@ -193,11 +193,12 @@ class TrainingLoop:
         sharding = self.placement.sharding
         return jax.tree.map(lambda leaf: jax.ShapeDtypeStruct(leaf.shape, leaf.dtype, sharding=sharding), shapes)
 
-    def program(self, function: Callable[..., Any]) -> Callable[..., Any]:
+    def program(self, function: Callable[..., Any], in_turn: bool = False) -> Callable[..., Any]:
         """``function``, whose first argument and first result are the training state, jitted
         as the loop runs its programs: the state donated and, with a placement, each pair's
-        part run on the device that holds it."""
-        return self.placement.jit(function) if self.placement else jax.jit(function, donate_argnums=0)
+        part run on the device that holds it (``in_turn``: one pair after another, see
+        :meth:`PairPlacement.spread`)."""
+        return self.placement.jit(function, in_turn) if self.placement else jax.jit(function, donate_argnums=0)
 
     def compile(self) -> MemoryBudget:
         """Compile both programs without allocating the state; refuse if they won't fit."""
@@ -207,7 +208,11 @@ class TrainingLoop:
         # Both programs are traced here, then compiled on two threads at once (XLA compiles
         # outside Python's lock, so on two or more cores the compiles overlap) while this
         # thread waits, where a Ctrl-C is heard at once.
-        lowered = [self.program(function).lower(abstract_state) for function in (self._run_piece, self._score_and_update)]
+        # The pairs train vmapped (each steps as many iterations), and score in turn where a
+        # batched step costs each world's work (a round lasts until its last episode ends).
+        in_turn = (False, env.steps_cost_each_world)
+        lowered = [self.program(function, turn).lower(abstract_state)
+                   for function, turn in zip((self._run_piece, self._score_and_update), in_turn)]
         with reporting(f"compiling the training step and the scoring round for {where}"):
             compiling = [in_background(program.compile) for program in lowered]
             self.run_piece, self.score_and_update = [program.result() for program in compiling]

@@ -100,15 +100,19 @@ class PairPlacement:
         """Leading (pair) axis split over the mesh: one prefix for a whole pytree."""
         return NamedSharding(self.mesh, PartitionSpec(PAIR_AXIS))
 
-    def spread(self, per_pair: Callable[..., Any]) -> Callable[..., Any]:
+    def spread(self, per_pair: Callable[..., Any], in_turn: bool = False) -> Callable[..., Any]:
         """``per_pair`` vmapped over each device's own pairs, on every device of the mesh.
-        Every argument and result has the (padded) pair axis first.
+        Every argument and result has the (padded) pair axis first. ``in_turn``: each
+        device's pairs one after another (``lax.map``) instead, for a program whose pairs
+        loop for different numbers of steps (a scoring round runs until its last episode
+        ends) on a device whose batched step costs each pair's work: vmapped, every pair
+        would step until the slowest ends.
 
         Arrays with no elements (the candidate pool of a run that scores all of U) go around
         the ``shard_map``, not through it: they hold nothing, and jaxlib 0.11.2's Shardy
         crashes (a segfault) compiling a ``shard_map`` over two or more devices that passes
         one beside other arrays."""
-        batched = jax.vmap(per_pair)
+        batched = (lambda *args: jax.lax.map(lambda pair: per_pair(*pair), args)) if in_turn else jax.vmap(per_pair)
 
         def spread_call(*args: Any) -> Any:
             leaves, args_tree = jax.tree.flatten(args)
@@ -131,10 +135,12 @@ class PairPlacement:
 
         return spread_call
 
-    def jit(self, per_pair: Callable[..., Any]) -> Callable[..., Any]:
+    def jit(self, per_pair: Callable[..., Any], in_turn: bool = False) -> Callable[..., Any]:
         """``per_pair``, whose first argument and first result are a pair's training state,
-        :meth:`spread` and jitted with the pairs' sharding in and out and the state donated."""
-        return jax.jit(self.spread(per_pair), donate_argnums=0, in_shardings=self.sharding, out_shardings=self.sharding)
+        :meth:`spread` (``in_turn`` as there) and jitted with the pairs' sharding in and out
+        and the state donated."""
+        return jax.jit(self.spread(per_pair, in_turn), donate_argnums=0, in_shardings=self.sharding,
+                       out_shardings=self.sharding)
 
     def place(self, values: np.ndarray) -> jax.Array:
         """A per-pair host array (``num_pairs`` first) as a global array on the mesh, padded

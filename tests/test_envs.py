@@ -411,6 +411,7 @@ def test_make_env_names_and_spaces(tmp_path, monkeypatch, capfd):
         assert env.name == name
         # On a CPU the JAX physics steps at most 256 KiB of worlds' data a call (EnvOptions.worlds_per_call).
         assert env.physics.worlds_per_call == {"hopper": 32, "walker2d": 16, "ant": 8, "halfcheetah": 16}[name]
+        assert env.steps_cost_each_world  # (so an experiment scores its pairs in turn)
         assert (env.observation_size, env.action_size) == (obs_size, action_size)
         with settotalmass_warning_dropped():
             gym_env = gymnasium.make(alias)
@@ -427,7 +428,8 @@ def test_make_env_names_and_spaces(tmp_path, monkeypatch, capfd):
     # Options are one frozen bundle, checked when it is built.
     options = EnvOptions(episode_length=7, physics="jax")
     env = make_env("point_mass", options)
-    assert env.max_episode_steps == 7 and env.options is options
+    assert env.max_episode_steps == 7 and env.options is options and env.steps_cost_each_world
+    assert not make_env("hopper", physics="warp").steps_cost_each_world  # kernel launches: about the same for any batch
     # Keyword arguments beside the bundle override its fields (make_env's docstring).
     shorter = make_env("point_mass", options, episode_length=3)
     assert shorter.max_episode_steps == 3 and shorter.options == dataclasses.replace(options, episode_length=3)

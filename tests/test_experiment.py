@@ -30,6 +30,7 @@ from admissable_jax.audit import AuditConfig, audit_experiment, audit_run
 from admissable_jax.audit import main as audit_main  # the command line, in this process
 from admissable_jax.export import main as export_main
 from admissable_jax.exported_policy import ExportedPolicy
+from admissable_jax.placement import PairPlacement
 from admissable_jax.policies import checkpoint_steps, load_policy
 
 EXPERIMENT = dict(
@@ -48,7 +49,14 @@ def _scores(root: str) -> dict[str, list]:
 
 
 def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, monkeypatch):
+    spread, programs = PairPlacement.spread, []  # how each program spreads its pairs
+    monkeypatch.setattr(PairPlacement, "spread", lambda placement, per_pair, in_turn=False: (
+        programs.append((per_pair.__name__, in_turn)) or spread(placement, per_pair, in_turn)))
     straight = run_experiment(ExperimentConfig(**EXPERIMENT, total_steps=3000, out=str(tmp_path / "straight")))
+    monkeypatch.setattr(PairPlacement, "spread", spread)
+    # The pairs train vmapped; on a CPU, where a batched step costs each pair's work, they score
+    # one after another (vmapped, every pair would step until the slowest round ends).
+    assert sorted(set(programs)) == [("<lambda>", False), ("init", False), ("score_and_update", True)], programs
     assert [(r.config.missingness, r.config.seed) for r in straight] == [
         ("adversarial", 0), ("adversarial", 1), ("uniform", 0), ("uniform", 1)]
     for result in straight:

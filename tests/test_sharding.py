@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from admissable_jax.branching import while_any
 from admissable_jax.placement import PairPlacement, initialize_distributed
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -124,6 +125,16 @@ def test_placement_pads_or_refuses_with_one_line(monkeypatch):
     values = placement.place(np.array([5, 6, 7]))
     assert values.shape == (3,) and placement.local_pairs == [0, 1, 2]
     np.testing.assert_array_equal(placement.local_rows({"v": values})["v"], [5, 6, 7])
+    # Pairs whose loops run for 1, 3 and 7 steps: vmapped, every pair steps while any runs
+    # (branching.while_any, as a scoring round); in turn (a CPU's scoring rounds), each its own.
+    def count_steps(limit):
+        body = lambda carry, limit: {"own": carry["own"] + (carry["own"] < limit), "every": carry["every"] + 1}
+        return while_any(lambda carry, limit: carry["own"] < limit, body, {"own": 0, "every": 0}, limit)
+
+    limits = placement.place(np.array([1, 3, 7]))
+    for in_turn, steps in ((False, [7, 7, 7]), (True, [1, 3, 7])):
+        counted = placement.local_rows(jax.jit(placement.spread(count_steps, in_turn))(limits))
+        assert (counted["own"].tolist(), counted["every"].tolist()) == ([1, 3, 7], steps), in_turn
     # While it waits for the device, a signal (Ctrl-C, SIGTERM) is handled at once: the
     # handler runs before the result is there, not after (as during NumPy's own fetch).
     slow = jax.jit(lambda x: jax.lax.fori_loop(0, 800, lambda _, a: jnp.tanh(a @ a), x))

@@ -68,6 +68,14 @@ class MjxEnv(CatalogEntry, abc.ABC):
         """``"jax"`` or ``"warp"``: the backend this env steps on."""
         return self.physics.impl
 
+    @property
+    def steps_cost_each_world(self) -> bool:
+        """Whether a batched step costs about the sum of its worlds' work: MJX's JAX physics
+        on a CPU. Not MuJoCo Warp (its step is kernel launches, about the same for any batch
+        that fits) nor any accelerator. Where it holds, worlds with nothing left to do are
+        better not stepped at all (an experiment scores its pairs one after another)."""
+        return self.physics_name == "jax" and jax.default_backend() == "cpu"
+
     def __repr__(self) -> str:
         return (
             f"{type(self).__name__}({self.gymnasium_id}: obs {self.observation_size}, "

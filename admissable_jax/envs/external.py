@@ -58,6 +58,11 @@ class ExternalEnv(CatalogEntry, abc.ABC):
     def physics_name(self) -> str:
         return "jax"
 
+    @property
+    def steps_cost_each_world(self) -> bool:
+        """As :attr:`MjxEnv.steps_cost_each_world`: on a CPU, where its JAX step runs."""
+        return jax.default_backend() == "cpu"
+
     def __repr__(self) -> str:
         return f"{type(self).__name__}(obs {self.observation_size}, actions {self.action_size})"
 
