@@ -3,7 +3,8 @@
 The pairs lie along a one-axis :class:`jax.sharding.Mesh` (axis ``"pairs"``) over the chosen
 devices, those of one process or, under ``jax.distributed``, of every process. Each device
 runs its own pairs' train chunk and scoring round (``jax.shard_map`` of the vmapped
-programs; the devices never talk to each other), and each process reads back, logs and
+programs, or of the pairs one after another where the host loop asks: :meth:`PairPlacement.spread`;
+the devices never talk to each other), and each process reads back, logs and
 checkpoints only the pairs its own devices hold. A pair count that does not divide over the
 devices is padded with copies of the last pair; their results are computed and dropped.
 The host loop asks this module where things are; it never places anything itself.

@@ -169,8 +169,9 @@ def score_by_rollout(
         "capacity_exceeded": jnp.zeros((), bool),
     }
     # A finished rollout's steps change none of its results (nothing is alive), so vmapped
-    # rollouts (an experiment's pairs) step together while any runs: no per-pair select of
-    # the carry, which would hand Warp's in-place step a copy of every field each step.
+    # rollouts (an experiment's pairs, where a batched step costs about the same for any
+    # batch; on a CPU the host loop scores them in turn) step together while any runs: no
+    # per-pair select of the carry, which would hand Warp's in-place step a copy of every field.
     carry = while_any(cond, body, carry, params, episode_hidden, initial)
     returns = carry["returns"].reshape(num_rows, n_episodes)
     lengths = carry["lengths"].reshape(num_rows, n_episodes)
