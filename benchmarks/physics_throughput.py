@@ -73,10 +73,10 @@ def _bare_rollout(env, num_envs: int, steps: int, rng: jax.Array):
     """The physics data after ``steps`` batched physics steps and nothing else, from
     ``random_rollout``'s first states under its actions (the same keys; no resets).
 
-    Not zero controls: those time an easier solve than any policy's (on a 2-core CPU, 16
-    Walker2d worlds: 10.3 ms per step against 15.0 under random actions), which read as
-    our env layer's cost (env/bare 1.50 where it is 1.03; records before 2026-12-06 without
-    ``bare_actions``)."""
+    Not zero controls: those time another solve than the env's (on a 2-core CPU, 16 Walker2d
+    worlds: 10.3 ms per step against 15.0 under random actions; Ant's is slower), which read
+    as our env layer's cost (Walker2d's env/bare 1.50 where it is 1.03; records before
+    2026-12-06 have no ``bare_actions``)."""
     init_rng, scan_rng = jax.random.split(rng)
     data = jax.vmap(env.reset)(jax.random.split(init_rng, num_envs)).data
 

@@ -131,8 +131,8 @@ class _PhysicsOnly:
 
 def test_physics_throughput_times_the_bare_physics_under_the_env_rollouts_actions():
     """env/bare is our env layer's cost only if both step the same physics: the bare rollout
-    starts from the env rollout's states and takes its random actions (zero controls timed an
-    easier solve: Walker2d's env/bare read 1.50 on a CPU where it is 1.03)."""
+    starts from the env rollout's states and takes its random actions (zero controls timed
+    another solve: Walker2d's env/bare read 1.50 on a CPU where it is 1.03)."""
     import physics_throughput
 
     env, rng = _PhysicsOnly(), jax.random.key(3)
