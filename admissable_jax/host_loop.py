@@ -210,9 +210,8 @@ class TrainingLoop:
         # thread waits, where a Ctrl-C is heard at once.
         # The pairs train vmapped (each steps as many iterations), and score in turn where a
         # batched step costs each world's work (a round lasts until its last episode ends).
-        in_turn = (False, env.steps_cost_each_world)
-        lowered = [self.program(function, turn).lower(abstract_state)
-                   for function, turn in zip((self._run_piece, self._score_and_update), in_turn)]
+        lowered = [self.program(self._run_piece).lower(abstract_state),
+                   self.program(self._score_and_update, in_turn=env.steps_cost_each_world).lower(abstract_state)]
         with reporting(f"compiling the training step and the scoring round for {where}"):
             compiling = [in_background(program.compile) for program in lowered]
             self.run_piece, self.score_and_update = [program.result() for program in compiling]

@@ -74,7 +74,7 @@ class MjxEnv(CatalogEntry, abc.ABC):
         on a CPU. Not MuJoCo Warp (its step is kernel launches, about the same for any batch
         that fits) nor any accelerator. Where it holds, worlds with nothing left to do are
         better not stepped at all (an experiment scores its pairs one after another)."""
-        return self.physics_name == "jax" and jax.default_backend() == "cpu"
+        return self.physics.steps_cost_each_world
 
     def __repr__(self) -> str:
         return (

@@ -130,7 +130,10 @@ class Physics:
             self._capacity_mask = _capacity_mask()
         else:
             raise ValueError(f"unknown physics implementation {impl!r}")
-        self.worlds_per_call = _worlds_per_call(impl, worlds_per_call, self.data_template)
+        # A batched step costs about the sum of its worlds' work only for the JAX physics on a
+        # CPU; Warp's step is kernel launches, an accelerator's about the same for any batch.
+        self.steps_cost_each_world = impl == "jax" and jax.default_backend() == "cpu"
+        self.worlds_per_call = _worlds_per_call(impl, worlds_per_call, self.data_template, self.steps_cost_each_world)
         # Warp's FFI calls, and JAX's in pieces: one flat batch whatever the vmaps (module docstring).
         self._data, self._step = self._world_data, self._world_step
         if impl == "warp" or self.worlds_per_call:
@@ -248,9 +251,10 @@ def _rungekutta4_step(model: mjx.Model, data: mjx.Data) -> mjx.Data:
     return mjx_forward._advance(model, last, act_dot_sum, qacc_sum, qvel_sum)  # pylint: disable=protected-access
 
 
-def _worlds_per_call(impl: str, asked: int, data_template: mjx.Data) -> int | None:
-    """The most worlds one physics call steps (None: the whole batch): ``asked``, or on a
-    CPU's JAX physics the largest power of two whose worlds' data fit :data:`CPU_CALL_BYTES`."""
+def _worlds_per_call(impl: str, asked: int, data_template: mjx.Data, steps_cost_each_world: bool) -> int | None:
+    """The most worlds one physics call steps (None: the whole batch): ``asked``, or where a
+    batched step costs each world's work (a CPU's JAX physics) the largest power of two whose
+    worlds' data fit :data:`CPU_CALL_BYTES`."""
     if impl == "warp":
         if asked:
             raise ValueError(f"worlds_per_call={asked} splits the JAX physics' batch; MuJoCo Warp steps one flat batch "
@@ -258,7 +262,7 @@ def _worlds_per_call(impl: str, asked: int, data_template: mjx.Data) -> int | No
         return None
     if asked:
         return asked
-    if jax.default_backend() != "cpu":
+    if not steps_cost_each_world:
         return None
     world_bytes = sum(leaf.nbytes for leaf in jax.tree.leaves(data_template))
     return 2 ** int(math.log2(max(1, CPU_CALL_BYTES // world_bytes)))
