@@ -24,6 +24,10 @@ from admissable_jax.scoring import SCORE_ESTIMATORS
 SB3_SAC = SACHyperparams()
 # The settings that name env steps of an episode at which u's sensors fail: training's and scoring's.
 FAILURE_STEPS = ("fail_at", "score_fail_at")
+# Where a command keeps the settings it ran with: a run in its folder (an experiment's pair too),
+# an experiment beside its pairs' folders.
+RUN_SETTINGS = "config.yaml"
+EXPERIMENT_SETTINGS = "experiment.yaml"
 
 
 @dataclasses.dataclass
@@ -289,7 +293,7 @@ def config_file_of(cls: type) -> ConfigFile:
     own = {field.name for field in dataclasses.fields(cls)}
     every = own | {field.name for command in (TrainConfig, ExperimentConfig) for field in dataclasses.fields(command)}
     out = {TrainConfig: run_out, ExperimentConfig: experiment_out}[cls]
-    settings = {TrainConfig: "config.yaml", ExperimentConfig: "experiment.yaml"}[cls]
+    settings = {TrainConfig: RUN_SETTINGS, ExperimentConfig: EXPERIMENT_SETTINGS}[cls]
 
     def holds_checkpoint(config) -> bool:
         from admissable_jax.checkpointing import Checkpoints  # orbax: imported where a command asks

@@ -33,7 +33,7 @@ from omegaconf import OmegaConf
 
 from admissable_jax.checkpointing import CheckpointError, Checkpoints
 from admissable_jax.cli import enable_compilation_cache, parse_args, run_from_cli, run_main
-from admissable_jax.config import ExperimentConfig, TrainConfig, config_file_of, pair_configs
+from admissable_jax.config import EXPERIMENT_SETTINGS, ExperimentConfig, TrainConfig, config_file_of, pair_configs
 from admissable_jax.errors import INTERRUPTED, make_directory, remove_if_unused
 from admissable_jax.host_loop import TrainingLoop, make_trainer, pairs_init
 from admissable_jax.placement import PairPlacement, initialize_distributed
@@ -59,7 +59,7 @@ def run_experiment(config: ExperimentConfig) -> list[TrainResult]:
     check_folder_kind(root, "experiment")
     placement = PairPlacement.over(len(pairs), config.devices)
     trainer = make_trainer(first, num_runs=placement.pairs_per_device)
-    experiment_yaml = os.path.join(root, "experiment.yaml")
+    experiment_yaml = os.path.join(root, EXPERIMENT_SETTINGS)
     if config.resume:  # checked before anything is created
         if not os.path.isdir(root):
             raise CheckpointError(f"nothing to resume: {root} does not exist")
@@ -70,7 +70,7 @@ def run_experiment(config: ExperimentConfig) -> list[TrainResult]:
     local_pairs = placement.local_pairs
     with contextlib.ExitStack() as held:
         if root_made_here:  # after the pairs' folders (last in, first out): gone if they are
-            held.callback(remove_if_unused, root, ("experiment.yaml",))
+            held.callback(remove_if_unused, root, (EXPERIMENT_SETTINGS,))
         runs = []
         for index in local_pairs:  # each pair's directory stays locked until the experiment ends
             runs.append(RunDirectory(pairs[index], checkpoint_dir))

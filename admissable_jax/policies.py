@@ -22,8 +22,7 @@ import numpy as np
 
 from admissable_jax.best_policy import read_best_policy
 from admissable_jax.checkpointing import Checkpoints
-from admissable_jax.config import FAILURE_STEPS, TrainConfig
-from admissable_jax.config import ExperimentConfig, pair_configs
+from admissable_jax.config import EXPERIMENT_SETTINGS, FAILURE_STEPS, ExperimentConfig, TrainConfig, pair_configs
 from admissable_jax.envs import observation_names
 from admissable_jax.exported_policy import ExportedPolicy
 from admissable_jax.host_loop import init_arguments, make_trainer, stacked_init_arguments, take_pair
@@ -131,7 +130,7 @@ def load_policy(run_dir: str, step: int | str | None = None) -> TrainedPolicy:
         kept = read_best_policy(run_dir, like.sac.actor_params, like.sac.critic_params)
         return TrainedPolicy(config, trainer, kept.actor_params, kept.env_steps, kept.critic_params, kept.min_score)
     checkpoint_dir = _checkpoint_dir(run_dir)
-    experiment_yaml = os.path.join(os.path.dirname(os.path.abspath(run_dir)), "experiment.yaml")
+    experiment_yaml = os.path.join(os.path.dirname(os.path.abspath(run_dir)), EXPERIMENT_SETTINGS)
     if checkpoint_dir == os.path.join(run_dir, "checkpoints"):  # its own
         trainer, like = _own_state_shapes(config)
         pick = None

@@ -33,7 +33,7 @@ import sys
 
 import numpy as np
 
-from admissable_jax.config import TrainConfig, number_text
+from admissable_jax.config import RUN_SETTINGS, TrainConfig, number_text
 from admissable_jax.envs import observation_names
 from admissable_jax.method import candidate_sets, hidden_row, parse_set
 from admissable_jax.provenance import INVOCATION_KEYS, INVOCATIONS
@@ -218,7 +218,7 @@ def find_runs(paths: list[str] | str) -> list[str]:
     for path in paths:
         check_is_folder(path)
         for root, _, files in os.walk(path):
-            if "scores.jsonl" in files and "config.yaml" in files:
+            if "scores.jsonl" in files and RUN_SETTINGS in files:
                 (found if _holds_a_row(os.path.join(root, "scores.jsonl")) else unscored).append(root)
     for root in unscored:
         print(f"warning: {root} has no scoring rows yet: left out", file=sys.stderr)

@@ -24,7 +24,7 @@ from omegaconf import OmegaConf
 from admissable_jax.best_policy import BEST_POLICY, best_kept
 from admissable_jax.checkpointing import CheckpointError, Checkpoints
 from admissable_jax.cli import report, yaml_problem
-from admissable_jax.config import TrainConfig
+from admissable_jax.config import EXPERIMENT_SETTINGS, RUN_SETTINGS, TrainConfig
 from admissable_jax.envs import env_physics, observation_names
 from admissable_jax.errors import make_directory, remove_if_unused
 from admissable_jax.locks import RunLock
@@ -43,29 +43,29 @@ RESUMABLE_CHANGES = ("resume", "resume_step", "fast_forward", "total_steps", "pr
 
 OBSERVATION_NAMES = "observation_names.json"
 # What a run writes before its first scoring: a folder holding only these is removed again.
-SETTINGS_FILES = ("config.yaml", OBSERVATION_NAMES)
+SETTINGS_FILES = (RUN_SETTINGS, OBSERVATION_NAMES)
 
 
 def run_config_path(path: str) -> str:
     """The ``config.yaml`` of the run in ``path``; FileNotFoundError in one line where there
     is none, naming a run folder under ``path`` where it holds some (an experiment's)."""
-    config_path = os.path.join(path, "config.yaml")
+    config_path = os.path.join(path, RUN_SETTINGS)
     if os.path.isfile(config_path):
         return config_path
-    below = sorted(os.path.dirname(found) for found in glob.glob(os.path.join(glob.escape(path), "*", "config.yaml")))
+    below = sorted(os.path.dirname(found) for found in glob.glob(os.path.join(glob.escape(path), "*", RUN_SETTINGS)))
     holds = f"; the runs under it are its folders, like {below[0]}" if below else ""
     raise FileNotFoundError(f"{path} is not a run directory (no config.yaml){holds}")
 
 
 def is_experiment(path: str) -> bool:
     """Whether the folder ``path`` holds an experiment (its ``experiment.yaml``)."""
-    return os.path.isfile(os.path.join(path, "experiment.yaml"))
+    return os.path.isfile(os.path.join(path, EXPERIMENT_SETTINGS))
 
 
 def experiment_pairs(root: str) -> list[str]:
     """The pair folders of the experiment in ``root`` (each with its ``config.yaml``), in name
     order; FileNotFoundError in one line where it holds none (moved away)."""
-    pairs = sorted(name for name in os.listdir(root) if os.path.isfile(os.path.join(root, name, "config.yaml")))
+    pairs = sorted(name for name in os.listdir(root) if os.path.isfile(os.path.join(root, name, RUN_SETTINGS)))
     if not pairs:
         raise FileNotFoundError(f"{root} holds an experiment.yaml but no pair directories")
     return [os.path.join(root, name) for name in pairs]
@@ -88,7 +88,7 @@ def check_folder_kind(out: str, command: str) -> None:
     train run's, or an experiment's pair, for ``experiment``. It names the command that
     continues what is there. A pair is a run without checkpoints of its own in a folder that
     holds an experiment."""
-    holds_run = os.path.isfile(os.path.join(out, "config.yaml"))
+    holds_run = os.path.isfile(os.path.join(out, RUN_SETTINGS))
     experiment = experiment_of(out) if holds_run else None
     if experiment is not None:
         found = f"a pair of the experiment in {experiment}, whose checkpoints hold every pair"
@@ -256,7 +256,7 @@ class RunDirectory:
     def __init__(self, config: TrainConfig, checkpoint_dir: str):
         self.path, self.config = config.out, config
         self._best_score: float | None = None  # the highest min_u a_u scored so far (beats_best)
-        config_path = os.path.join(self.path, "config.yaml")
+        config_path = os.path.join(self.path, RUN_SETTINGS)
         if config.resume and not os.path.exists(config_path):  # checked before anything is created
             raise CheckpointError(f"nothing to resume: {config_path} does not exist")
         self.made_here = not os.path.exists(self.path)

@@ -38,7 +38,7 @@ import time
 from admissable_jax.best_policy import best_kept
 from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.cli import fail, parse_args, run_main, setting
-from admissable_jax.config import TrainConfig
+from admissable_jax.config import EXPERIMENT_SETTINGS, RUN_SETTINGS, TrainConfig
 from admissable_jax.locks import LOCK_NAME, live_holder
 from admissable_jax.loggers import FINGERPRINT
 from admissable_jax.results import check_is_folder, distinct_directories, paths_of
@@ -132,9 +132,9 @@ def _continue_with(run_dir: str, experiment: str, checkpoint_steps: int, metrics
     copied without them, or a crash before the first); else its own settings again (it
     stopped before its first checkpoint, and a new start sets the earlier rows aside)."""
     if experiment:
-        command, out, settings = "experiment", experiment, "experiment.yaml"
+        command, out, settings = "experiment", experiment, EXPERIMENT_SETTINGS
     else:
-        command, out, settings = "train", run_dir, "config.yaml"
+        command, out, settings = "train", run_dir, RUN_SETTINGS
     if checkpoint_steps:
         items = ["resume=true"]
     elif any(FINGERPRINT in row for row in metrics):
@@ -151,7 +151,7 @@ def find_run_folders(paths: list[str] | str) -> list[str]:
     found = []
     for path in paths_of(paths):
         check_is_folder(path)
-        found += [root for root, _, files in os.walk(path) if "config.yaml" in files]
+        found += [root for root, _, files in os.walk(path) if RUN_SETTINGS in files]
     if not found:
         raise ValueError(f"no run directories (config.yaml) under {', '.join(paths_of(paths))}")
     return sorted(distinct_directories(found))

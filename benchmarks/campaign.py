@@ -59,7 +59,7 @@ import jax
 from admissable_jax.checkpointing import Checkpoints
 from admissable_jax.cli import enable_compilation_cache, parse_args, report
 from admissable_jax.envs import env_spec, make_env, resolve_physics
-from admissable_jax.config import ExperimentConfig, pair_configs
+from admissable_jax.config import EXPERIMENT_SETTINGS, ExperimentConfig, pair_configs
 from admissable_jax.experiment import check_same_pairs
 from admissable_jax.fast_forward import recorded_rows
 from admissable_jax.host_loop import TrainingLoop, make_trainer, pairs_init, queue_pieces
@@ -292,7 +292,7 @@ def recorded_intervals(config: PlanConfig) -> int:
     if not config.records:
         return 0
     pairs = pair_configs(dataclasses.replace(config, out=config.records, total_steps=max(1, config.total_steps)))
-    check_same_pairs(config, pairs, os.path.join(config.records, "experiment.yaml"))
+    check_same_pairs(config, pairs, os.path.join(config.records, EXPERIMENT_SETTINGS))
     scorings = min(len(recorded_rows(pair.out, 0, config.score_every)) for pair in pairs)
     if not scorings:
         raise ValueError(f"nothing to continue in {config.records}: a run there records no scoring with a state "

@@ -36,6 +36,7 @@ import sys
 import numpy as np
 
 from admissable_jax.cli import fail, parse_args, run_main
+from admissable_jax.config import RUN_SETTINGS
 from admissable_jax.errors import INTERRUPTED, UnusableDirectory, remove_if_unused
 from admissable_jax.plot import check_formats, new_folder, plot_envs_side_by_side, plot_runs
 from admissable_jax.results import (
@@ -70,7 +71,7 @@ class Figure1Config:
 
 def _settings(run_dirs: list[str]) -> str:
     """The settings every run shares, and those that differ (listed per value)."""
-    configs = [load_config_yaml(os.path.join(path, "config.yaml")) for path in run_dirs]
+    configs = [load_config_yaml(os.path.join(path, RUN_SETTINGS)) for path in run_dirs]
     parts = []
     for key in SETTINGS:
         values = sorted({str(config[key]) for config in configs if key in config})
@@ -130,7 +131,7 @@ def _cost_line(run_dirs: list[str]) -> str:
         return "Cost: not measured (no `metrics.jsonl`)."
     with open(os.path.join(measured[0], "metrics.jsonl")) as file:
         rows = [json.loads(line) for line in file if line.strip()]
-    score_every = int(load_config_yaml(os.path.join(measured[0], "config.yaml"))["score_every"])
+    score_every = int(load_config_yaml(os.path.join(measured[0], RUN_SETTINGS))["score_every"])
     chunks = [score_every / row["env_steps_per_s"] for row in rows]
     rounds = [row["score_seconds"] for row in rows]
     late = rounds[-10:]
