@@ -1330,8 +1330,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "fail_at_with_the_critic_taken": ("admissable_jax/scoring/estimators.py",
                                       'if fail_at != (0,) and score_estimator != "rollout":', "if False:", "test_audit.py"),
     "audit_fail_at_not_passed_to_the_rollout": ("admissable_jax/audit/sets.py",
-                                                "progress=report_from_rollout if counted else None, fail_at=fail_at))",
-                                                "progress=report_from_rollout if counted else None, fail_at=0))",
+                                                "fail_at=fail_at, compile=compiled_in_background)",
+                                                "fail_at=0, compile=compiled_in_background)",
                                                 "test_audit.py"),
     "audit_result_forgets_fail_at": ("admissable_jax/audit/sets.py", "    return dataclasses.replace(result, fail_at=fail_at)",
                                      "    return result", "test_audit.py"),
@@ -1544,6 +1544,24 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                            '        return jax.default_backend() == "cpu"',
                                            '        """As :attr:`MjxEnv.steps_cost_each_world`: on a CPU, where its JAX step runs."""\n'
                                            '        return False', "test_envs.py"),
+    # Round 56: the audit's rollout run from the host in segments, by programs JAX's disk cache keeps.
+    "segment_reports_count_started_episodes": ("admissable_jax/scoring/rollout_scores.py",
+                                               'progress(int(carry["next_episode"]) - self.num_slots)',
+                                               'progress(int(carry["next_episode"]))', "test_audit.py"),
+    "segments_run_to_the_end": ("admissable_jax/scoring/rollout_scores.py",
+                                'lambda carry, until, *_: cond(carry) & (carry["loop_steps"] < until)',
+                                "lambda carry, until, *_: cond(carry)", "test_audit.py"),
+    "segments_report_from_inside": ("admissable_jax/scoring/rollout_scores.py",
+                                    "            carry = jax.lax.scan(lambda carry, _: (step(carry, *operands), None), carry, "
+                                    "None, length=steps_per_check)[0]\n        return carry",
+                                    "            carry = jax.lax.scan(lambda carry, _: (step(carry, *operands), None), carry, "
+                                    "None, length=steps_per_check)[0]\n        jax.debug.callback(lambda *_: None, "
+                                    "carry[\"loop_steps\"])\n        return carry", "test_audit.py"),
+    "segments_under_jit_unsaid": ("admissable_jax/scoring/estimators.py",
+                                  "    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((params, rng, "
+                                  "hidden_sets))):", "    if False:", "test_audit.py"),
+    "watched_rollout_reports_nowhere": ("admissable_jax/audit/watch.py", "            return rollout(watch.report)",
+                                        "            return rollout(lambda finished: None)", "test_audit.py"),
     "scoring_columns_of_any_shape": ("admissable_jax/results.py", "        except (TypeError, ValueError):  # ragged",
                                      "        except ImportError:  # ragged", "test_runs.py"),
     "score_estimators_of_one_episode": ("benchmarks/score_estimators.py", "if config.n_episodes < 2 or any(",

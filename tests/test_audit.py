@@ -28,6 +28,8 @@ from admissable_jax.policies import load_policy
 from admissable_jax.config import curve_mode
 from admissable_jax.results import estimate
 from admissable_jax.scoring import beam_search_worst_sets, estimate_scores
+from admissable_jax.scoring.estimators import rollout_in_segments
+from admissable_jax.scoring.rollout_scores import SEGMENT_LOOP_STEPS
 from admissable_jax.scoring.set_search import first_copies
 from admissable_jax.scoring.attribution import ShapleyPlan, plan_shapley, shapley_attribution
 from admissable_jax.scoring.dropout import plan_dropout
@@ -106,6 +108,25 @@ def test_full_horizon_without_discount_is_the_papers_rollout():
                                         r"make_env\('point_mass'\)$"):
         score_missingness("point_mass", steer, gain, rng, SETS, N)  # (it said "'str' object has no attribute ...")
     np.testing.assert_array_equal(score_missingness(ENV, steer, gain, rng, SETS, np.int64(N)).scores, rollout.scores)
+    # With progress=, run from the host in segments of SEGMENT_LOOP_STEPS loop steps, by
+    # programs without host callbacks: the same episodes, the episodes finished told after
+    # each segment; inside a caller's jit, refused in one line.
+    reports, lowered = [], []
+    in_segments = rollout_in_segments(ENV, steer, gain, rng, SETS, N, num_slots=3,
+                                      compile=lambda program: lowered.append(program.as_text()) or program.compile())
+    assert len(lowered) == 3 and not [text for text in lowered if "callback" in text]  # so JAX's disk cache keeps them
+    segmented = in_segments(gain, rng, SETS, reports.append)
+    in_one = score_missingness(ENV, steer, gain, rng, SETS, N, num_slots=3)
+    np.testing.assert_allclose(segmented.returns, in_one.returns, rtol=1e-6)
+    np.testing.assert_array_equal(segmented.lengths, in_one.lengths)
+    assert int(segmented.loop_steps) == int(in_one.loop_steps) > 2 * SEGMENT_LOOP_STEPS
+    assert len(reports) == -(-int(in_one.loop_steps) // SEGMENT_LOOP_STEPS)
+    assert reports == sorted(reports) and 0 < reports[0] and reports[-1] == (len(SETS) + 1) * N
+    quiet = score_missingness(ENV, steer, gain, rng, SETS, N, num_slots=3, progress=lambda finished: None)
+    assert quiet.scores.tolist() == segmented.scores.tolist()
+    with pytest.raises(ValueError, match=r"^score_missingness with progress= runs its rollout from the host, in "
+                                         r"segments: call it outside jit \(or without progress=\)"):
+        jax.jit(lambda gain: score_missingness(ENV, steer, gain, rng, SETS, N, progress=print).scores)(gain)
     # Sensors that fail at env step 4: each episode stepped by hand from the rollout's own start
     # states, its first 4 actions seeing everything, the rest with u hidden.
     failing = score_missingness(ENV, steer, gain, rng, SETS, N, fail_at=4)
@@ -351,12 +372,12 @@ def test_audit_steps_as_many_envs_at_once_as_training_scores():
 
 @pytest.mark.parametrize("ctrl_cs", [1, 2])
 def test_a_ctrl_c_stops_the_audits_rollout_at_its_next_report(ctrl_cs, monkeypatch, caplog):
-    """XLA:CPU runs a rollout that reports from inside on the calling thread, to its end; the
-    audit compiles it and runs it on workers (audit.watch), so a Ctrl-C is heard at once and
-    the rollout's next report ends the program, without JAX's traceback for the stop. A
-    second Ctrl-C while the rollout is still on its way to that report ends the wait at once
-    and ends the bar's line first (the command then exits at once), so that the command's
-    last line stands on a line of its own."""
+    """The audit's rollout is compiled programs that the host calls in turn, reporting between
+    them; the audit compiles them and calls them on workers (audit.watch), so a Ctrl-C is
+    heard at once, however long a call runs, and the rollout's next report ends it. A second
+    Ctrl-C while the rollout is still on its way to that report ends the wait at once and
+    ends the bar's line first (the command then exits at once), so that the command's last
+    line stands on a line of its own."""
     import signal
     import threading
     import time
@@ -378,15 +399,19 @@ def test_a_ctrl_c_stops_the_audits_rollout_at_its_next_report(ctrl_cs, monkeypat
         threading.current_thread() is threading.main_thread()) or close(self))
     steps = 200_000
 
-    @jax.jit
-    def rollout(x):
-        def step(carry):
-            i, x = carry
-            jax.debug.callback(watch.report_from_rollout, i)
-            return i + 1, jnp.sin(x)
-        return jax.lax.while_loop(lambda carry: carry[0] < steps, step, (0, x))
+    segment = compiled_in_background(jax.jit(jnp.sin).lower(jnp.ones(4)))
+    stopped = threading.Event()
 
-    compiled = compiled_in_background(rollout.lower(jnp.ones(4)))
+    def rollout(report):
+        x = jnp.ones(4)
+        try:
+            for i in range(steps):
+                x = jax.block_until_ready(segment(x))
+                report(i)
+            return x
+        finally:
+            stopped.set()
+
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     ctrl_c = [threading.Timer(0.5 + 0.2 * n, lambda: signal.pthread_kill(threading.main_thread().ident, signal.SIGINT))
               for n in range(ctrl_cs)]
@@ -395,19 +420,16 @@ def test_a_ctrl_c_stops_the_audits_rollout_at_its_next_report(ctrl_cs, monkeypat
             timer.start()
         with caplog.at_level("ERROR"):
             with pytest.raises(KeyboardInterrupt):
-                watch.watched_rollout(lambda: jax.block_until_ready(compiled(jnp.ones(4))), steps, draw=True)
+                watch.watched_rollout(rollout, steps, draw=True)
             # One Ctrl-C waits for the worker, which closes the bar; after a second the worker is
             # still on its way to stop, and the main thread has closed it.
             assert closed_in_main_thread == [ctrl_cs == 2]
-            for _ in range(100):  # the worker stops by itself
-                if not watch._WATCHES:
-                    break
-                time.sleep(0.05)
+            assert stopped.wait(5)  # the worker stops by itself
     finally:
         for timer in ctrl_c:
             timer.cancel()
         signal.signal(signal.SIGINT, previous)
-    assert 0 < len(reports) < steps and not watch._WATCHES
+    assert 0 < len(reports) < steps
     assert closed_in_main_thread == [True] * (ctrl_cs - 1) + [False]
     assert not [record for record in caplog.records if record.name.startswith("jax")]
     # The bar's time left is at the audit's average rate: slots end episodes in bursts, and
@@ -777,11 +799,11 @@ def test_audit_report_equals_its_json_and_score_missingness(short_run, tmp_path,
     # Every a_u is score_missingness's for the same policy, seed and N (k = 1 and k = 2).
     policy = load_policy(short_run.run_dir)
     for k in (1, 2):
-        finished = []  # what the rollout tells a bar after each step: every episode runs at once here
+        finished = []  # what the rollout tells a bar after each segment: every episode runs at once here
         direct = score_missingness(ENV, policy.trainer.policy, policy.actor_params, jax.random.key(4),
-                                   jnp.asarray(candidate_sets(4, k)), 6, progress=lambda done: finished.append(int(done)))
-        jax.effects_barrier()
-        assert finished == [int((direct.lengths <= step).sum()) for step in range(1, int(direct.loop_steps) + 1)]
+                                   jnp.asarray(candidate_sets(4, k)), 6, progress=finished.append)
+        ends = [*range(SEGMENT_LOOP_STEPS, int(direct.loop_steps), SEGMENT_LOOP_STEPS), int(direct.loop_steps)]
+        assert finished == [int((direct.lengths <= step).sum()) for step in ends]
         np.testing.assert_allclose([entry["score"] for entry in record["sets"][str(k)]], direct.scores, rtol=1e-5)
         np.testing.assert_allclose(record["clean_score"], direct.clean_score, rtol=1e-5)
     # Shapley values (d = 4: all 16 coalitions, in the same rollout): term by term from

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from admissable_jax.audit.watch import report_from_rollout, watched_rollout
+from admissable_jax.audit.watch import watched_rollout
 from admissable_jax.cli import compiled_in_background
 from admissable_jax.method import candidate_sets, check_fail_at
 from admissable_jax.scoring import SCORE_ESTIMATORS
@@ -170,6 +170,7 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
     import jax
 
     from admissable_jax.scoring import beam_search_worst_sets, score_missingness
+    from admissable_jax.scoring.estimators import rollout_in_segments
 
     check_search(search, beam_width, ranker)
     d = env.observation_size
@@ -185,23 +186,21 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
             search=search, beam_width=beam_width, ranker=ranker, progress=progress, fail_at=fail_at),
             ks, n_episodes, seed, shapley, dropout, rollout_sets(d, ks, search, beam_width, plan, dropout))
     scorer = jax.jit(score_missingness, static_argnums=(0, 1, 5, 6, 7), static_argnames=(
-        "score_estimator", "critic_fn", "score_horizon", "gamma", "progress", "fail_at"))
+        "score_estimator", "critic_fn", "score_horizon", "gamma", "fail_at"))
     key = jax.random.key(seed)
 
     def score(rows: np.ndarray, how: str):
-        counted = how == "rollout"  # the estimates run no episodes to count, and take seconds
-        # Compiled and run where a Ctrl-C is heard (audit.watch); called with the arguments not static.
-        compiled = compiled_in_background(scorer.lower(
-            env, policy_fn, params, key, rows, n_episodes, None, num_slots, score_estimator=how, critic_fn=critic_fn,
-            critic_params=critic_params, score_horizon=horizon, gamma=gamma,
-            progress=report_from_rollout if counted else None, fail_at=fail_at))
-
-        def rollout():
-            result = jax.block_until_ready(compiled(params, key, rows, critic_params=critic_params))
-            jax.effects_barrier()  # every report from inside the rollout made before its bar closes
-            return result
-
-        scored = watched_rollout(rollout, (len(rows) + 1) * n_episodes, progress) if counted else rollout()
+        # Compiled where a Ctrl-C is heard (audit.watch); called with the arguments not static.
+        if how == "rollout":  # run from here in segments, its episodes counted by a bar
+            rollout = rollout_in_segments(env, policy_fn, params, key, rows, n_episodes, None, num_slots,
+                                          fail_at=fail_at, compile=compiled_in_background)
+            scored = watched_rollout(lambda report: rollout(params, key, rows, report), (len(rows) + 1) * n_episodes,
+                                     progress)
+        else:  # the estimates run no episodes to count, and take seconds
+            compiled = compiled_in_background(scorer.lower(
+                env, policy_fn, params, key, rows, n_episodes, None, num_slots, score_estimator=how,
+                critic_fn=critic_fn, critic_params=critic_params, score_horizon=horizon, gamma=gamma, fail_at=fail_at))
+            scored = jax.block_until_ready(compiled(params, key, rows, critic_params=critic_params))
         if bool(scored.capacity_exceeded):
             raise ValueError(f"the physics ran out of contact buffers: {env.capacity_message()}")
         return scored

@@ -1,24 +1,23 @@
 """Where the audit compiles and runs its rollout, so that a Ctrl-C is answered at once and
 the process exits cleanly.
 
-The rollout reports the episodes finished so far from inside the compiled program
-(``score_missingness``'s ``progress``). XLA:CPU runs a program with such host callbacks on
-the calling thread from start to end, and Python hears a Ctrl-C only when that call
-returns: a Hopper audit on 2 cores answered one after 29 s, when its rollout ended. So
-:func:`watched_rollout` makes the call on a worker thread while the main thread waits, where
-a Ctrl-C is heard at once; the rollout's next report then raises :class:`RolloutStopped`,
-which ends the program, and the Ctrl-C goes on up from the main thread. And XLA stops a
-compile on the main thread when a Ctrl-C comes, after which the process crashed at exit
-(SIGSEGV, in 5 of 5 tries); the audit compiles on a worker instead
-(:func:`admissable_jax.cli.compiled_in_background`). The command line then ends at once
-(:func:`admissable_jax.cli.exit_with`); a Python caller's process waits for the worker before
-it exits.
+The rollout runs from the host in segments, a compiled program of at most 20 loop steps
+each (:class:`~admissable_jax.scoring.rollout_scores.RolloutInSegments`), and reports the
+episodes finished after each. XLA:CPU runs a program on the calling thread, and Python
+hears a Ctrl-C only when that call returns (a Hopper audit on 2 cores that ran as one
+program answered one after 29 s, when its rollout ended). So :func:`watched_rollout` makes
+the calls on a worker thread while the main thread waits, where a Ctrl-C is heard at once;
+the rollout's next report then raises :class:`RolloutStopped`, which ends it, and the
+Ctrl-C goes on up from the main thread. And XLA stops a compile on the main thread when a
+Ctrl-C comes, after which the process crashed at exit (SIGSEGV, in 5 of 5 tries); the audit
+compiles on a worker instead (:func:`admissable_jax.cli.compiled_in_background`). The
+command line then ends at once (:func:`admissable_jax.cli.exit_with`); a Python caller's
+process waits for the worker before it exits.
 """
 
 from __future__ import annotations
 
 import concurrent.futures
-import logging
 import threading
 from typing import Any, Callable
 
@@ -28,7 +27,7 @@ LOG_LINE_SECONDS = 60.0  # a line this often where stderr is no terminal (a job'
 
 
 class RolloutStopped(Exception):
-    """Raised from a rollout's report to end its program (a Ctrl-C in the main thread)."""
+    """Raised from a rollout's report to end the rollout (a Ctrl-C in the main thread)."""
 
 
 class _Watch:
@@ -53,39 +52,17 @@ class _Watch:
             self.bar.close()
 
 
-_WATCHES: list[_Watch] = []  # the running rollout's (innermost last)
+def watched_rollout(rollout: Callable[[Callable[[int], None]], Any], total: int, draw: bool) -> Any:
+    """``rollout(report)`` (a rollout that tells ``report`` the episodes finished so far, as
+    it goes) on a worker thread: its result, with a bar over its ``total`` episodes if
+    ``draw``. A Ctrl-C meanwhile stops the rollout at its next report, then raises
+    KeyboardInterrupt."""
+    watch = _Watch(total, draw)
 
-
-def report_from_rollout(finished) -> None:
-    """The rollout's ``progress``: the episodes finished so far, to the running rollout's
-    watch. One module function, not a watch's own method, so that the rollout compiles once
-    for every audit (a new callable would be a new static argument)."""
-    if _WATCHES:
-        _WATCHES[-1].report(int(finished))
-
-
-class _HideStops(logging.Filter):
-    """JAX logs a traceback for an exception raised in a callback; a stop is no error."""
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        return not (record.exc_info and isinstance(record.exc_info[1], RolloutStopped))
-
-
-def watched_rollout(rollout: Callable[[], Any], total: int, draw: bool) -> Any:
-    """``rollout()`` (a compiled rollout with ``progress=report_from_rollout``, waited for)
-    on a worker thread: its result, with a bar over its ``total`` episodes if ``draw``. A
-    Ctrl-C meanwhile stops the rollout at its next report, then raises KeyboardInterrupt."""
-    watch, quiet = _Watch(total, draw), _HideStops()
-    jax_debugging_log = logging.getLogger("jax._src.debugging")
-
-    def run() -> Any:  # everything it sets up stays until the rollout ends, even if a second Ctrl-C leaves it
-        _WATCHES.append(watch)
-        jax_debugging_log.addFilter(quiet)
+    def run() -> Any:  # its bar stays until the rollout ends, even if a second Ctrl-C leaves it
         try:
-            return rollout()
+            return rollout(watch.report)
         finally:
-            jax_debugging_log.removeFilter(quiet)
-            _WATCHES.remove(watch)
             watch.close()
 
     future = in_background(run)

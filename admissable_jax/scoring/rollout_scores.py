@@ -23,7 +23,8 @@ result (``loop_steps`` counts only steps with an episode running), at most
 
 from __future__ import annotations
 
-from typing import Any, Callable, Sequence
+import functools
+from typing import Any, Callable, NamedTuple, Sequence
 
 import chex
 import jax
@@ -31,7 +32,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from admissable_jax.branching import while_any
-from admissable_jax.method import hidden_from_step, spread_fail_steps
+from admissable_jax.method import fail_steps, hidden_from_step, spread_fail_steps
 from admissable_jax.missingness import mask_observation
 
 PolicyFn = Callable[[Any, jax.Array], jax.Array]  # (params, masked_obs (2·d,)) -> action
@@ -72,7 +73,6 @@ def score_by_rollout(
     max_steps: int | None = None,
     num_slots: int | None = None,
     steps_per_check: int = 1,
-    progress: Callable[[jax.Array], None] | None = None,
     fail_at: int | str | Sequence[int] = 0,
 ) -> MissingnessScores:
     """Score every u in ``hidden_sets`` ((|U|, d) 0/1 rows) and the clean case.
@@ -84,20 +84,41 @@ def score_by_rollout(
     never more than the episodes, so ``min(num_slots, (|U| + 1) · N)`` is what must fit
     ``max_batch``). Fewer trades loop steps for a smaller batch, which pays where a step's
     cost grows with the batch, as on a CPU. ``steps_per_check``: steps between checks
-    whether any episode still runs (module docstring). ``progress(finished)``: told the
-    episodes finished after each check (module docstring). ``fail_at``: the env step of each
+    whether any episode still runs (module docstring). ``fail_at``: the env step of each
     episode at which u's sensors fail, seen until then (0: hidden from the start, the paper's
     a_u; :func:`~admissable_jax.method.hidden_from_step`); several steps (a list or comma
     text) split each set's N episodes evenly over them, episode i failing at the (i mod m)-th
     of the m steps, so a_u is the mean of the steps' a_u
     (:func:`~admissable_jax.method.spread_fail_steps`; N must be a multiple of m). Jit-able
     with ``env``, ``policy_fn``, ``n_episodes``, ``max_steps``, ``num_slots``,
-    ``steps_per_check``, ``progress`` and ``fail_at`` static.
+    ``steps_per_check`` and ``fail_at`` static. :class:`RolloutInSegments` runs the same
+    rollout from the host, telling the episodes finished as it goes.
     """
+    hidden_sets = jnp.asarray(hidden_sets, jnp.float32)
+    rollout = rollout_program(env, policy_fn, hidden_sets.shape, n_episodes, max_steps, num_slots, steps_per_check,
+                              fail_at)
+    carry, operands = rollout.start(rng, hidden_sets)
+    return rollout.finish(rollout.advance(carry, params, operands))
+
+
+class RolloutProgram(NamedTuple):
+    """One scoring rollout in three parts (:func:`rollout_program`)."""
+
+    start: Callable[[jax.Array, jax.Array], tuple[dict, tuple]]  # (rng, hidden_sets) -> (carry, operands)
+    advance: Callable[..., dict]  # (carry, params, operands, until=None) -> carry: steps while any episode runs
+    finish: Callable[[dict], MissingnessScores]  # carry -> the scores
+    num_slots: int  # the envs stepped at once
+
+
+def rollout_program(env, policy_fn: PolicyFn, sets_shape: tuple[int, int], n_episodes: int = 10,
+                    max_steps: int | None = None, num_slots: int | None = None, steps_per_check: int = 1,
+                    fail_at: int | str | Sequence[int] = 0) -> RolloutProgram:
+    """:func:`score_by_rollout`'s rollout of ``sets_shape`` = (|U|, d) sets, its arguments
+    checked: ``start`` the slots' first episodes, ``advance`` the loop (with ``until``, only
+    while ``loop_steps`` < ``until``: a segment), ``finish`` the scores from the last carry."""
     if steps_per_check < 1:
         raise ValueError(f"steps_per_check must be >= 1, got {steps_per_check}")
-    hidden_sets = jnp.asarray(hidden_sets, jnp.float32)
-    num_sets, num_features = hidden_sets.shape
+    num_sets, num_features = sets_shape
     chex.assert_equal(num_features, env.observation_size)
     max_steps = env.max_episode_steps if max_steps is None else max_steps
     if max_steps < 1:  # (at 0, every episode would still take its first step)
@@ -111,8 +132,6 @@ def score_by_rollout(
     if num_slots > max_batch:  # the envs stepped at once (slots beyond the episodes never run)
         raise ValueError(f"num_slots={slots_asked} steps {num_slots} envs at once, more than the env's "
                          f"max_batch={max_batch}; build the env with a larger max_batch or give fewer slots")
-    episode_hidden = jnp.repeat(jnp.concatenate([hidden_sets, jnp.zeros((1, num_features))]), n_episodes, axis=0)
-    initial = jax.vmap(env.reset)(jax.random.split(rng, n_episodes))
     policy = jax.vmap(policy_fn, in_axes=(None, 0))
 
     def initial_states(initial, episode: jax.Array):
@@ -157,29 +176,106 @@ def score_by_rollout(
             carry = step(carry, *operands)
         else:
             carry = jax.lax.scan(lambda carry, _: (step(carry, *operands), None), carry, None, length=steps_per_check)[0]
-        if progress is not None:  # each finished slot moved next_episode on by one
-            jax.debug.callback(progress, carry["next_episode"] - num_slots)
         return carry
 
-    slots = jnp.arange(num_slots)
-    carry = {
-        "states": initial_states(initial, slots), "episode": slots, "alive": jnp.ones(num_slots, bool),
-        "next_episode": jnp.asarray(num_slots, jnp.int32), "returns": jnp.zeros(num_episodes),
-        "lengths": jnp.zeros(num_episodes, jnp.int32), "loop_steps": jnp.zeros((), jnp.int32),
-        "capacity_exceeded": jnp.zeros((), bool),
-    }
-    # A finished rollout's steps change none of its results (nothing is alive), so vmapped
-    # rollouts (an experiment's pairs, where a batched step costs about the same for any
-    # batch; on a CPU the host loop scores them in turn) step together while any runs: no
-    # per-pair select of the carry, which would hand Warp's in-place step a copy of every field.
-    carry = while_any(cond, body, carry, params, episode_hidden, initial)
-    returns = carry["returns"].reshape(num_rows, n_episodes)
-    lengths = carry["lengths"].reshape(num_rows, n_episodes)
-    means = returns.mean(axis=1)
-    return MissingnessScores(
-        scores=means[:-1], clean_score=means[-1], returns=returns, lengths=lengths,
-        loop_steps=carry["loop_steps"], capacity_exceeded=carry["capacity_exceeded"],
-    )
+    def start(rng: jax.Array, hidden_sets: jax.Array) -> tuple[dict, tuple]:
+        episode_hidden = jnp.repeat(jnp.concatenate([hidden_sets, jnp.zeros((1, num_features))]), n_episodes, axis=0)
+        initial = jax.vmap(env.reset)(jax.random.split(rng, n_episodes))
+        slots = jnp.arange(num_slots)
+        carry = {
+            "states": initial_states(initial, slots), "episode": slots, "alive": jnp.ones(num_slots, bool),
+            "next_episode": jnp.asarray(num_slots, jnp.int32), "returns": jnp.zeros(num_episodes),
+            "lengths": jnp.zeros(num_episodes, jnp.int32), "loop_steps": jnp.zeros((), jnp.int32),
+            "capacity_exceeded": jnp.zeros((), bool),
+        }
+        return carry, (episode_hidden, initial)
+
+    def advance(carry: dict, params: Any, operands: tuple, until: jax.Array | None = None) -> dict:
+        # A finished rollout's steps change none of its results (nothing is alive), so vmapped
+        # rollouts (an experiment's pairs, where a batched step costs about the same for any
+        # batch; on a CPU the host loop scores them in turn) step together while any runs: no
+        # per-pair select of the carry, which would hand Warp's in-place step a copy of every field.
+        if until is None:
+            return while_any(cond, body, carry, params, *operands)
+        return while_any(lambda carry, until, *_: cond(carry) & (carry["loop_steps"] < until),
+                         lambda carry, until, *rest: body(carry, *rest), carry, until, params, *operands)
+
+    def finish(carry: dict) -> MissingnessScores:
+        returns = carry["returns"].reshape(num_rows, n_episodes)
+        lengths = carry["lengths"].reshape(num_rows, n_episodes)
+        means = returns.mean(axis=1)
+        return MissingnessScores(
+            scores=means[:-1], clean_score=means[-1], returns=returns, lengths=lengths,
+            loop_steps=carry["loop_steps"], capacity_exceeded=carry["capacity_exceeded"],
+        )
+
+    return RolloutProgram(start, advance, finish, num_slots)
+
+
+# Loop steps per program call of a rollout run from the host: a Hopper scoring pool of 32
+# slots steps about 20 a second on a 2-core CPU, a GPU hundreds.
+SEGMENT_LOOP_STEPS = 20
+_PROGRAM_ARGS = (0, 1, 2, 3, 4, 5, 6, 7)  # rollout_program's arguments: static
+
+
+@functools.partial(jax.jit, static_argnums=_PROGRAM_ARGS)
+def _start(env, policy_fn, sets_shape, n_episodes, max_steps, num_slots, steps_per_check, fail_at, rng, hidden_sets):
+    rollout = rollout_program(env, policy_fn, sets_shape, n_episodes, max_steps, num_slots, steps_per_check, fail_at)
+    return rollout.start(rng, hidden_sets)
+
+
+@functools.partial(jax.jit, static_argnums=_PROGRAM_ARGS)
+def _advance(env, policy_fn, sets_shape, n_episodes, max_steps, num_slots, steps_per_check, fail_at, carry, params,
+             operands, until):
+    rollout = rollout_program(env, policy_fn, sets_shape, n_episodes, max_steps, num_slots, steps_per_check, fail_at)
+    return rollout.advance(carry, params, operands, until)
+
+
+@functools.partial(jax.jit, static_argnums=_PROGRAM_ARGS)
+def _finish(env, policy_fn, sets_shape, n_episodes, max_steps, num_slots, steps_per_check, fail_at, carry):
+    rollout = rollout_program(env, policy_fn, sets_shape, n_episodes, max_steps, num_slots, steps_per_check, fail_at)
+    return rollout.finish(carry)
+
+
+class RolloutInSegments:
+    """:func:`score_by_rollout`'s rollout run from the host: the start states, then segments
+    of at most ``segment`` loop steps, each a call of one compiled program, telling
+    ``progress(finished)`` the episodes finished after each, then the scores; the same
+    steps, so the same scores (to float rounding, where XLA fuses the programs otherwise).
+
+    Why not one program that reports from inside: JAX keeps no program with a host callback
+    in its persistent compilation cache, so every audit compiled its rollout anew (a Hopper
+    audit of 5 episodes per set on a 2-core CPU: 34 s each time; 17 s once cached). These
+    programs are compiled once per env, policy function, settings and sets' shape, by
+    ``compile`` (a ``jax.stages.Lowered`` -> its compiled program), and cached on disk.
+    Arguments as :func:`score_by_rollout`'s; ``params``, ``rng`` and ``hidden_sets`` here
+    only give the shapes the programs compile for."""
+
+    def __init__(self, env, policy_fn: PolicyFn, params: Any, rng: jax.Array, hidden_sets: jax.Array,
+                 n_episodes: int = 10, max_steps: int | None = None, num_slots: int | None = None,
+                 steps_per_check: int = 1, fail_at: int | str | Sequence[int] = 0, segment: int = SEGMENT_LOOP_STEPS,
+                 compile: Callable[[Any], Any] = lambda lowered: lowered.compile()):
+        hidden_sets = jnp.asarray(hidden_sets, jnp.float32)
+        static = (env, policy_fn, tuple(hidden_sets.shape), int(n_episodes), max_steps, num_slots, steps_per_check,
+                  fail_steps(fail_at))
+        self.segment = segment
+        self.num_slots = rollout_program(*static).num_slots
+        carry, operands = jax.eval_shape(functools.partial(_start, *static), rng, hidden_sets)
+        until = jax.ShapeDtypeStruct((), jnp.int32)
+        self._start = compile(_start.lower(*static, rng, hidden_sets))
+        self._advance = compile(_advance.lower(*static, carry, params, operands, until))
+        self._finish = compile(_finish.lower(*static, carry))
+
+    def __call__(self, params: Any, rng: jax.Array, hidden_sets: jax.Array,
+                 progress: Callable[[int], None]) -> MissingnessScores:
+        """The scores of ``hidden_sets`` under ``params`` from ``rng``'s start states."""
+        carry, operands = self._start(rng, jnp.asarray(hidden_sets, jnp.float32))
+        running = True
+        while running:
+            carry = self._advance(carry, params, operands, carry["loop_steps"] + self.segment)
+            progress(int(carry["next_episode"]) - self.num_slots)  # each finished slot moved it on by one
+            running = bool(jnp.any(carry["alive"]))
+        return self._finish(carry)
 
 
 def _rows(mask: jax.Array, like: jax.Array) -> jax.Array:
