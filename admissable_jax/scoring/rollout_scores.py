@@ -29,6 +29,7 @@ from typing import Any, Callable, NamedTuple, Sequence
 import chex
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from admissable_jax.branching import while_any
@@ -107,7 +108,6 @@ class RolloutProgram(NamedTuple):
     start: Callable[[jax.Array, jax.Array], tuple[dict, tuple]]  # (rng, hidden_sets) -> (carry, operands)
     advance: Callable[..., dict]  # (carry, params, operands, until=None) -> carry: steps while any episode runs
     finish: Callable[[dict], MissingnessScores]  # carry -> the scores
-    num_slots: int  # the envs stepped at once
 
 
 def rollout_program(env, policy_fn: PolicyFn, sets_shape: tuple[int, int], n_episodes: int = 10,
@@ -209,33 +209,22 @@ def rollout_program(env, policy_fn: PolicyFn, sets_shape: tuple[int, int], n_epi
             loop_steps=carry["loop_steps"], capacity_exceeded=carry["capacity_exceeded"],
         )
 
-    return RolloutProgram(start, advance, finish, num_slots)
+    return RolloutProgram(start, advance, finish)
 
 
 # Loop steps per program call of a rollout run from the host: a Hopper scoring pool of 32
 # slots stepped 35 a second on a 2-core CPU (a segment: about half a second); on an H100 the
 # bare Warp Hopper step alone takes 5.3 ms, so under 200.
 SEGMENT_LOOP_STEPS = 20
-_PROGRAM_ARGS = (0, 1, 2, 3, 4, 5, 6, 7)  # rollout_program's arguments: static
 
 
-@functools.partial(jax.jit, static_argnums=_PROGRAM_ARGS)
-def _start(env, policy_fn, sets_shape, n_episodes, max_steps, num_slots, steps_per_check, fail_at, rng, hidden_sets):
+@functools.partial(jax.jit, static_argnums=range(9))
+def _rollout_part(part: str, env, policy_fn, sets_shape, n_episodes, max_steps, num_slots, steps_per_check, fail_at,
+                  *arguments):
+    """One part (``start``, ``advance`` or ``finish``) of :func:`rollout_program`'s rollout,
+    compiled on its own; ``part`` and the rollout's arguments static."""
     rollout = rollout_program(env, policy_fn, sets_shape, n_episodes, max_steps, num_slots, steps_per_check, fail_at)
-    return rollout.start(rng, hidden_sets)
-
-
-@functools.partial(jax.jit, static_argnums=_PROGRAM_ARGS)
-def _advance(env, policy_fn, sets_shape, n_episodes, max_steps, num_slots, steps_per_check, fail_at, carry, params,
-             operands, until):
-    rollout = rollout_program(env, policy_fn, sets_shape, n_episodes, max_steps, num_slots, steps_per_check, fail_at)
-    return rollout.advance(carry, params, operands, until)
-
-
-@functools.partial(jax.jit, static_argnums=_PROGRAM_ARGS)
-def _finish(env, policy_fn, sets_shape, n_episodes, max_steps, num_slots, steps_per_check, fail_at, carry):
-    rollout = rollout_program(env, policy_fn, sets_shape, n_episodes, max_steps, num_slots, steps_per_check, fail_at)
-    return rollout.finish(carry)
+    return getattr(rollout, part)(*arguments)
 
 
 class RolloutInSegments:
@@ -259,24 +248,23 @@ class RolloutInSegments:
         hidden_sets = jnp.asarray(hidden_sets, jnp.float32)
         static = (env, policy_fn, tuple(hidden_sets.shape), int(n_episodes), max_steps, num_slots, steps_per_check,
                   fail_steps(fail_at))
-        self.segment = segment
-        self.num_slots = rollout_program(*static).num_slots
-        carry, operands = jax.eval_shape(functools.partial(_start, *static), rng, hidden_sets)
+        start = _rollout_part.lower("start", *static, rng, hidden_sets)
+        carry, operands = start.out_info
         until = jax.ShapeDtypeStruct((), jnp.int32)
-        self._start = compile(_start.lower(*static, rng, hidden_sets))
-        self._advance = compile(_advance.lower(*static, carry, params, operands, until))
-        self._finish = compile(_finish.lower(*static, carry))
+        self.segment, self.num_slots = segment, carry["episode"].shape[0]
+        self._start = compile(start)
+        self._advance = compile(_rollout_part.lower("advance", *static, carry, params, operands, until))
+        self._finish = compile(_rollout_part.lower("finish", *static, carry))
 
     def __call__(self, params: Any, rng: jax.Array, hidden_sets: jax.Array,
                  progress: Callable[[int], None]) -> MissingnessScores:
         """The scores of ``hidden_sets`` under ``params`` from ``rng``'s start states."""
         carry, operands = self._start(rng, jnp.asarray(hidden_sets, jnp.float32))
-        running = True
-        while running:
+        while True:
             carry = self._advance(carry, params, operands, carry["loop_steps"] + self.segment)
             progress(int(carry["next_episode"]) - self.num_slots)  # each finished slot moved it on by one
-            running = bool(jnp.any(carry["alive"]))
-        return self._finish(carry)
+            if not np.any(carry["alive"]):
+                return self._finish(carry)
 
 
 def _rows(mask: jax.Array, like: jax.Array) -> jax.Array:
