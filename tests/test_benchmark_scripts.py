@@ -57,6 +57,8 @@ REFUSALS = [
     ("train_throughput.py", ["num_envs=0"], "num_envs must be >= 1, got 0"),
     ("train_throughput.py", ["iterations=0"], "iterations must be >= 1, got 0"),
     ("warp_atomics.py", ["steps=-1"], "num_envs must be >= 1 and steps >= 0, got 4 and -1"),
+    ("warp_cpu_compile.py", ["levels=0,4"], "levels must be a comma list of 0, 1, 2, 3, got '0,4'"),
+    ("warp_cpu_compile.py", ["worlds=0"], "repeats, worlds and steps must be >= 1"),
     ("warp_kernels.py", ["arch=70"], "arch must be a CUDA architecture Warp supports (>= 75), got 70"),
     ("warp_kernels.py", ["batch=0"], "batch must be >= 1"),
     ("warp_launches.py", ["solver_iterations=4,x"], "solver_iterations must be a comma list of ints >= 0, got '4,x'"),

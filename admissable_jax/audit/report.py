@@ -505,6 +505,11 @@ def _worst_by_mode(results: list[AuditResult]) -> dict[str, dict[int, np.ndarray
     return _per_pair_by_mode(results, lambda result, k: min(entry.score for entry in result.sets[k]))
 
 
+def _worst_by_time_and_mode(by_time: dict[int, list[AuditResult]]) -> dict[int, dict[str, dict[int, np.ndarray]]]:
+    """Per failure step, :func:`_worst_by_mode` of the pairs audited at it."""
+    return {time: _worst_by_mode(results) for time, results in sorted(by_time.items())}
+
+
 def _per_pair_by_mode(results: list[AuditResult], measure) -> dict[str, dict[int, np.ndarray]]:
     """Per curve (mode, :func:`pair_curves`) and k: ``measure(result, k)`` of each pair, in pair order."""
     by_mode: dict[str, dict[int, list[float]]] = {}
@@ -619,7 +624,7 @@ def compare_modes_by_failure_time(by_time: dict[int, list[AuditResult]]) -> str:
     then adversarial − uniform per k and step (Welch's t). Does training against the worst set
     hidden from the start also protect when a sensor fails later?"""
     times, first = sorted(by_time), by_time[min(by_time)][0]
-    worst = {time: _worst_by_mode(results) for time, results in by_time.items()}
+    worst = _worst_by_time_and_mode(by_time)
     modes = sorted(worst[times[0]])
     lines = [f"# Robustness by when the sensors fail, per mode: {first.env}, {audited_policies(by_time[times[0]])}", "",
              f"Each pair audited at each failure step as its report says ({episodes_per_set(by_time[times[0]])}, "
@@ -646,10 +651,10 @@ def failure_time_chart_by_mode(by_time: dict[int, list[AuditResult]], path: str)
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from admissable_jax.plot import curve_colors
+    from admissable_jax.plot import curve_colors, env_steps_axis
 
     times = sorted(by_time)
-    worst = {time: _worst_by_mode(by_time[time]) for time in times}
+    worst = _worst_by_time_and_mode(by_time)
     modes, k = sorted(worst[times[0]]), min(by_time[times[0]][0].sets)
     colors = curve_colors([(curve_mode(mode), mode) for mode in modes])
     figure, ax = plt.subplots(figsize=(8, 4.5))
@@ -661,8 +666,6 @@ def failure_time_chart_by_mode(by_time: dict[int, list[AuditResult]], path: str)
         ax.fill_between(times, low, high, color=color, alpha=0.2)
         for seed_values in per_pair:
             ax.plot(times, seed_values, ".", color=color, markersize=3)
-    from admissable_jax.plot import env_steps_axis
-
     env_steps_axis(ax, "env step at which the sensors fail (0: from the start, the paper's a_u)")
     ax.set_ylabel(f"worst $a_u$ over the sets of size {k}")
     ax.set_title(f"{by_time[times[0]][0].env}: the worst set by when its sensors fail, per mode "
