@@ -7,6 +7,7 @@ import json
 import os
 import platform
 import resource
+import subprocess
 import sys
 import time
 from typing import Any, Callable
@@ -66,6 +67,16 @@ def append_record(name: str, record: dict) -> str:
     with open(path, "a") as file:
         file.write(json.dumps({**environment_record(), **record}) + "\n")
     return path
+
+
+def measured_in_fresh_process(script: str, args: list[str], environment: dict[str, str]) -> dict:
+    """The JSON object ``script --child ARGS`` prints last, run in a fresh Python process on the
+    CPU with ``environment`` added and no JAX compilation cache: compile times from scratch."""
+    env = {**os.environ, "JAX_PLATFORMS": "cpu", **environment}
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    child = subprocess.run([sys.executable, script, "--child", *args], env=env, capture_output=True, text=True,
+                           check=True)
+    return json.loads(child.stdout.strip().splitlines()[-1])
 
 
 def update_flops(update: Callable, state: Any, batch: Any) -> float:

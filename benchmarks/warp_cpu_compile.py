@@ -18,14 +18,12 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import subprocess
-import sys
 import tempfile
 import time
 
 from admissable_jax.cli import parse_args
 from admissable_jax.envs import canonical_env_name
-from common import append_record, run_benchmark
+from common import append_record, measured_in_fresh_process, run_benchmark
 
 LEVELS = ("0", "1", "2", "3")
 
@@ -87,11 +85,8 @@ def main(argv: list[str]) -> None:
     for repeat in range(bench.repeats):
         for level in bench.levels.split(","):
             with tempfile.TemporaryDirectory() as kernel_cache:
-                env = {**os.environ, "WARP_CACHE_PATH": kernel_cache, "JAX_PLATFORMS": "cpu"}
-                env.pop("JAX_COMPILATION_CACHE_DIR", None)
-                child = subprocess.run([sys.executable, __file__, "--child", bench.env, level, str(bench.worlds),
-                                        str(bench.steps)], env=env, capture_output=True, text=True, check=True)
-            measured = json.loads(child.stdout.strip().splitlines()[-1])
+                measured = measured_in_fresh_process(__file__, [bench.env, level, str(bench.worlds), str(bench.steps)],
+                                                     {"WARP_CACHE_PATH": kernel_cache})
             record = {"env": bench.env, "level": int(level), "repeat": repeat, "worlds": bench.worlds,
                       "steps": bench.steps, "xla_flags": os.environ.get("XLA_FLAGS", ""), **measured}
             append_record("warp_cpu_compile", record)

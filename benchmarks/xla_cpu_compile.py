@@ -26,13 +26,12 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import subprocess
 import sys
 import tempfile
 import time
 
 from admissable_jax.cli import parse_args
-from common import append_record, run_benchmark
+from common import append_record, measured_in_fresh_process, run_benchmark
 
 PROGRAMS = ("hopper", "walker2d", "ant", "point_mass")
 FLAG = "--xla_cpu_use_fusion_emitters"
@@ -111,11 +110,7 @@ def main(argv: list[str]) -> None:
     for program in bench.programs.split(","):
         for repeat in range(bench.repeats):
             for flags in _settings(bench):
-                env = {**os.environ, "XLA_FLAGS": flags, "JAX_PLATFORMS": "cpu"}
-                env.pop("JAX_COMPILATION_CACHE_DIR", None)
-                child = subprocess.run([sys.executable, __file__, "--child", program], env=env, capture_output=True,
-                                       text=True, check=True)
-                measured = json.loads(child.stdout.strip().splitlines()[-1])
+                measured = measured_in_fresh_process(__file__, [program], {"XLA_FLAGS": flags})
                 record = {"program": program, "xla_flags": flags, "repeat": repeat, **measured}
                 append_record("xla_cpu_compile", record)
                 print(json.dumps(record))
