@@ -243,16 +243,31 @@ def _dropout_section(result: AuditResult) -> list[str]:
     return lines + [""]
 
 
-def _shapley_chart(result: AuditResult, path: str, most: int = 30) -> str:
-    """Horizontal bars of φ_i (95% CI), largest first, the loss of hiding each alone beside them."""
+def _figure(*args: Any, **kwargs: Any) -> tuple[Any, Any]:
+    """``pyplot.subplots(...)`` on matplotlib's Agg backend (audits run on machines without a
+    display), imported when a chart is drawn, not when the report module is."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    return plt.subplots(*args, **kwargs)
+
+
+def _saved(figure: Any, path: str) -> str:
+    """``figure`` written to ``path`` (a PNG of 120 dpi), then closed: pyplot keeps every open figure."""
+    import matplotlib.pyplot as plt
+
+    figure.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(figure)
+    return path
+
+
+def _shapley_chart(result: AuditResult, path: str, most: int = 30) -> str:
+    """Horizontal bars of φ_i (95% CI), largest first, the loss of hiding each alone beside them."""
     attribution = result.shapley
     shown = shapley_order(attribution)[:most]
-    figure, ax = plt.subplots(figsize=(7, max(3, 0.3 * len(shown) + 1)))
+    figure, ax = _figure(figsize=(7, max(3, 0.3 * len(shown) + 1)))
     rows = np.arange(len(shown))
     ax.barh(rows, [attribution.values[i] for i in shown], xerr=attribution.ci95[shown], capsize=2,
             color="tab:blue", label="Shapley value φ_i (95% CI)")
@@ -267,20 +282,13 @@ def _shapley_chart(result: AuditResult, path: str, most: int = 30) -> str:
     largest = f"the {len(shown)} largest of {d}" if len(shown) < d else "every feature"
     ax.set_title(f"{result.env}: what each feature is worth ({largest}; {attribution.method})", fontsize=9)
     ax.legend(fontsize=7)
-    figure.savefig(path, dpi=120, bbox_inches="tight")
-    plt.close(figure)
-    return path
+    return _saved(figure, path)
 
 
 def _bar_chart(result: AuditResult, path: str) -> str:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     entries = result.sets[1]
     worst = min(range(len(entries)), key=lambda i: entries[i].score)
-    figure, ax = plt.subplots(figsize=(max(6, 0.35 * len(entries)), 4))
+    figure, ax = _figure(figsize=(max(6, 0.35 * len(entries)), 4))
     ax.bar(range(len(entries)), [e.score for e in entries], yerr=[e.ci95 for e in entries], capsize=2,
            color=["tab:red" if i == worst else "tab:blue" for i in range(len(entries))])
     ax.axhline(result.clean_score, color="black", linestyle="--", label=f"nothing hidden ({result.clean_score:.0f})")
@@ -289,23 +297,16 @@ def _bar_chart(result: AuditResult, path: str) -> str:
     ax.set_ylabel(f"$a_u$: mean return of {result.n_episodes} episodes (95% CI)")
     ax.set_title(f"{result.env}: return with one feature hidden (worst in red)")
     ax.legend()
-    figure.savefig(path, dpi=120, bbox_inches="tight")
-    plt.close(figure)
-    return path
+    return _saved(figure, path)
 
 
 def _by_size_chart(result: AuditResult, path: str) -> str:
     """The return against how many features are hidden: the clean case at 0, then per audited
     k the worst a_u (its 95% interval, its set named) and the mean a_u over the sets (where
     every set was scored): how fast the policy falls as more sensors go."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     ks = sorted(result.sets)
     worst = [result.worst(k, 1)[0] for k in ks]
-    figure, ax = plt.subplots(figsize=(max(5, 1.2 * len(ks) + 3), 4))
+    figure, ax = _figure(figsize=(max(5, 1.2 * len(ks) + 3), 4))
     ax.errorbar([0, *ks], [result.clean_score, *(entry.score for entry in worst)],
                 yerr=[result.clean_ci95, *(entry.ci95 for entry in worst)], color="tab:red", marker="o", capsize=3,
                 label="worst $a_u$ (95% CI)")
@@ -321,17 +322,10 @@ def _by_size_chart(result: AuditResult, path: str) -> str:
     ax.set_title(f"{result.env}: the return as more features are hidden", fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    figure.savefig(path, dpi=120, bbox_inches="tight")
-    plt.close(figure)
-    return path
+    return _saved(figure, path)
 
 
 def _pair_heatmap(result: AuditResult, path: str) -> str:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     d = len(result.feature_names)
     grid = np.full((d, d), np.nan)
     for entry in result.sets[2]:
@@ -340,16 +334,14 @@ def _pair_heatmap(result: AuditResult, path: str) -> str:
     for entry in result.sets.get(1, []):  # the diagonal: the feature alone, where audited
         grid[entry.hidden[0], entry.hidden[0]] = entry.score
     size = max(5, 0.3 * d)
-    figure, ax = plt.subplots(figsize=(size + 1.5, size))
+    figure, ax = _figure(figsize=(size + 1.5, size))
     image = ax.imshow(grid, cmap="viridis")
     figure.colorbar(image, ax=ax, label="$a_{ij}$: mean return with features i and j hidden")
     labels = result.feature_names if d <= 40 else [str(i) for i in range(d)]
     ax.set_xticks(range(d), labels, rotation=90, fontsize=6)
     ax.set_yticks(range(d), labels, fontsize=6)
     ax.set_title(f"{result.env}: pairs hidden (diagonal: one feature, where audited)")
-    figure.savefig(path, dpi=120, bbox_inches="tight")
-    plt.close(figure)
-    return path
+    return _saved(figure, path)
 
 
 class RobustnessAxis(NamedTuple):
@@ -417,14 +409,9 @@ def robustness_chart(results: list[AuditResult], path: str, axis: RobustnessAxis
     ``axis`` (checkpoint, failure time); the clean return in black; with ``dropout=``, R(p) per
     rate in greys. By failure time, beside it, each single feature's a_u at each time, where
     the audit scored them all: which sensor hurts when."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     xs = [axis.of(result) for result in results]
     singles = axis is BY_FAILURE_TIME and 1 in results[0].sets and 1 not in results[0].search
-    figure, axes = plt.subplots(1, 2 if singles else 1, figsize=(15 if singles else 8, 4.5), squeeze=False)
+    figure, axes = _figure(1, 2 if singles else 1, figsize=(15 if singles else 8, 4.5), squeeze=False)
     ax = axes[0, 0]
     ax.plot(xs, [result.clean_score for result in results], "k--", marker="o", label="nothing hidden")
     for index, k in enumerate(results[0].sets):
@@ -451,9 +438,7 @@ def robustness_chart(results: list[AuditResult], path: str, axis: RobustnessAxis
     if singles:
         _single_features_by_time(axes[0, 1], results, xs)
     os.makedirs(os.path.dirname(path), exist_ok=True)
-    figure.savefig(path, dpi=120, bbox_inches="tight")
-    plt.close(figure)
-    return path
+    return _saved(figure, path)
 
 
 def _single_features_by_time(ax, results: list[AuditResult], times: list[int]) -> None:
@@ -522,18 +507,13 @@ def _per_pair_by_mode(results: list[AuditResult], measure) -> dict[str, dict[int
 def comparison_chart(results: list[AuditResult], path: str) -> str:
     """Bars per k and mode: the mean of the pairs' worst a_u with its 95% t-interval, and
     each pair's own as a dot."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from admissable_jax.plot import curve_colors
 
     worst = _worst_by_mode(results)
     ks, modes = list(results[0].sets), sorted(worst)
     width = 0.8 / len(modes)
     colors = curve_colors([(curve_mode(mode), mode) for mode in modes])  # a sweep's adversarial-l<l>: shades
-    figure, ax = plt.subplots(figsize=(max(5, 1.6 * len(ks) * len(modes)), 4))
+    figure, ax = _figure(figsize=(max(5, 1.6 * len(ks) * len(modes)), 4))
     for offset, mode in enumerate(modes):
         x = np.arange(len(ks)) + (offset - (len(modes) - 1) / 2) * width
         bounds = [mean_and_interval(worst[mode][k][:, None]) for k in ks]
@@ -550,9 +530,7 @@ def comparison_chart(results: list[AuditResult], path: str) -> str:
                  f"the worst hidden set per pair (bars: mean, 95% CI; dots: pairs)", fontsize=9)
     ax.legend()
     ax.grid(alpha=0.3, axis="y")
-    figure.savefig(path, dpi=120, bbox_inches="tight")
-    plt.close(figure)
-    return path
+    return _saved(figure, path)
 
 
 def audited_policies(results: list[AuditResult]) -> str:
@@ -646,18 +624,13 @@ def compare_modes_by_failure_time(by_time: dict[int, list[AuditResult]]) -> str:
 def failure_time_chart_by_mode(by_time: dict[int, list[AuditResult]], path: str) -> str:
     """Per mode, the pairs' worst a_u of the smallest k against the failure step: the mean with
     its 95% t-interval shaded, and each pair's as dots."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from admissable_jax.plot import curve_colors, env_steps_axis
 
     times = sorted(by_time)
     worst = _worst_by_time_and_mode(by_time)
     modes, k = sorted(worst[times[0]]), min(by_time[times[0]][0].sets)
     colors = curve_colors([(curve_mode(mode), mode) for mode in modes])
-    figure, ax = plt.subplots(figsize=(8, 4.5))
+    figure, ax = _figure(figsize=(8, 4.5))
     for mode in modes:
         per_pair = np.array([worst[time][mode][k] for time in times]).T  # (seeds, times)
         mean, low, high = mean_and_interval(per_pair)
@@ -673,9 +646,7 @@ def failure_time_chart_by_mode(by_time: dict[int, list[AuditResult]], path: str)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     os.makedirs(os.path.dirname(path), exist_ok=True)
-    figure.savefig(path, dpi=120, bbox_inches="tight")
-    plt.close(figure)
-    return path
+    return _saved(figure, path)
 
 
 def episodes_per_set(results: list[AuditResult]) -> str:
