@@ -1562,6 +1562,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                   "hidden_sets))):", "    if False:", "test_audit.py"),
     "watched_rollout_reports_nowhere": ("admissable_jax/audit/watch.py", "            return rollout(watch.report)",
                                         "            return rollout(lambda finished: None)", "test_audit.py"),
+    "audit_charts_not_saved": ("admissable_jax/audit/report.py",
+                               '    figure.savefig(path, dpi=120, bbox_inches="tight")\n', "", "test_audit.py"),
     "scoring_columns_of_any_shape": ("admissable_jax/results.py", "        except (TypeError, ValueError):  # ragged",
                                      "        except ImportError:  # ragged", "test_runs.py"),
     "score_estimators_of_one_episode": ("benchmarks/score_estimators.py", "if config.n_episodes < 2 or any(",
