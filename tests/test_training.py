@@ -917,6 +917,9 @@ def test_config_file_sets_keys_the_command_line_overrides(tmp_path, capsys, monk
     assert type(experiment.total_steps) is type(experiment.score_every) is int
     train = parse_args(TrainConfig, ["total_steps=1e6", "epsilon=1e-8"], "t", "")
     assert (train.total_steps, train.epsilon) == (1_000_000, 1e-8) and type(train.total_steps) is int
+    # A key given twice counts at its last value (README), as a key added to a command from one's history.
+    train = parse_args(TrainConfig, ["env=hopper", "seed=2", "env=ant"], "t", "")
+    assert (train.env, train.seed) == ("ant", 2)
 
     (tmp_path / "typo.yaml").write_text("env: hopper\nlerning_rate: 0.001\n")
     (tmp_path / "bad_value.yaml").write_text("k: two\n")
