@@ -1566,6 +1566,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                '    figure.savefig(path, dpi=120, bbox_inches="tight")\n', "", "test_audit.py"),
     "repeated_key_keeps_its_first_value": ("admissable_jax/cli.py", "    for arg in argv:\n        key, value = arg.split",
                                            "    for arg in reversed(argv):\n        key, value = arg.split", "test_training.py"),
+    "log_lines_never_say_still": ("admissable_jax/cli.py", 'self.write_line(f"still {self.desc}: " if self.desc else "")',
+                                  "pass", "test_runs.py"),
     "scoring_columns_of_any_shape": ("admissable_jax/results.py", "        except (TypeError, ValueError):  # ragged",
                                      "        except ImportError:  # ragged", "test_runs.py"),
     "score_estimators_of_one_episode": ("benchmarks/score_estimators.py", "if config.n_episodes < 2 or any(",

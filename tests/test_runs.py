@@ -375,6 +375,18 @@ def test_the_bar_moves_within_an_interval_and_names_what_runs(tmp_path, monkeypa
     episodes.update(10)
     episodes.close()
     assert [line.split(" (")[0] for line in log.getvalue().splitlines()] == ["20 of 40 episodes", "30 of 40 episodes"]
+    # A long scoring round in a log: the clock's redraws write nothing until ten minutes pass
+    # without a line, then one that names what runs, and again ten minutes on.
+    log = io.StringIO()
+    steps = LogLines("env steps", total=1000, unit="step", file=log, smoothing=0)
+    steps.update(500)
+    steps.set_description_str("scoring")
+    steps.refresh()
+    steps.lined_at -= LogLines.HEARTBEAT
+    steps.refresh()
+    steps.refresh()
+    steps.close()
+    assert [line.split(" (")[0] for line in log.getvalue().splitlines()] == ["still scoring: 500 of 1,000 env steps"]
     monkeypatch.setattr(host_loop, "progress_bar", RecordingBar)
     result = train_fn(dataclasses.replace(RUN, total_steps=1500, checkpoint_every=2, progress=True, out=str(tmp_path / "r")))
     # 500 env steps per interval over 4 envs: 125 iterations, as 5 calls of 100 env steps;
