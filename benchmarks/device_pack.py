@@ -22,8 +22,10 @@ list lacks (:data:`EXTRA_WHEELS`: mujoco-warp, 2.3 MB), which ``stage.sh`` insta
 rest. Of ``pack.sh``'s wheels it leaves out
 those that only MuJoCo's viewer and renderer and Brax's web viewer import
 (:data:`LEFT_OUT_WHEELS`: 3.8 MB, pyopengl's 3.2 MB the most): MuJoCo imports its renderer
-in a ``try``, and no campaign step renders. ``tests/test_hopper_pipelines.py`` runs the
-campaign's smoke chain with their modules unimportable. When the two calls cannot hold
+in a ``try``, and no campaign step renders. From the wheels it keeps it drops the folders no
+step reads (:data:`UNUSED_IN_WHEELS`: MuJoCo's experimental apps, MJX's and MuJoCo Warp's test
+data; 23.8 MB). ``tests/test_hopper_pipelines.py`` runs the campaign's smoke chain with those
+modules unimportable (:data:`LEFT_OUT_MODULES`). When the two calls cannot hold
 it all, it says by how much in one line and exits 2, before any device time is spent.
 
 It writes what it packed to ``benchmarks/results/device_pack.json``; ``tests/test_device_pack.py``
@@ -44,11 +46,17 @@ import subprocess
 import sys
 import tempfile
 import tomllib
+import zipfile
 
 TRANSFER_LIMIT = 64 * 2**20  # bytes one device call may carry: the working tree and its carried folders
 FIRST_PART, REST = "a/warp.part0", "b/warp.part1"  # pack.sh's names, which its stage.sh and finish.sh join
 KERNELS = "kernels"  # benchmarks/warp_kernels.py's archive, carried with .dev/b by the call that starts the worker
 UNUSED_AT_RUN_TIME = ("warp/tests",)
+# Folders of pack.sh's wheels that no campaign step reads: MuJoCo's experimental apps (MuJoCo
+# Studio and its GUI libraries, 15.8 MB of the mujoco wheel's 26.7 MB) and the test data of
+# MJX (6.5 MB of its 7.3 MB) and of MuJoCo Warp (1.5 MB): 23.8 MB on 2026-12-07, which the
+# tree may then take (it had grown to within 0.17 MB of the room the packs left).
+UNUSED_IN_WHEELS = ("mujoco/experimental/", "mujoco/mjx/test_data/", "mujoco_warp/test_data/")
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
@@ -66,6 +74,8 @@ EXTRA_WHEELS = _cuda_extra_pins("mujoco-warp")
 # lower case) and the top-level module each installs.
 LEFT_OUT_WHEELS = {"pyopengl": "OpenGL", "glfw": "glfw", "flask": "flask", "flask_cors": "flask_cors",
                    "websockets": "websockets"}
+# The modules a device lacks: those of the wheels left out, and MuJoCo's experimental apps.
+LEFT_OUT_MODULES = (*LEFT_OUT_WHEELS.values(), "mujoco.experimental")
 BLOCK, ARCHIVE_END = 512, 10240  # tar's block, and the most its end takes
 RECORD = os.path.join(REPO, "benchmarks", "results", "device_pack.json")
 
@@ -195,15 +205,39 @@ def leave_out_wheels(wheels: str) -> None:
             os.remove(os.path.join(wheels, name))
 
 
+def slim_wheels(wheels: str) -> None:
+    """Rewrite each wheel in the folder ``wheels`` without its files under :data:`UNUSED_IN_WHEELS`
+    and their lines in its ``RECORD``, every other file as it was (pip installs it as before);
+    a wheel without such files is left untouched, so a second run changes nothing."""
+    for name in sorted(os.listdir(wheels)):
+        path = os.path.join(wheels, name)
+        if not name.endswith(".whl"):
+            continue
+        with zipfile.ZipFile(path) as source:
+            members = source.infolist()
+            kept = [member for member in members if not member.filename.startswith(UNUSED_IN_WHEELS)]
+            if len(kept) == len(members):
+                continue
+            with zipfile.ZipFile(path + ".slim", "w") as slimmed:
+                for member in kept:
+                    data = source.read(member)
+                    if member.filename.endswith(".dist-info/RECORD"):
+                        data = b"".join(line for line in data.splitlines(keepends=True)
+                                        if not line.decode().startswith(UNUSED_IN_WHEELS))
+                    slimmed.writestr(member, data)
+        os.replace(path + ".slim", path)
+
+
 def repack(dev: str, tree: int, margin: int) -> dict:
     """Rewrite ``dev``'s two warp-lang parts (slimmed, split at :func:`split_point`) after leaving
-    out the wheels no step imports; returns the record. Sizes count as archived
+    out the wheels no step imports and slimming the rest (:func:`slim_wheels`); returns the record. Sizes count as archived
     (:func:`archived_bytes`), names relative to ``dev``'s parent."""
     root = os.path.dirname(os.path.abspath(dev))
     for part in (FIRST_PART, REST):
         if not os.path.isfile(os.path.join(dev, part)):
             raise ValueError(f"{os.path.join(dev, part)} is missing: run this with pack=true (it runs ../shared/device/pack.sh first)")
     leave_out_wheels(os.path.join(dev, "a", "whl"))
+    slim_wheels(os.path.join(dev, "a", "whl"))
     with tempfile.TemporaryDirectory() as scratch:
         archive = slim_warp(dev, scratch)
         part_entry = lambda part, size: entry_bytes(os.path.relpath(os.path.join(dev, part), root), size)

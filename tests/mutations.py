@@ -1568,6 +1568,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                            "    for arg in reversed(argv):\n        key, value = arg.split", "test_training.py"),
     "log_lines_never_say_still": ("admissable_jax/cli.py", 'self.write_line(f"still {self.desc}: " if self.desc else "")',
                                   "pass", "test_runs.py"),
+    "device_wheels_not_slimmed": ("benchmarks/device_pack.py", '    slim_wheels(os.path.join(dev, "a", "whl"))\n', "",
+                                  "test_device_pack.py"),
     "scoring_columns_of_any_shape": ("admissable_jax/results.py", "        except (TypeError, ValueError):  # ragged",
                                      "        except ImportError:  # ragged", "test_runs.py"),
     "score_estimators_of_one_episode": ("benchmarks/score_estimators.py", "if config.n_episodes < 2 or any(",

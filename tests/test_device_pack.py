@@ -10,6 +10,7 @@ import json
 import os
 import subprocess
 import tarfile
+import zipfile
 
 import pytest
 
@@ -18,11 +19,22 @@ import device_pack
 MB = 10**6
 
 
+def _mujoco_wheel(size: int) -> dict[str, bytes]:
+    """A mujoco wheel's files, MuJoCo Studio among them, with its RECORD; the same bytes for the same size."""
+    library = bytes(range(256)) * (size // 256)
+    return {"mujoco/libmujoco.so": library, "mujoco/experimental/studio/studio.so": b"studio" * 3000,
+            "mujoco-3.17.0.dist-info/RECORD": b"mujoco/libmujoco.so,sha256=x,1\n"
+                                               b"mujoco/experimental/studio/studio.so,sha256=y,2\n"
+                                               b"mujoco-3.17.0.dist-info/RECORD,,\n"}
+
+
 def _fake_pack_sh(dev, warp_so: bytes, tests: bytes, wheels: int, first_part: int) -> None:
     """A .dev as ../shared/device/pack.sh leaves it: wheels and warp-lang's first part in a/, the rest in b/."""
     os.makedirs(dev / "a" / "whl")
     os.makedirs(dev / "b")
-    (dev / "a" / "whl" / "mujoco-3.17.0-cp312-cp312-manylinux_2_28_x86_64.whl").write_bytes(os.urandom(wheels))
+    with zipfile.ZipFile(dev / "a" / "whl" / "mujoco-3.17.0-cp312-cp312-manylinux_2_28_x86_64.whl", "w") as wheel:
+        for name, data in _mujoco_wheel(wheels).items():
+            wheel.writestr(name, data)
     (dev / "a" / "whl" / "PyOpenGL-3.1.10-py3-none-any.whl").write_bytes(os.urandom(wheels // 3))  # only MuJoCo's renderer imports it
     (dev / "a" / "stage.sh").write_text("staged\n")
     (dev / "b" / "finish.sh").write_text("finished\n")
@@ -73,8 +85,13 @@ def test_packs_are_slimmed_and_split_so_that_each_call_fits_with_the_tree(tmp_pa
     assert second_call() > 1 * MB  # as pack.sh split it, the second call would be over
 
     record = device_pack.repack(str(dev), tree, margin)
-    # The wheels stage.sh installs: all but those no campaign step imports.
+    # The wheels stage.sh installs: all but those no campaign step imports, and of mujoco's
+    # files all but MuJoCo Studio's (and its RECORD line), each as it was.
     assert os.listdir(dev / "a" / "whl") == ["mujoco-3.17.0-cp312-cp312-manylinux_2_28_x86_64.whl"]
+    with zipfile.ZipFile(dev / "a" / "whl" / "mujoco-3.17.0-cp312-cp312-manylinux_2_28_x86_64.whl") as wheel:
+        kept = {name: wheel.read(name) for name in wheel.namelist()}
+    assert kept == {"mujoco/libmujoco.so": _mujoco_wheel(300_000)["mujoco/libmujoco.so"],
+                    "mujoco-3.17.0.dist-info/RECORD": b"mujoco/libmujoco.so,sha256=x,1\nmujoco-3.17.0.dist-info/RECORD,,\n"}
     # warp-lang as finish.sh unpacks it: all of it but the test suite, never imported at run time.
     assert _joined(dev) == {"./warp/bin/warp.so": warp_so, "./warp/__init__.py": b""}
     # The first call (.dev/a) is filled to within a block of the limit less the margin; the rest

@@ -107,7 +107,7 @@ def _campaign(step: str, directory: str, **settings: str) -> subprocess.Complete
     """A device call of ``gpu_campaign.sh STEP``, without the modules of the wheels the device packs leave out."""
     env = {**os.environ, "JAX_PLATFORMS": "cpu", "CAMPAIGN_SMOKE": "1", "CAMPAIGN_DIR": directory,
            "PYTHON": sys.executable, "PYTHONPATH": os.pathsep.join(filter(None, (WITHOUT_MODULES, os.environ.get("PYTHONPATH")))),
-           "WITHOUT_MODULES": ",".join(device_pack.LEFT_OUT_WHEELS.values()),
+           "WITHOUT_MODULES": ",".join(device_pack.LEFT_OUT_MODULES),
            "WITHOUT_MODULES_LOG": directory + "-without-modules.log", **settings}
     env.pop("OUT", None)
     call = subprocess.Popen(["bash", os.path.join(os.path.dirname(__file__), "..", "benchmarks", "gpu_campaign.sh"), step],

@@ -1,5 +1,6 @@
 """Loaded at the start of every Python process that has this folder on ``PYTHONPATH``: makes the
-top-level modules named in ``WITHOUT_MODULES`` (comma-separated) unimportable, as on a device
+modules named in ``WITHOUT_MODULES`` (comma-separated; ``mujoco.experimental`` and what is
+under it, ``OpenGL`` and what is under it) unimportable, as on a device
 machine whose packs left their wheels out, and logs to ``WITHOUT_MODULES_LOG`` that it was
 loaded and each import it refused (an import caught by its importer, as MuJoCo catches its
 renderer's, is no failure)."""
@@ -20,7 +21,7 @@ def _log(line: str) -> None:
 
 class _Without(importlib.abc.MetaPathFinder):
     def find_spec(self, name, path, target=None):
-        if name.partition(".")[0] in _WITHOUT:
+        if any(name == left_out or name.startswith(left_out + ".") for left_out in _WITHOUT):
             _log(f"refused {name}")
             raise ModuleNotFoundError(f"No module named {name!r} (left out of the device packs)", name=name)
         return None
