@@ -24,7 +24,7 @@ those that only MuJoCo's viewer and renderer and Brax's web viewer import
 (:data:`LEFT_OUT_WHEELS`: 3.8 MB, pyopengl's 3.2 MB the most): MuJoCo imports its renderer
 in a ``try``, and no campaign step renders. From the wheels it keeps it drops the folders no
 step reads (:data:`UNUSED_IN_WHEELS`: MuJoCo's experimental apps, MJX's and MuJoCo Warp's test
-data; 23.8 MB). ``tests/test_hopper_pipelines.py`` runs the campaign's smoke chain with those
+data; 23.9 MB). ``tests/test_hopper_pipelines.py`` runs the campaign's smoke chain with those
 modules unimportable (:data:`LEFT_OUT_MODULES`). When the two calls cannot hold
 it all, it says by how much in one line and exits 2, before any device time is spent.
 
@@ -54,7 +54,7 @@ KERNELS = "kernels"  # benchmarks/warp_kernels.py's archive, carried with .dev/b
 UNUSED_AT_RUN_TIME = ("warp/tests",)
 # Folders of pack.sh's wheels that no campaign step reads: MuJoCo's experimental apps (MuJoCo
 # Studio and its GUI libraries, 15.8 MB of the mujoco wheel's 26.7 MB) and the test data of
-# MJX (6.5 MB of its 7.3 MB) and of MuJoCo Warp (1.5 MB): 23.8 MB on 2026-12-07, which the
+# MJX (6.5 MB of its 7.3 MB) and of MuJoCo Warp (1.6 MB): 23.9 MB on 2026-12-07, which the
 # tree may then take (it had grown to within 0.17 MB of the room the packs left).
 UNUSED_IN_WHEELS = ("mujoco/experimental/", "mujoco/mjx/test_data/", "mujoco_warp/test_data/")
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -210,9 +210,9 @@ def slim_wheels(wheels: str) -> None:
     and their lines in its ``RECORD``, every other file as it was (pip installs it as before);
     a wheel without such files is left untouched, so a second run changes nothing."""
     for name in sorted(os.listdir(wheels)):
-        path = os.path.join(wheels, name)
         if not name.endswith(".whl"):
             continue
+        path = os.path.join(wheels, name)
         with zipfile.ZipFile(path) as source:
             members = source.infolist()
             kept = [member for member in members if not member.filename.startswith(UNUSED_IN_WHEELS)]
