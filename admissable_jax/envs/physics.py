@@ -134,8 +134,11 @@ class Physics:
         # CPU; Warp's step is kernel launches, an accelerator's about the same for any batch.
         self.steps_cost_each_world = impl == "jax" and jax.default_backend() == "cpu"
         self.worlds_per_call = _worlds_per_call(impl, worlds_per_call, self.data_template, self.steps_cost_each_world)
+        # Jitted, so that one world's data and step are traced once per env and argument
+        # shape: each program that resets or steps an env, and each vmap rule below, reuses them
+        # (tracing a Hopper run's two programs on the JAX physics: 13.4 CPU-s instead of 20.7).
+        self._data, self._step = jax.jit(self._world_data), jax.jit(self._world_step)
         # Warp's FFI calls, and JAX's in pieces: one flat batch whatever the vmaps (module docstring).
-        self._data, self._step = self._world_data, self._world_step
         if impl == "warp" or self.worlds_per_call:
             self._data, self._step = (in_one_flat_batch(world_fn, self.worlds_per_call)
                                       for world_fn in (self._data, self._step))
