@@ -32,6 +32,8 @@ REFUSALS = [
     ("physics_throughput.py", ["batches=8,0"], "batches and steps must be >= 1"),
     ("physics_throughput.py", ["worlds_per_call=0,-1"], "worlds_per_call must be an int >= 0 (0: from the world's size), got -1"),
     ("physics_throughput.py", ["worlds_per_call=8,all"], "worlds_per_call must be comma-separated ints, got '8,all'"),
+    ("program_build.py", ["physics=jax,cuda"], "physics must be comma-separated jax or warp, got 'jax,cuda'"),
+    ("program_build.py", ["train=num_envs=-1"], "num_envs must be >= 0, got -1"),
     ("repeatability.py", ["total_steps=100", "learning_starts=100"],
      "learning_starts must be in (0, total_steps = 100), got 100"),
     ("repeatability.py", ["seeds=0"], "seeds must be >= 1, got 0"),
