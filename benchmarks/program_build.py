@@ -57,13 +57,11 @@ def _validate(bench: ProgramBuildConfig) -> None:
         _train_config(canonical_env_name(name.strip()), "jax", bench.train)  # the train keys, checked here
 
 
-def _stage(stages: dict, name: str, build):
-    """``build()``, with its CPU and wall seconds added to ``stages[name]``."""
+def _timed(build) -> tuple:
+    """(``build()``, the CPU and the wall seconds it took)."""
     cpu, wall = time.process_time(), time.perf_counter()
     built = build()
-    stages[name]["cpu_s"] += time.process_time() - cpu
-    stages[name]["wall_s"] += time.perf_counter() - wall
-    return built
+    return built, {"cpu_s": time.process_time() - cpu, "wall_s": time.perf_counter() - wall}
 
 
 def _measure_in_this_process(env: str, physics: str, train: str) -> dict:
@@ -78,18 +76,17 @@ def _measure_in_this_process(env: str, physics: str, train: str) -> dict:
     programs = {"train_chunk": lambda s: trainer.run_chunk(s, iterations), "scoring_round": trainer.score_and_update}
     record = {"env": trainer.env.gymnasium_id, "physics": trainer.env.physics_name, "train": train,
               "xla_flags": os.environ.get("XLA_FLAGS", "")}
-    totals = {stage: {"cpu_s": 0.0, "wall_s": 0.0} for stage in STAGES}
+    per_program = []
     for name, program in programs.items():
-        stages = {stage: {"cpu_s": 0.0, "wall_s": 0.0} for stage in STAGES}
-        traced = _stage(stages, "trace", lambda: jax.jit(program).trace(state))
-        lowered = _stage(stages, "lower", traced.lower)
-        _stage(stages, "compile", lowered.compile)
-        record[name] = {**{f"{stage}_{kind}": round(value, 2) for stage, seconds in stages.items()
-                           for kind, value in seconds.items()}, "mlir_chars": len(lowered.as_text())}
-        for stage, seconds in stages.items():
-            for kind, value in seconds.items():
-                totals[stage][kind] += value
-    record.update({f"{stage}_{kind}": round(value, 2) for stage, seconds in totals.items() for kind, value in seconds.items()})
+        traced, trace = _timed(lambda: jax.jit(program).trace(state))
+        lowered, lower = _timed(traced.lower)
+        _, compile_ = _timed(lowered.compile)
+        seconds = dict(zip(STAGES, (trace, lower, compile_)))
+        record[name] = {**{f"{stage}_{kind}": round(value, 2) for stage in STAGES for kind, value in seconds[stage].items()},
+                        "mlir_chars": len(lowered.as_text())}
+        per_program.append(seconds)
+    record.update({f"{stage}_{kind}": round(sum(seconds[stage][kind] for seconds in per_program), 2)
+                   for stage in STAGES for kind in ("cpu_s", "wall_s")})
     return record
 
 
