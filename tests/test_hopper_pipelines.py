@@ -281,8 +281,9 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
 def test_capacity_overflow_is_detected_and_stops_the_run_in_one_line(tmp_path, monkeypatch):
     """A batch larger than the env's max_batch overflows Warp's shared contact buffer and the
     env says so; a run whose env says so stops with an error naming the setting."""
-    # Sized for 1 world, 8 Hoppers falling onto the floor overflow. (Sized for the
-    # batch, nothing overflows: the Warp experiment's 24 worlds, sized for them, finish.)
+    # Sized for 1 world, 8 Hoppers falling onto the floor overflow (from step 12 of these
+    # starts). (Sized for the batch, nothing overflows: the Warp experiment's 24 worlds, sized
+    # for them, finish.)
     env = make_env("hopper", physics="warp", max_batch=1)
     actions = np.zeros((8, env.action_size), np.float32)
 
@@ -291,7 +292,7 @@ def test_capacity_overflow_is_detected_and_stops_the_run_in_one_line(tmp_path, m
         return states, env.capacity_exceeded(states)
 
     states = jax.vmap(env.reset)(jax.random.split(jax.random.key(0), 8))
-    assert bool(jax.jit(lambda s: jax.lax.scan(step, s, None, length=40)[1].any())(states))
+    assert bool(jax.jit(lambda s: jax.lax.scan(step, s, None, length=20)[1].any())(states))
 
     # The loop's side, on the point mass (seconds): an env that reports an overflow
     # mid-run stops it with one line naming the setting and the kept checkpoint.
