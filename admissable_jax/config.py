@@ -19,6 +19,7 @@ from admissable_jax.cli import RUN_LOCATION, ConfigFile, check_at_least_one, set
 from admissable_jax.envs import canonical_env_name, env_physics, observation_size, short_env_name
 from admissable_jax.loggers import parse_logger_names
 from admissable_jax.method import check_exact_size, fail_steps, num_candidate_sets, spread_fail_steps
+from admissable_jax.replay import buffer_capacity
 from admissable_jax.scoring import SCORE_ESTIMATORS
 
 SB3_SAC = SACHyperparams()
@@ -414,8 +415,10 @@ def validate(config: TrainConfig) -> None:
 def setting_warnings(config: TrainConfig) -> list[str]:
     """What a resolved run's settings do that its keys do not say, one line each: a
     ``learning_starts`` not below the run's env steps (SAC, learning once env steps pass it,
-    never updates; a random-policy baseline may mean it), and a ``utd`` whose
-    ``num_envs · utd`` gradient steps per iteration is no whole number (rounded, at least 1)."""
+    never updates; a random-policy baseline may mean it), a ``utd`` whose
+    ``num_envs · utd`` gradient steps per iteration is no whole number (rounded, at least 1),
+    and a replay buffer that holds fewer transitions than one minibatch (``buffer_size`` as
+    rounded: every minibatch, drawn with replacement, repeats the last few env steps)."""
     warnings = []
     if config.learning_starts >= config.planned_steps:
         warnings.append(f"learning_starts={config.learning_starts} is not below the run's {config.planned_steps} env "
@@ -426,4 +429,10 @@ def setting_warnings(config: TrainConfig) -> list[str]:
         warnings.append(f"utd={number_text(float(config.utd))} with num_envs={config.num_envs} asks for {asked:.4g} "
                         f"gradient steps per iteration, which is rounded to {updates}: the run's utd is "
                         f"{updates / config.num_envs:.4g} (choose num_envs and utd whose product is a whole number)")
+    capacity = buffer_capacity(config.buffer_size, config.num_envs)
+    if capacity < config.batch_size:
+        held = "" if capacity == config.buffer_size else f" (rounded to a multiple of num_envs={config.num_envs})"
+        warnings.append(f"buffer_size={config.buffer_size} holds {capacity} transitions{held}, fewer than one minibatch "
+                        f"(batch_size={config.batch_size}): every minibatch repeats transitions, all from the last "
+                        f"{capacity} env steps (raise buffer_size)")
     return warnings

@@ -809,7 +809,8 @@ def test_settings_whose_effect_their_keys_do_not_say_are_warned():
     """A run says, one warning line each, where its settings do what their keys do not say: a
     learning_starts not below its planned env steps (SAC never updates), and a utd whose
     num_envs · utd gradient steps per iteration is rounded (the run's utd is another); not
-    for a product that float arithmetic leaves a hair off a whole number (100 · 0.07)."""
+    for a product that float arithmetic leaves a hair off a whole number (100 · 0.07); and a
+    replay buffer that holds fewer transitions than one minibatch."""
     from admissable_jax.config import setting_warnings
 
     def warnings(**settings):
@@ -823,6 +824,14 @@ def test_settings_whose_effect_their_keys_do_not_say_are_warned():
         "learning_starts=1000 is not below the run's 1000 env steps: SAC never updates, and every scoring scores the "
         "untrained policy (lower learning_starts or raise total_steps)"]
     assert warnings(total_steps=1001, learning_starts=1000) == []  # planned: 2000 env steps (ζ = 1000)
+    # A replay buffer smaller than a minibatch (as rounded to whole iterations): minibatches repeat the last steps.
+    assert warnings(buffer_size=1) == [
+        "buffer_size=1 holds 4 transitions (rounded to a multiple of num_envs=4), fewer than one minibatch "
+        "(batch_size=128): every minibatch repeats transitions, all from the last 4 env steps (raise buffer_size)"]
+    assert warnings(buffer_size=100, batch_size=101) == [
+        "buffer_size=100 holds 100 transitions, fewer than one minibatch (batch_size=101): every minibatch repeats "
+        "transitions, all from the last 100 env steps (raise buffer_size)"]
+    assert warnings(buffer_size=131) == warnings(buffer_size=128, batch_size=128) == []  # 131: 128 rows, a whole minibatch
 
 
 def test_numpy_scalars_are_settings_as_python_numbers():
