@@ -11,7 +11,9 @@ tables beside them, ``curves.csv`` and ``scores.csv``; and every env's min_u a_u
 side, as the paper lays Figure 1 out, into ``figure1.png`` beside the file), and writes: the settings the
 runs used; final and AUC min_u a_u, the final mean_u a_u (the average over U) and the
 final clean return per mode, mean ± 95% t-interval over seeds, and the set most often worst
-at the end (``summary_table``);
+at the end (``summary_table``); where runs hold an audit of their final policy
+(``<run>/audit-final/audit.json``: benchmarks/README.md, Step 5), its min_u a_u and clean
+return per mode beside the training's own final estimate, and adversarial − uniform on it;
 adversarial − uniform on each with Welch's 95% interval and p-value, and the probability
 that a seed of adversarial training ends above one of uniform (``format_comparison``);
 the verdict those numbers give, in words; mode ``none``'s clean return against the SB3
@@ -40,8 +42,8 @@ from admissable_jax.config import RUN_SETTINGS
 from admissable_jax.errors import INTERRUPTED, UnusableDirectory, remove_if_unused
 from admissable_jax.plot import check_formats, new_folder, plot_envs_side_by_side, plot_runs
 from admissable_jax.results import (
-    IMPROVEMENT_COLUMN, Difference, Run, differing_settings, find_runs, format_comparison, load_run, mean_and_interval,
-    mode_differences, summary_table, trained_on, write_tables,
+    IMPROVEMENT_COLUMN, Difference, Run, comparison_header, differing_settings, estimate, find_runs, format_comparison,
+    load_run, mean_and_interval, mode_differences, summary_table, trained_on, write_tables,
 )
 from admissable_jax.run_directory import load_config_yaml
 from common import benchmark_commit
@@ -51,6 +53,7 @@ from common import benchmark_commit
 SB3_ZOO_SAC = {"hopper": (2326.0, 1130.0), "walker2d": (3863.0, 254.0), "ant": (4616.0, 1354.0)}
 PAPER_STEPS = 1_000_000
 HAND_NOTES = "## Noted by hand"  # the heading of what a person wrote under the computed part, kept on a rewrite
+AUDITED_FINAL = "audit-final"  # RUN/audit-final/: the run's final policy audited afresh (benchmarks/README.md, Step 5)
 SETTINGS = ("physics", "num_envs", "score_every", "score_episodes", "k", "lower_bound", "epsilon", "learning_starts",
             "batch_size", "buffer_size")
 
@@ -121,6 +124,54 @@ def _clean_sac_line(env: str, all_runs: list[Run]) -> str:
             f"{interval} against the SB3 RL-Zoo SAC at 1M, {reference:,.0f} ± {spread:,.0f} (v3 envs): {words}.")
 
 
+def _audit_of_final_policy(run: Run) -> dict | None:
+    """The audit of ``run``'s final policy, ``RUN/audit-final/audit.json`` (``audit
+    policy=RUN/exported/policy-step<N>.npz``, N the env step of its last scoring); None where
+    it has none, ValueError in one line where it audits another policy (an earlier lease's)."""
+    path = os.path.join(run.path, AUDITED_FINAL, "audit.json")
+    if not os.path.isfile(path):
+        return None
+    with open(path) as file:
+        audit = json.load(file)
+    final = f"policy-step{int(run.env_steps[-1])}.npz"
+    audited = os.path.basename(audit.get("source", {}).get("policy", ""))
+    if audited != final:
+        raise ValueError(f"{path} audits {audited or 'no exported policy'}, not the run's final {final}: audit that "
+                         f"into {AUDITED_FINAL}/ (benchmarks/README.md, Step 5)")
+    return audit
+
+
+def _audited_finals(runs: list[Run]) -> list[str]:
+    """Markdown lines: the final policies audited afresh in Gymnasium's own env, per mode
+    (mean ± 95% t-interval over the audited seeds) beside the training's own final estimate
+    of the same runs, and adversarial − uniform on the audited min_u a_u; none where no run
+    has an audit of its final policy."""
+    audited = [(run, audit) for run in runs if (audit := _audit_of_final_policy(run)) is not None]
+    if not audited:
+        return []
+    episodes = " or ".join(map(str, sorted({audit["n_episodes"] for _, audit in audited})))
+    trained_episodes = " or ".join(map(str, sorted({run.score_episodes for run, _ in audited})))
+    lines = [f"**The final policies, audited afresh** ({len(audited)} of {len(runs)} runs, `<run>/{AUDITED_FINAL}/`: "
+             f"Gymnasium's own C-MuJoCo env, new start states, {episodes} episodes per set, against the training's "
+             f"last scoring of {trained_episodes}; each a minimum over sets of noisy estimates, which tends to read "
+             "low, the less so the more episodes):", "",
+             "| mode | runs | audited final min_u a_u | training's final min_u a_u | audited clean return |",
+             "|---|---|---|---|---|"]
+    minimum = {}
+    for mode in dict.fromkeys(run.mode for run, _ in audited):
+        of_mode = [(run, audit) for run, audit in audited if run.mode == mode]
+        minimum[mode] = np.array([min(entry["score"] for sets in audit["sets"].values() for entry in sets)
+                                  for _, audit in of_mode])
+        trained = np.array([run.min_score[-1] for run, _ in of_mode])
+        clean = np.array([audit["clean_score"] for _, audit in of_mode])
+        lines.append(f"| {mode} | {len(of_mode)} | {estimate(minimum[mode])} | {estimate(trained)} | "
+                     f"{estimate(clean)} |")
+    if {"adversarial", "uniform"} <= minimum.keys():
+        difference = Difference("audited final min_u a_u", minimum["adversarial"], minimum["uniform"])
+        lines += ["", *comparison_header("metric"), f"| {difference.metric} | {difference.cells()} |"]
+    return lines + [""]
+
+
 def _cost_line(run_dirs: list[str]) -> str:
     """What the runs cost, measured: their program's seconds per training chunk and per
     scoring round (``metrics.jsonl``; the runs of one experiment share one program, so one
@@ -163,6 +214,7 @@ def env_section(env: str, folder: str, window: int, out_file: str, formats: tupl
         raise ValueError(f"the runs in {folder} differ in {', '.join(differing)}: Figure 1 compares the modes at one "
                          "setting per env (plot draws each setting as its own curve)")
     steps = min(int(run.env_steps[-1]) for run in runs)
+    audited = _audited_finals(runs)  # before anything is drawn: an audit of another policy stops here
     figures = new_folder(os.path.join(folder, "figures"))
     if made is not None:
         made.append(figures)
@@ -181,6 +233,7 @@ def env_section(env: str, folder: str, window: int, out_file: str, formats: tupl
         "**Verdict (computed):**", "",
         *(f"- {_verdict(difference)}" for difference in differences),
         f"- {_clean_sac_line(env, runs)}", "",
+        *audited,
         _cost_line(run_dirs), "",
         trained_on(run_dirs), "",
         f"![min_u a_u, mean_u a_u and clean return]({figure})", "",

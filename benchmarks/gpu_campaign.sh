@@ -39,7 +39,11 @@
 # benchmark records) into $OUT/campaign-STEP.tar.gz (at most 16 MiB) for the trip back, and
 # each run's best policy (best_policy.npz) into $OUT/campaign-STEP-policies.tar.gz (15 Hopper
 # runs: about 13 MB, computed from the networks' sizes), which load_policy(run, "best"), audit
-# best=true and video best=true read.
+# best=true and video best=true read. Once its run has ended, a step exports each run's final
+# policy (python -m admissable_jax.export: the actor of the last checkpoint as NumPy arrays,
+# RUN/exported/policy-step<N>.npz; 15 Hopper runs: about 4.4 MB), packed into
+# $OUT/campaign-STEP-final-policies.tar.gz: the checkpoints never leave the machine, and
+# `audit policy=FILE.npz` scores these afresh in Gymnasium's own env.
 #
 # Exit status of a call: 0 the step is complete; 75 call again (the same command, at once: a
 # machine idle for ~30 s is given back, its worker with it); 3 refused (a run that cannot
@@ -60,7 +64,8 @@
 # Step 5 runs here, on the CPU, from the tarballs that came back: unpack each into
 # benchmarks/results/ and run `python benchmarks/figure1.py hopper=DIR walker2d=DIR ant=DIR`
 # (and campaign-STEP-policies.tar.gz into the same folder, beside the records, to audit the runs'
-# best policies in Gymnasium's own env: benchmarks/sim_to_sim.py).
+# best policies in Gymnasium's own env: benchmarks/sim_to_sim.py; campaign-STEP-final-policies.tar.gz
+# too, for their final ones: benchmarks/README.md, Step 5).
 #
 # Settings (environment; a value the script cannot read is refused at once: one line, exit 2):
 #   CAMPAIGN_DEADLINE       device seconds this step may use, from its worker's start (needed to
@@ -83,10 +88,12 @@
 #                           that does, for the partial curves and the measured cost per interval
 #   CAMPAIGN_ONLY           a regular expression: the speed step runs only the stages it matches
 #                           (e.g. 'measure-hopper' or 'brax'), to redo one or to test a few
-#   CAMPAIGN_RESERVE        seconds of the deadline a run leaves unused (default 30): its start
-#                           before experiment's clock does (imports, ~10 s) and the checkpoint it
-#                           saves where it stops (Ant's 10 runs: 16 s). A run goes on past its
-#                           planned length while the deadline allows (experiment's time_limit)
+#   CAMPAIGN_RESERVE        seconds of the deadline a run leaves unused (default 50): its start
+#                           before experiment's clock does (imports, ~10 s), the checkpoint it
+#                           saves where it stops (Ant's 10 runs: 16 s) and the export of its
+#                           final policies after it (one process: 4.5 s for 3 smoke pairs on a
+#                           2-core CPU). A run goes on past its planned length while the
+#                           deadline allows (experiment's time_limit)
 #   CAMPAIGN_RUN_SECONDS    the worker's run pauses (checkpoints and stops, as experiment's time_limit)
 #                           after this many seconds and the call says to call again; the next
 #                           worker resumes it (tests use it; 0 or unset: no limit)
@@ -128,7 +135,7 @@ repo=$(cd "$(dirname "$0")/.." && pwd)
 cd "$repo"
 smoke=${CAMPAIGN_SMOKE:-0}
 call_seconds=${CAMPAIGN_CALL_SECONDS:-540}
-reserve=${CAMPAIGN_RESERVE:-30}
+reserve=${CAMPAIGN_RESERVE:-50}
 pack_seconds=${CAMPAIGN_PACK_SECONDS:-60}
 py=${PYTHON:-python3}
 if [ "$smoke" = 1 ]; then dir=${CAMPAIGN_DIR:-runs/campaign-smoke}; else dir=${CAMPAIGN_DIR:-runs/campaign}; fi
@@ -260,6 +267,18 @@ train() {  # train ENV modes=M total_steps=N: the planned run of N env steps, on
   else echo "$env is not finished: the next worker resumes it"; exit 75; fi
 }
 
+export_final() {  # export_final ENV: each run's policy where it stopped (its last checkpoint) as NumPy
+                  # arrays, for the trip back (the checkpoints, replay buffers and all, never leave the
+                  # machine): audit policy=FILE.npz scores it afresh in Gymnasium's own env
+  echo "+ python -m admissable_jax.export $dir/$1"
+  timeout 300 $py -m admissable_jax.export "$dir/$1" 2>&1 | grep -v '^Warp'
+  local status=${PIPESTATUS[0]}
+  if [ "$status" -ne 0 ]; then
+    echo "export exited $status: the runs' final policies will not come back (their records will)"
+    [ "$smoke" = 1 ] && exit 1  # smoke mode exists to find such failures
+  fi
+}
+
 refused() { echo "refused: $1"; exit 3; }
 
 unpack_records() {  # unpack_records ENV: the ENV/ folder of $records as $dir/ENV, once
@@ -357,11 +376,13 @@ worker() {
       chosen=$state/$step.run
       [ -e "$chosen" ] || choose "$step" $ALL total_steps=$full_steps "${fallback[@]}" or_longest=true "${continuing[@]}"
       train "$step" $(cat "$chosen")
+      export_final "$step"
       ;;
     ant)
       chosen=$state/ant.run
       [ -e "$chosen" ] || choose ant $PAIRED total_steps=0 "${continuing[@]}"
       train ant $(cat "$chosen")
+      export_final ant
       ;;
   esac
   echo "step $step complete"
@@ -380,21 +401,22 @@ out=$(cd "$out" && pwd)
 pidfile=$state/$step.pid statusfile=$state/$step.status shownfile=$state/$step.shown
 
 pack() {  # what exists so far, for the trip back: jsonl, yaml, the runs' feature names, logs, records
-  local tarball=$out/campaign-$step.tar.gz
   kernel_report > "$dir/warp-kernels.log"
-  (cd "$dir" && find . \( -name '*.jsonl' -o -name '*.yaml' -o -name observation_names.json -o -name '*.log' \
-      -o -path './state/*' \) \
-      -not -path './out/*' -print0 | tar --null -czf "$tarball" -T -)
-  local bytes; bytes=$(stat -c %s "$tarball")
-  echo "packed $(tar -tzf "$tarball" | wc -l) files, $bytes bytes, into $tarball; $(cat "$dir/warp-kernels.log")"
+  pack_apart "campaign-$step" "files" "; $(cat "$dir/warp-kernels.log")" \( -name '*.jsonl' -o -name '*.yaml' \
+      -o -name observation_names.json -o -name '*.log' -o -path './state/*' \)
+  # The policies in files of their own, so that the records come back whatever their size: each
+  # run's best (best_policy.npz, about 1 MB: the networks without the replay buffer) and, once
+  # the step is complete, its final one (admissable_jax.export's, the actor alone: 0.3 MB).
+  pack_apart "campaign-$step-policies" "best policies" "" -name best_policy.npz
+  pack_apart "campaign-$step-final-policies" "final policies" "" -path '*/exported/policy-step*.npz'
+}
+
+pack_apart() {  # pack_apart NAME WHAT NOTE FIND-TESTS...: the files the tests find (not in out/) into $out/NAME.tar.gz
+  local tarball=$out/$1.tar.gz what=$2 note=$3 bytes; shift 3
+  (cd "$dir" && find . "$@" -not -path './out/*' -print0 | tar --null -czf "$tarball" -T -)
+  bytes=$(stat -c %s "$tarball")
+  echo "packed $(tar -tzf "$tarball" | wc -l) $what, $bytes bytes, into $tarball$note"
   [ "$bytes" -le 16777216 ] || echo "warning: $tarball is over 16 MiB and will not come back" >&2
-  # Each run's best policy (best_policy.npz, about 1 MB: the networks without the replay
-  # buffer), in a file of its own, so that the records come back whatever its size.
-  local policies=$out/campaign-$step-policies.tar.gz
-  (cd "$dir" && find . -name best_policy.npz -not -path './out/*' -print0 | tar --null -czf "$policies" -T -)
-  bytes=$(stat -c %s "$policies")
-  echo "packed $(tar -tzf "$policies" | wc -l) best policies, $bytes bytes, into $policies"
-  [ "$bytes" -le 16777216 ] || echo "warning: $policies is over 16 MiB and will not come back" >&2
 }
 
 kernel_report() {  # how many Warp modules came prebuilt and how many this machine compiled

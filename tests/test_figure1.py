@@ -26,9 +26,19 @@ def _figure1(*args: str) -> int:
         return exit.code
 
 
+def _audit_of_final_policy(run, set_scores: list[float], clean: float, policy_file: str) -> None:
+    """``run/audit-final/audit.json`` as ``audit policy=run/exported/POLICY_FILE`` writes it
+    (the fields figure1.py reads): N = 50, the k = 1 sets' a_u and the clean return."""
+    (run / "audit-final").mkdir(exist_ok=True)
+    (run / "audit-final" / "audit.json").write_text(json.dumps({
+        "env": "Hopper-v5", "n_episodes": 50, "clean_score": clean,
+        "sets": {"1": [{"hidden": [index], "score": score} for index, score in enumerate(set_scores)]},
+        "source": {"Gymnasium env": "Hopper-v5", "policy": str(run / "exported" / policy_file)}}))
+
+
 def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys, monkeypatch):
     """Hand-computed: adversarial finals 40, 60 against uniform 8, 10 (Welch: +41.0
-    [-80.9, 162.9], p = 0.149). Mode none's final clean returns at 1M env steps against SB3's
+    [-80.9, 162.9], p = 0.149); the same runs' final policies audited afresh. Mode none's final clean returns at 1M env steps against SB3's
     Hopper 2,326 ± 1,130 (mean − 1 sd = 1196), two seeds so ± t(0.975, 1) · 70.7 / √2 = 635.3:
     500 and 600 give [-85.3, 1185.3], under 1196: clearly below; 1000 and 1100 give
     [414.7, 1685.3]: within. The same at 20,000 env steps: not comparable yet."""
@@ -50,6 +60,12 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys, 
               "versions": {"jax": "0.10.2", "mujoco": "3.5.0", "warp-lang": "1.19.0"}}
     for name in ("adversarial-s0", "uniform-s0"):
         (root / name / "invocations.jsonl").write_text(json.dumps(record) + "\n")
+    # The final policies of the adversarial and uniform runs audited afresh (audit policy=FILE.npz
+    # into <run>/audit-final): their lowest set's a_u 50, 70 against 10, 12 (Welch: +49.0
+    # [-72.9, 170.9], p = 0.125; ± t(0.975, 1) · sd / √2: 127.1 and 12.7); mode none's unaudited.
+    for name, sets, clean in (("adversarial-s0", [55, 50], 1000), ("adversarial-s1", [70, 80], 1100),
+                              ("uniform-s0", [10, 30], 900), ("uniform-s1", [40, 12], 900)):
+        _audit_of_final_policy(root / name, sets, clean, "policy-step20000.npz")
     out = tmp_path / "FIGURE1.md"
     # The commit FIGURE1.md names is the code's: taken before its own outputs are written, and
     # blind to benchmarks/results (where the runs and figures live, tracked), as git would mark
@@ -74,6 +90,12 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys, 
     assert ("Clean SAC (mode `none`, 2 seeds): final clean return 550.0 [-85.3, 1185.3] against the SB3 RL-Zoo "
             "SAC at 1M, 2,326 ± 1,130 (v3 envs): clearly below SB3's (our 95% interval lies under its mean − 1 sd).") in text
     assert "(6 runs, 20,000 env steps each, not the paper's 1M)" in text
+    assert ("**The final policies, audited afresh** (4 of 6 runs, `<run>/audit-final/`: Gymnasium's own C-MuJoCo env, "
+            "new start states, 50 episodes per set, against the training's last scoring of 10;") in text
+    assert "| adversarial | 2 | 60.0 ± 127.1 | 50.0 ± 127.1 | 1050.0 ± 635.3 |" in text
+    assert "| uniform | 2 | 11.0 ± 12.7 | 9.0 ± 12.7 | 900.0 ± 0.0 |" in text and "\n| none |" not in text
+    assert ("| audited final min_u a_u | +49.0 | [-72.9, 170.9] | 0.125 | 1.00 [1.00, 1.00] | not distinguishable "
+            "(95% interval holds 0) |") in text
     assert "![min_u a_u, mean_u a_u and clean return](hopper/figures/min_score.png)" in text
     assert "![every env's min_u a_u, as the paper's Figure 1 lays it out](figure1.png)" in text
     # The formats asked for, and PNG always (the file shows the PNGs).
@@ -123,6 +145,15 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys, 
         f"error: the runs in {mixed} differ in score_episodes: Figure 1 compares the modes at one setting per env "
         "(plot draws each setting as its own curve)")
     assert not (tmp_path / "mixed.md").exists()
+    # An audit of another policy than the run's final one (an earlier lease's): one line.
+    _audit_of_final_policy(root / "uniform-s1", [40, 12], 900, "policy-step15000.npz")
+    assert _figure1(f"hopper={root}", f"out={tmp_path / 'stale.md'}") == 2
+    audit = root / "uniform-s1" / "audit-final" / "audit.json"
+    assert capsys.readouterr().err.strip() == (
+        f"error: {audit} audits policy-step15000.npz, not the run's final policy-step20000.npz: audit that into "
+        "audit-final/ (benchmarks/README.md, Step 5)")
+    assert not (tmp_path / "stale.md").exists() and not (root / "figures-2").exists()  # checked before drawing
+    _audit_of_final_policy(root / "uniform-s1", [40, 12], 900, "policy-step20000.npz")
 
     # Ctrl-C midway: one line, exit 130, FIGURE1.md not written; the figures folder stays if it
     # holds a figure, and goes if it was made and holds none.

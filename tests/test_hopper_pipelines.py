@@ -31,7 +31,9 @@ from admissable_jax import TrainConfig, make_env
 from admissable_jax.best_policy import best_kept
 from admissable_jax.envs import observation_names
 from admissable_jax.experiment import ExperimentConfig, run_experiment
+from admissable_jax.exported_policy import ExportedPolicy
 from admissable_jax.host_loop import PhysicsCapacityExceeded
+from admissable_jax.policies import load_policy
 from admissable_jax.train import train_fn
 import campaign  # benchmarks/ is on the tests' path (conftest.py)
 import device_pack
@@ -134,6 +136,22 @@ def _repeats_the_straight_run(packed: dict[str, bytes], warp_experiment, rounds:
         assert [row["p_miss"] for row in rows] == [row["p_miss"] for row in straight.scores[:rounds]]
 
 
+def _final_policies_are_the_straight_runs(directory: str, warp_experiment, into: str) -> None:
+    """The final policies the hopper step's last call packed: one per pair, at env step 80,
+    the layers the uninterrupted experiment's last checkpoint exports."""
+    with tarfile.open(os.path.join(directory, "out", "campaign-hopper-final-policies.tar.gz")) as tar:
+        assert sorted(tar.getnames()) == [f"./hopper/{pair}/exported/policy-step80.npz"
+                                          for pair in ("adversarial-s0", "none-s0", "uniform-s0")]
+        tar.extractall(into, filter="data")
+    for straight in warp_experiment:
+        pair = f"{straight.config.missingness}-s0"
+        final = ExportedPolicy.load(os.path.join(into, "hopper", pair, "exported", "policy-step80.npz"))
+        expected = load_policy(straight.run_dir).exported()
+        assert (final.source["missingness"], final.source["env_steps"]) == (straight.config.missingness, 80)
+        for got, want in zip(final.weights + final.biases, expected.weights + expected.biases, strict=True):
+            np.testing.assert_array_equal(got, want)
+
+
 def _fresh_machine(directory: str, speed_records: str) -> str:
     """A campaign folder as a new lease starts it: nothing but the speed step's records."""
     os.makedirs(os.path.join(directory, "results"))
@@ -227,6 +245,10 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     packed = _packed(directory, "hopper")
     assert b"paused at 40 of 80 env steps" in packed["./hopper.log"]
     _repeats_the_straight_run(packed, warp_experiment)
+    # ...and, packed apart once the run has ended (none while it was paused), each run's final
+    # policy: its last checkpoint's actor as NumPy arrays, the straight run's bit for bit.
+    assert "packed 0 final policies" in first.stdout
+    _final_policies_are_the_straight_runs(directory, warp_experiment, str(tmp_path / "finals"))
 
     # The next lease continues the runs from the records the paused call brought back: a
     # fresh machine (folder) with only the speed record, the runs rebuilt bit for bit to env
@@ -238,6 +260,7 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     assert "+ 1 recorded interval re-trained x chunk" in continued.stdout
     assert "fast-forward: re-training env steps 0 to 40 from the start" in continued.stdout
     _repeats_the_straight_run(_packed(elsewhere, "hopper"), warp_experiment)
+    assert "packed 3 final policies" in continued.stdout
 
     # A run goes on past its planned length while the deadline allows, and stops where it
     # does not. The deadline here plans 40 env steps (one scoring fits, two do not); the run is
@@ -251,6 +274,7 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     assert "total_steps=80 " in stopped.stdout and " time_limit=1 (40 env steps planned" in stopped.stdout
     assert "hopper stopped at the deadline: 40 env steps (40 planned)" in stopped.stdout
     assert "step hopper complete" in stopped.stdout
+    assert stopped.stdout.count("/exported/policy-step40.npz: hopper") == 3  # the final policies: where it stopped
     _repeats_the_straight_run(_packed(bounded, "hopper"), warp_experiment, rounds=1)
 
     # Step 5 on what came back: FIGURE1.md from the unpacked runs, computed, never typed in.
