@@ -1585,6 +1585,10 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                              'min(entry["score"] for sets in audit["sets"].values() for entry in sets)',
                                              'next(entry["score"] for sets in audit["sets"].values() for entry in sets)',
                                              "test_figure1.py"),
+    "exported_policy_audited_into_the_current_folder": (
+        "admissable_jax/audit/command.py",
+        '    return os.path.join(os.path.dirname(config.policy), name) if config.policy.endswith(".npz") else name',
+        "    return name", "test_audit.py"),
     "scoring_columns_of_any_shape": ("admissable_jax/results.py", "        except (TypeError, ValueError):  # ragged",
                                      "        except ImportError:  # ragged", "test_runs.py"),
     "score_estimators_of_one_episode": ("benchmarks/score_estimators.py", "if config.n_episodes < 2 or any(",

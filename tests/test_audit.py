@@ -549,9 +549,11 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
                               {"run": "runs/x", "env": "constant", "gymnasium_id": "ConstantFeatures-v0",
                                "missingness": "uniform", "seed": 3, "k": 2, "up_to_k": True, "env_steps": 500,
                                "best_min_score": 4.25, "score_fail_at": "0,2"})
-    exported.save(str(tmp_path / "constant.npz"))
-    assert audit_main([f"policy={tmp_path / 'constant.npz'}", "episodes=2", f"out={tmp_path / 'exported'}"]) == 0
-    record = json.loads((tmp_path / "exported" / "audit.json").read_text())
+    # Its default folder lies beside the file, not here: export names every run's file alike.
+    (tmp_path / "x" / "exported").mkdir(parents=True)
+    exported.save(str(tmp_path / "x" / "exported" / "constant.npz"))
+    assert audit_main([f"policy={tmp_path / 'x' / 'exported' / 'constant.npz'}", "episodes=2"]) == 0
+    record = json.loads((tmp_path / "x" / "exported" / "audit-ConstantFeatures-v0-constant" / "audit.json").read_text())
     direct = audit_gymnasium("ConstantFeatures-v0", exported.masked, ks=(1, 2), n_episodes=2)
     assert sorted(record["sets"]) == ["1", "2"] and record["feature_names"] == ["one", "two", "three"]
     for k in (1, 2):
@@ -561,7 +563,7 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
     assert record["clean_score"] == pytest.approx(500 * np.tanh(0.06), rel=1e-5)
     assert [entry["score"] for entry in record["sets"]["1"]] == pytest.approx(500 * np.tanh(np.array([5, 4, 3]) / 100),
                                                                               rel=1e-5)
-    assert record["source"] == {"Gymnasium env": "ConstantFeatures-v0", "policy": str(tmp_path / "constant.npz"),
+    assert record["source"] == {"Gymnasium env": "ConstantFeatures-v0", "policy": str(tmp_path / "x" / "exported" / "constant.npz"),
                                 "exported from": "runs/x (uniform, seed 3) at env step 500, its best scoring "
                                                  "(training's min_u a_u 4.2)",
                                 "scored in training with sensors failing at env step": "0,2"}

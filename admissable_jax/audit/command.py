@@ -41,7 +41,8 @@ class AuditConfig:
     k: str = setting("", "set sizes to audit, comma separated (e.g. 1,2); default: the sizes of the run's U (its k, "
                          "or 1 to k with up_to_k), 1 with policy=")
     episodes: int = setting(50, "N: deterministic episodes per set (the CI narrows as 1/sqrt(N))")
-    out: str = setting("", "where the report goes (default RUN_DIR/audit-step<STEP>)")
+    out: str = setting("", "where the report goes (default RUN_DIR/audit-step<STEP>; policy=: audit-<ENV_ID>-<NAME>, "
+                           "beside the file for an exported policy)")
     step: int = setting(-1, "the checkpoint (env step) to audit; -1 = the latest")
     best: bool = setting(False, "audit the policy the run kept at its best scoring (best_policy.npz: training's "
                                 "highest min_u a_u, an estimate that reads high) instead of a checkpoint; an "
@@ -182,7 +183,7 @@ def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     :func:`~admissable_jax.audit.sets.audit_gymnasium`: MODULE:NAME (importable from here),
     or an exported policy's FILE.npz (:mod:`admissable_jax.exported_policy`), whose run
     names the env and the set sizes where ``gym=`` and ``k=`` do not; write the report into
-    ``config.out`` (default ``audit-<ENV_ID>-<NAME>``). ``gym=`` may name one of our envs as
+    ``config.out`` (default ``audit-<ENV_ID>-<NAME>``, beside an exported policy's file). ``gym=`` may name one of our envs as
     ``env=`` does (``hopper`` for Hopper-v5)."""
     import gymnasium
 
@@ -196,7 +197,7 @@ def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     check_fail_at(_fail_at(config), gymnasium.spec(config.gym).max_episode_steps)
     dropout = _dropout(config, d)
     check_audit_size(config.gym, d, audited.ks, config.episodes, None, plan=_plan(config, d), dropout=dropout)
-    out = config.out or f"audit-{config.gym}-{audited.name}{_failing(config)}"
+    out = config.out or _policy_folder(config, f"audit-{config.gym}-{audited.name}{_failing(config)}")
     with _audit_folder(out):
         with reporting(f"auditing {config.policy} on {config.gym} for k={_sizes(audited.ks)} "
                        f"({_episodes_asked(config)})"):
@@ -252,6 +253,13 @@ def _exported(config: AuditConfig) -> GymnasiumPolicy:
 def _policy_name(policy: str) -> str:
     """The name ``policy=`` gives a default folder: MODULE:NAME's NAME, or the file's stem."""
     return os.path.splitext(os.path.basename(policy))[0] if policy.endswith(".npz") else policy.partition(":")[2]
+
+
+def _policy_folder(config: AuditConfig, name: str) -> str:
+    """Where ``policy=``'s default folder ``name`` goes: beside an exported policy's file (as
+    ``video``'s), where files of the same name from different runs (``export`` names each
+    ``policy-step<N>.npz``) keep their audits apart; a Python policy's, in the current folder."""
+    return os.path.join(os.path.dirname(config.policy), name) if config.policy.endswith(".npz") else name
 
 
 @contextlib.contextmanager
@@ -428,7 +436,7 @@ def audit_failure_times(config: AuditConfig) -> tuple[list[AuditResult], list[st
     ``<out>/fail<T>/`` as a single audit (each compiles its rollout: the step is part of the
     program); then ``failure_times.md`` and ``.png`` (in ``out``; default
     ``RUN_DIR/audit-failure-times`` with ``-best`` or ``-step<STEP>`` where asked,
-    ``audit-<NAME>-failure-times`` for ``policy=``, ``audit-comparison-failure-times`` for
+    ``audit-<NAME>-failure-times`` for ``policy=`` (beside an exported policy's file), ``audit-comparison-failure-times`` for
     several runs): for one policy, per failure step and k, the worst a_u and its set and the
     mean a_u over the sets, beside the clean return, and each single feature's a_u by failure
     step; for an experiment or several runs, the modes' (curves') worst a_u by failure step,
@@ -436,7 +444,7 @@ def audit_failure_times(config: AuditConfig) -> tuple[list[AuditResult], list[st
     what a sensor lost later costs, and which."""
     check_audit_config(config)
     which = "-best" if config.best else f"-step{config.step}" if config.step >= 0 else ""
-    out = config.out or (f"audit-{_policy_name(config.policy)}-failure-times" if config.policy else
+    out = config.out or (_policy_folder(config, f"audit-{_policy_name(config.policy)}-failure-times") if config.policy else
                          f"audit-comparison-failure-times{which}" if _several_runs(config) else
                          os.path.join(config.run_dir, f"audit-failure-times{which}"))
     jobs = [dataclasses.replace(config, fail_at=str(time), out=os.path.join(out, f"fail{time}"))
