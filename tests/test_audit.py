@@ -567,6 +567,22 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
                                 "exported from": "runs/x (uniform, seed 3) at env step 500, its best scoring "
                                                  "(training's min_u a_u 4.2)",
                                 "scored in training with sensors failing at env step": "0,2"}
+    # A folder holding another policy's audit is never written over: one line, exit 2, before
+    # the rollout, the audit there left as it was; the same policy's is (an audit again).
+    held = tmp_path / "audit-ConstantFeatures-v0-sum_of_visible-fail5"
+    before = (held / "audit.json").read_text()
+    capfd.readouterr()
+    assert audit_main([f"policy={tmp_path / 'x' / 'exported' / 'constant.npz'}", "episodes=2", f"out={held}"]) == 2
+    assert capfd.readouterr().err.strip() == (
+        f"error: {held} holds the audit of another policy (ConstantFeatures-v0, test_wrappers:sum_of_visible): it is "
+        "left as it is; give another out= (or remove it)")
+    assert (held / "audit.json").read_text() == before
+    assert audit_main(["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "episodes=3", "fail_at=5"]) == 0
+    assert json.loads((held / "audit.json").read_text())["n_episodes"] == 3
+    # An exported policy is the run's it came from, however its path is given (here relative).
+    exported_audit = tmp_path / "x" / "exported" / "audit-ConstantFeatures-v0-constant"
+    assert audit_main(["policy=x/exported/constant.npz", "episodes=3", f"out={exported_audit}"]) == 0
+    assert json.loads((exported_audit / "audit.json").read_text())["n_episodes"] == 3
     # tell_apart: every return here is constant, so no gap needs more episodes than the pilot's 2.
     assert audit_main(["policy=test_wrappers:sum_of_visible", "gym=ConstantFeatures-v0", "k=1,2", "episodes=2",
                        "tell_apart=true", f"out={tmp_path / 'told'}"]) == 0

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import json
 import os
 import sys
 from typing import TYPE_CHECKING, Any, Callable, NamedTuple
@@ -198,7 +199,7 @@ def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     dropout = _dropout(config, d)
     check_audit_size(config.gym, d, audited.ks, config.episodes, None, plan=_plan(config, d), dropout=dropout)
     out = config.out or _policy_folder(config, f"audit-{config.gym}-{audited.name}{_failing(config)}")
-    with _audit_folder(out):
+    with _audit_folder(out, {"Gymnasium env": config.gym, "policy": config.policy, **audited.source}):
         with reporting(f"auditing {config.policy} on {config.gym} for k={_sizes(audited.ks)} "
                        f"({_episodes_asked(config)})"):
             result = audit_gymnasium(config.gym, _named(audited.policy, config.policy), audited.ks, config.episodes,
@@ -262,11 +263,43 @@ def _policy_folder(config: AuditConfig, name: str) -> str:
     return os.path.join(os.path.dirname(config.policy), name) if config.policy.endswith(".npz") else name
 
 
+# What names the audited policy in an audit's source: a run's checkpoint (or its best), or a
+# policy on a Gymnasium env (an exported one by the run and step it came from).
+POLICY_KEYS = ("run", "checkpoint (env step)", "kept as", "Gymnasium env", "exported from")
+
+
+def _audited_policy(source: dict[str, Any]) -> tuple:
+    """The policy an audit with ``source`` audited (:data:`POLICY_KEYS`; ``policy=``'s text
+    where it was not exported, since an exported file's path may be given either way)."""
+    return tuple(source.get(key) for key in POLICY_KEYS) + (
+        None if "exported from" in source else source.get("policy"),)
+
+
+def _check_free_for(out: str, source: dict[str, Any]) -> None:
+    """FileExistsError in one line where ``out`` holds the audit of another policy than
+    ``source``'s (a second Python policy of the same name, an ``out=`` given twice): a
+    finished audit is never written over by another policy's; the same policy's is (an audit
+    again, with other settings)."""
+    path = os.path.join(out, "audit.json")
+    if not os.path.isfile(path):
+        return
+    try:
+        with open(path) as file:
+            earlier = _audited_policy(json.load(file)["source"])
+    except (OSError, ValueError, KeyError, TypeError):
+        earlier = None
+    if earlier != _audited_policy(source):
+        whose = "another policy's audit" if earlier is None else (
+            f"the audit of another policy ({', '.join(str(part) for part in earlier if part is not None)})")
+        raise FileExistsError(f"{out} holds {whose}: it is left as it is; give another out= (or remove it)")
+
+
 @contextlib.contextmanager
-def _audit_folder(out: str):
-    """The audit folder ``out``, made before the rollout, so that an unusable path fails
-    first. If the audit stops (Ctrl-C, an error) before writing into a folder it made, the
-    folder goes too."""
+def _audit_folder(out: str, source: dict[str, Any]):
+    """The audit folder ``out`` for the policy of ``source``, made before the rollout, so
+    that an unusable path, or one holding another policy's audit, fails first. If the audit
+    stops (Ctrl-C, an error) before writing into a folder it made, the folder goes too."""
+    _check_free_for(out, source)
     made_here = not os.path.exists(out)
     make_directory(out, "audit folder")
     try:
@@ -363,20 +396,18 @@ def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
     ks = audit_sizes(_ks(config.k, train.k, train.up_to_k), d)  # before the audit starts
     dropout = _dropout(config, d)
     check_audit_size(train.env, d, ks, config.episodes, config.search, config.beam_width, _plan(config, d), dropout)
-    with _audit_folder(out):
+    source = {"run": os.path.abspath(config.run_dir), "checkpoint (env step)": policy.step,
+              **({"kept as": f"its best scoring (training's min_u a_u {policy.best_min_score:.1f})"} if best else {}),
+              "mode": train.missingness, "seed": train.seed,
+              **({"lower_bound": train.lower_bound} if train.missingness == "adversarial" else {}),
+              **training_failure_source(vars(train))}
+    with _audit_folder(out, source):
         which = f"the best policy (env step {policy.step})" if best else f"checkpoint {policy.step}"
         with reporting(f"auditing {which} of {train.env} for k={_sizes(ks)} ({config.search} search, "
                        f"{_episodes_asked(config)}, {env.physics_name} physics on {jax.default_backend()}; "
                        f"compiling included)"):
             result = audit(env, trainer.policy, policy.actor_params, ks, config.episodes, config.seed,
-                           _slots(config, policy), observation_names(train.env),
-                           {"run": os.path.abspath(config.run_dir), "checkpoint (env step)": policy.step,
-                            **({"kept as": f"its best scoring (training's min_u a_u {policy.best_min_score:.1f})"}
-                               if best else {}),
-                            "mode": train.missingness, "seed": train.seed,
-                            **({"lower_bound": train.lower_bound} if train.missingness == "adversarial" else {}),
-                            **training_failure_source(vars(train))},
-                           config.score_estimator, trainer.critic_values, policy.critic_params,
+                           _slots(config, policy), observation_names(train.env), source, config.score_estimator, trainer.critic_values, policy.critic_params,
                            config.score_horizon, train.gamma, config.search, config.beam_width, config.ranker,
                            _shapley(config.shapley), progress=True, tell_apart=config.tell_apart, dropout=dropout,
                            fail_at=_fail_at(config))
