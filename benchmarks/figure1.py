@@ -34,6 +34,7 @@ import json
 import math
 import os
 import sys
+from typing import NamedTuple
 
 import numpy as np
 
@@ -124,21 +125,35 @@ def _clean_sac_line(env: str, all_runs: list[Run]) -> str:
             f"{interval} against the SB3 RL-Zoo SAC at 1M, {reference:,.0f} ± {spread:,.0f} (v3 envs): {words}.")
 
 
-def _audit_of_final_policy(run: Run) -> dict | None:
+class AuditedFinal(NamedTuple):
+    """What FIGURE1.md reads of an audit of a run's final policy."""
+
+    episodes: int  # N per set
+    min_score: float  # the lowest a_u of the audited sets
+    clean_score: float
+
+
+def _audit_of_final_policy(run: Run) -> AuditedFinal | None:
     """The audit of ``run``'s final policy, ``RUN/audit-final/audit.json`` (``audit
     policy=RUN/exported/policy-step<N>.npz``, N the env step of its last scoring); None where
-    it has none, ValueError in one line where it audits another policy (an earlier lease's)."""
+    it has none, ValueError in one line where it is no audit or audits another policy (an
+    earlier lease's)."""
     path = os.path.join(run.path, AUDITED_FINAL, "audit.json")
     if not os.path.isfile(path):
         return None
-    with open(path) as file:
-        audit = json.load(file)
+    try:
+        with open(path) as file:
+            audit = json.load(file)
+        audited = os.path.basename(audit["source"].get("policy", ""))
+        scores = [float(entry["score"]) for sets in audit["sets"].values() for entry in sets]
+        read = AuditedFinal(int(audit["n_episodes"]), min(scores), float(audit["clean_score"]))
+    except (ValueError, KeyError, TypeError, AttributeError) as error:  # min(): ValueError where no set was scored
+        raise ValueError(f"{path} is no audit's audit.json ({type(error).__name__}: {error})") from None
     final = f"policy-step{int(run.env_steps[-1])}.npz"
-    audited = os.path.basename(audit.get("source", {}).get("policy", ""))
     if audited != final:
         raise ValueError(f"{path} audits {audited or 'no exported policy'}, not the run's final {final}: audit that "
                          f"into {AUDITED_FINAL}/ (benchmarks/README.md, Step 5)")
-    return audit
+    return read
 
 
 def _audited_finals(runs: list[Run]) -> list[str]:
@@ -149,7 +164,7 @@ def _audited_finals(runs: list[Run]) -> list[str]:
     audited = [(run, audit) for run in runs if (audit := _audit_of_final_policy(run)) is not None]
     if not audited:
         return []
-    episodes = " or ".join(map(str, sorted({audit["n_episodes"] for _, audit in audited})))
+    episodes = " or ".join(map(str, sorted({audit.episodes for _, audit in audited})))
     trained_episodes = " or ".join(map(str, sorted({run.score_episodes for run, _ in audited})))
     lines = [f"**The final policies, audited afresh** ({len(audited)} of {len(runs)} runs, `<run>/{AUDITED_FINAL}/`: "
              f"Gymnasium's own C-MuJoCo env, new start states, {episodes} episodes per set, against the training's "
@@ -160,10 +175,9 @@ def _audited_finals(runs: list[Run]) -> list[str]:
     minimum = {}
     for mode in dict.fromkeys(run.mode for run, _ in audited):
         of_mode = [(run, audit) for run, audit in audited if run.mode == mode]
-        minimum[mode] = np.array([min(entry["score"] for sets in audit["sets"].values() for entry in sets)
-                                  for _, audit in of_mode])
+        minimum[mode] = np.array([audit.min_score for _, audit in of_mode])
         trained = np.array([run.min_score[-1] for run, _ in of_mode])
-        clean = np.array([audit["clean_score"] for _, audit in of_mode])
+        clean = np.array([audit.clean_score for _, audit in of_mode])
         lines.append(f"| {mode} | {len(of_mode)} | {estimate(minimum[mode])} | {estimate(trained)} | "
                      f"{estimate(clean)} |")
     if {"adversarial", "uniform"} <= minimum.keys():

@@ -153,6 +153,10 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys, 
         f"error: {audit} audits policy-step15000.npz, not the run's final policy-step20000.npz: audit that into "
         "audit-final/ (benchmarks/README.md, Step 5)")
     assert not (tmp_path / "stale.md").exists() and not (root / "figures-2").exists()  # checked before drawing
+    # ...or a file that is no audit's (here without its sets): one line naming it.
+    audit.write_text(json.dumps({"n_episodes": 50, "clean_score": 900.0, "source": {"policy": "policy-step20000.npz"}}))
+    assert _figure1(f"hopper={root}", f"out={tmp_path / 'stale.md'}") == 2
+    assert capsys.readouterr().err.strip() == f"error: {audit} is no audit's audit.json (KeyError: 'sets')"
     _audit_of_final_policy(root / "uniform-s1", [40, 12], 900, "policy-step20000.npz")
 
     # Ctrl-C midway: one line, exit 130, FIGURE1.md not written; the figures folder stays if it
