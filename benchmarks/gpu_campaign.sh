@@ -405,10 +405,11 @@ pack() {  # what exists so far, for the trip back: jsonl, yaml, the runs' featur
   pack_apart "campaign-$step" "files" "; $(cat "$dir/warp-kernels.log")" \( -name '*.jsonl' -o -name '*.yaml' \
       -o -name observation_names.json -o -name '*.log' -o -path './state/*' \)
   # The policies in files of their own, so that the records come back whatever their size: each
-  # run's best (best_policy.npz, about 1 MB: the networks without the replay buffer) and, once
-  # the step is complete, its final one (admissable_jax.export's, the actor alone: 0.3-0.5 MB).
-  pack_apart "campaign-$step-policies" "best policies" "" -name best_policy.npz
-  pack_apart "campaign-$step-final-policies" "final policies" "" -path '*/exported/policy-step*.npz'
+  # of this step's runs' best (best_policy.npz, about 1 MB: the networks without the replay
+  # buffer) and, once the step is complete, its final one (admissable_jax.export's, the actor
+  # alone: 0.3-0.5 MB); not an earlier step's on this machine, which came back with it.
+  pack_apart "campaign-$step-policies" "best policies" "" -path "./$step/*" -name best_policy.npz
+  pack_apart "campaign-$step-final-policies" "final policies" "" -path "./$step/*/exported/policy-step*.npz"
 }
 
 pack_apart() {  # pack_apart NAME WHAT NOTE FIND-TESTS...: the files the tests find (not in out/) into $out/NAME.tar.gz

@@ -223,6 +223,12 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     assert "refused: hopper: fewer than 60 env steps fit in 1 s" in refused.stdout
     assert not os.path.exists(os.path.join(directory, "hopper"))
 
+    # An earlier step's policies on this machine (they came back with it): never packed again.
+    earlier = os.path.join(directory, "walker2d", "adversarial-s0")
+    os.makedirs(os.path.join(earlier, "exported"))
+    for name in ("best_policy.npz", os.path.join("exported", "policy-step80.npz")):
+        open(os.path.join(earlier, name), "w").close()
+
     # A worker paused by CAMPAIGN_RUN_SECONDS after its first scoring (as a failed one would
     # leave it), then a worker that resumes it, started by a call that returns at once and
     # followed by the next.
@@ -290,6 +296,7 @@ def test_gpu_campaign_hopper_chain_in_smoke_mode(warp_experiment, tmp_path):
     assert (tmp_path / "back" / "hopper" / "figures" / "min_score.png").exists()
     # ...and, packed apart, each run's best policy: that of its records' best scoring.
     with tarfile.open(os.path.join(directory, "out", "campaign-hopper-policies.tar.gz")) as tar:
+        assert sorted(tar.getnames()) == [f"./hopper/{pair}/best_policy.npz" for pair in ("adversarial-s0", "none-s0", "uniform-s0")]
         tar.extractall(tmp_path / "back", filter="data")
     for pair in ("adversarial-s0", "uniform-s0", "none-s0"):
         learning_starts = yaml.safe_load(packed[f"./hopper/{pair}/config.yaml"])["learning_starts"]
