@@ -41,6 +41,7 @@ import numpy as np
 from admissable_jax.cli import fail, parse_args, run_main
 from admissable_jax.config import RUN_SETTINGS
 from admissable_jax.errors import INTERRUPTED, UnusableDirectory, remove_if_unused
+from admissable_jax.method import set_sizes
 from admissable_jax.plot import check_formats, new_folder, plot_envs_side_by_side, plot_runs
 from admissable_jax.results import (
     IMPROVEMENT_COLUMN, Difference, Run, comparison_header, differing_settings, estimate, find_runs, format_comparison,
@@ -145,15 +146,21 @@ def _audit_of_final_policy(run: Run) -> AuditedFinal | None:
         with open(path) as file:
             audit = json.load(file)
         audited = os.path.basename(audit["source"].get("policy", ""))
-        scores = [float(entry["score"]) for sets in audit["sets"].values() for entry in sets]
-        read = AuditedFinal(int(audit["n_episodes"]), min(scores), float(audit["clean_score"]))
-    except (ValueError, KeyError, TypeError, AttributeError) as error:  # min(): ValueError where no set was scored
+        by_size = {int(k): [float(entry["score"]) for entry in sets] for k, sets in audit["sets"].items()}
+        episodes, clean = int(audit["n_episodes"]), float(audit["clean_score"])
+    except (ValueError, KeyError, TypeError, AttributeError) as error:
         raise ValueError(f"{path} is no audit's audit.json ({type(error).__name__}: {error})") from None
     final = f"policy-step{int(run.env_steps[-1])}.npz"
     if audited != final:
         raise ValueError(f"{path} audits {audited or 'no exported policy'}, not the run's final {final}: audit that "
                          f"into {AUDITED_FINAL}/ (benchmarks/README.md, Step 5)")
-    return read
+    config = load_config_yaml(os.path.join(run.path, RUN_SETTINGS))
+    sizes = set_sizes(int(config.k), bool(config.get("up_to_k", False)))  # U's, whose minimum training scores
+    if not all(by_size.get(size) for size in sizes):
+        scored = sorted(size for size, scores in by_size.items() if scores)
+        raise ValueError(f"{path} audits sets of size {', '.join(map(str, scored))}, not every size of the "
+                         f"run's U ({', '.join(map(str, sizes))}): audit it with its default k")
+    return AuditedFinal(episodes, min(min(by_size[size]) for size in sizes), clean)
 
 
 def _audited_finals(runs: list[Run]) -> list[str]:

@@ -26,13 +26,17 @@ def _figure1(*args: str) -> int:
         return exit.code
 
 
-def _audit_of_final_policy(run, set_scores: list[float], clean: float, policy_file: str) -> None:
+def _audit_of_final_policy(run, set_scores: list[float], clean: float, policy_file: str,
+                           pair_scores: tuple[float, ...] = ()) -> None:
     """``run/audit-final/audit.json`` as ``audit policy=run/exported/POLICY_FILE`` writes it
-    (the fields figure1.py reads): N = 50, the k = 1 sets' a_u and the clean return."""
+    (the fields figure1.py reads): N = 50, the k = 1 sets' a_u (and k = 2's, where given)
+    and the clean return."""
     (run / "audit-final").mkdir(exist_ok=True)
+    sets = {"1": [{"hidden": [index], "score": score} for index, score in enumerate(set_scores)]}
+    if pair_scores:
+        sets["2"] = [{"hidden": [0, index + 1], "score": score} for index, score in enumerate(pair_scores)]
     (run / "audit-final" / "audit.json").write_text(json.dumps({
-        "env": "Hopper-v5", "n_episodes": 50, "clean_score": clean,
-        "sets": {"1": [{"hidden": [index], "score": score} for index, score in enumerate(set_scores)]},
+        "env": "Hopper-v5", "n_episodes": 50, "clean_score": clean, "sets": sets,
         "source": {"Gymnasium env": "Hopper-v5", "policy": str(run / "exported" / policy_file)}}))
 
 
@@ -63,9 +67,10 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys, 
     # The final policies of the adversarial and uniform runs audited afresh (audit policy=FILE.npz
     # into <run>/audit-final): their lowest set's a_u 50, 70 against 10, 12 (Welch: +49.0
     # [-72.9, 170.9], p = 0.125; ± t(0.975, 1) · sd / √2: 127.1 and 12.7); mode none's unaudited.
+    # One audit also scored pairs (k=1,2), which the runs' U (k = 1) does not hold: not counted.
     for name, sets, clean in (("adversarial-s0", [55, 50], 1000), ("adversarial-s1", [70, 80], 1100),
                               ("uniform-s0", [10, 30], 900), ("uniform-s1", [40, 12], 900)):
-        _audit_of_final_policy(root / name, sets, clean, "policy-step20000.npz")
+        _audit_of_final_policy(root / name, sets, clean, "policy-step20000.npz", (1.0,) * (name == "adversarial-s0"))
     out = tmp_path / "FIGURE1.md"
     # The commit FIGURE1.md names is the code's: taken before its own outputs are written, and
     # blind to benchmarks/results (where the runs and figures live, tracked), as git would mark
@@ -153,7 +158,12 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys, 
         f"error: {audit} audits policy-step15000.npz, not the run's final policy-step20000.npz: audit that into "
         "audit-final/ (benchmarks/README.md, Step 5)")
     assert not (tmp_path / "stale.md").exists() and not (root / "figures-2").exists()  # checked before drawing
-    # ...or a file that is no audit's (here without its sets): one line naming it.
+    # ...or one without a set size of the runs' U (here pairs only), or a file that is no
+    # audit's (here without its sets): one line naming it.
+    _audit_of_final_policy(root / "uniform-s1", [], 900, "policy-step20000.npz", (40.0, 12.0))
+    assert _figure1(f"hopper={root}", f"out={tmp_path / 'stale.md'}") == 2
+    assert capsys.readouterr().err.strip() == (f"error: {audit} audits sets of size 2, not every size of the run's U "
+                                               "(1): audit it with its default k")
     audit.write_text(json.dumps({"n_episodes": 50, "clean_score": 900.0, "source": {"policy": "policy-step20000.npz"}}))
     assert _figure1(f"hopper={root}", f"out={tmp_path / 'stale.md'}") == 2
     assert capsys.readouterr().err.strip() == f"error: {audit} is no audit's audit.json (KeyError: 'sets')"
