@@ -184,8 +184,8 @@ def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     :func:`~admissable_jax.audit.sets.audit_gymnasium`: MODULE:NAME (importable from here),
     or an exported policy's FILE.npz (:mod:`admissable_jax.exported_policy`), whose run
     names the env and the set sizes where ``gym=`` and ``k=`` do not; write the report into
-    ``config.out`` (default ``audit-<ENV_ID>-<NAME>``, beside an exported policy's file). ``gym=`` may name one of our envs as
-    ``env=`` does (``hopper`` for Hopper-v5)."""
+    ``config.out`` (default ``audit-<ENV_ID>-<NAME>``, beside an exported policy's file).
+    ``gym=`` may name one of our envs as ``env=`` does (``hopper`` for Hopper-v5)."""
     import gymnasium
 
     from admissable_jax.envs.catalog import gymnasium_env_id
@@ -407,10 +407,10 @@ def _audit_policy(config: AuditConfig, policy: TrainedPolicy, env: MjxEnv,
                        f"{_episodes_asked(config)}, {env.physics_name} physics on {jax.default_backend()}; "
                        f"compiling included)"):
             result = audit(env, trainer.policy, policy.actor_params, ks, config.episodes, config.seed,
-                           _slots(config, policy), observation_names(train.env), source, config.score_estimator, trainer.critic_values, policy.critic_params,
-                           config.score_horizon, train.gamma, config.search, config.beam_width, config.ranker,
-                           _shapley(config.shapley), progress=True, tell_apart=config.tell_apart, dropout=dropout,
-                           fail_at=_fail_at(config))
+                           _slots(config, policy), observation_names(train.env), source, config.score_estimator,
+                           trainer.critic_values, policy.critic_params, config.score_horizon, train.gamma,
+                           config.search, config.beam_width, config.ranker, _shapley(config.shapley), progress=True,
+                           tell_apart=config.tell_apart, dropout=dropout, fail_at=_fail_at(config))
         return result, write_audit(result, out, config.top)
 
 
@@ -467,12 +467,12 @@ def audit_failure_times(config: AuditConfig) -> tuple[list[AuditResult], list[st
     ``<out>/fail<T>/`` as a single audit (each compiles its rollout: the step is part of the
     program); then ``failure_times.md`` and ``.png`` (in ``out``; default
     ``RUN_DIR/audit-failure-times`` with ``-best`` or ``-step<STEP>`` where asked,
-    ``audit-<NAME>-failure-times`` for ``policy=`` (beside an exported policy's file), ``audit-comparison-failure-times`` for
-    several runs): for one policy, per failure step and k, the worst a_u and its set and the
-    mean a_u over the sets, beside the clean return, and each single feature's a_u by failure
-    step; for an experiment or several runs, the modes' (curves') worst a_u by failure step,
-    and adversarial − uniform at each. Training hides u from an episode's start; this says
-    what a sensor lost later costs, and which."""
+    ``audit-<NAME>-failure-times`` for ``policy=`` (beside an exported policy's file),
+    ``audit-comparison-failure-times`` for several runs): for one policy, per failure step
+    and k, the worst a_u and its set and the mean a_u over the sets, beside the clean return,
+    and each single feature's a_u by failure step; for an experiment or several runs, the
+    modes' (curves') worst a_u by failure step, and adversarial − uniform at each. Training
+    hides u from an episode's start; this says what a sensor lost later costs, and which."""
     check_audit_config(config)
     which = "-best" if config.best else f"-step{config.step}" if config.step >= 0 else ""
     out = config.out or (_policy_folder(config, f"audit-{_policy_name(config.policy)}-failure-times") if config.policy else
