@@ -269,9 +269,10 @@ train() {  # train ENV modes=M total_steps=N: the planned run of N env steps, on
 
 export_final() {  # export_final ENV: each run's policy where it stopped (its last checkpoint) as NumPy
                   # arrays, for the trip back (the checkpoints, replay buffers and all, never leave the
-                  # machine): audit policy=FILE.npz scores it afresh in Gymnasium's own env
+                  # machine): audit policy=FILE.npz scores it afresh in Gymnasium's own env. At most
+                  # 120 s (3 smoke pairs: 4.5 s on a 2-core CPU), so that a hung export cannot eat the lease
   echo "+ python -m admissable_jax.export $dir/$1"
-  timeout 300 $py -m admissable_jax.export "$dir/$1" 2>&1 | grep -v '^Warp'
+  timeout 120 $py -m admissable_jax.export "$dir/$1" 2>&1 | grep -v '^Warp'
   local status=${PIPESTATUS[0]}
   if [ "$status" -ne 0 ]; then
     echo "export exited $status: the runs' final policies will not come back (their records will)"
