@@ -13,7 +13,8 @@ runs used; final and AUC min_u a_u, the final mean_u a_u (the average over U) an
 final clean return per mode, mean ± 95% t-interval over seeds, and the set most often worst
 at the end (``summary_table``); where runs hold an audit of their final policy
 (``<run>/audit-final/audit.json``: benchmarks/README.md, Step 5), its min_u a_u and clean
-return per mode beside the training's own final estimate, and adversarial − uniform on it;
+return per mode beside the training's own final estimate, and adversarial − uniform on it
+(in the verdict and the top table too);
 adversarial − uniform on each with Welch's 95% interval and p-value, and the probability
 that a seed of adversarial training ends above one of uniform (``format_comparison``);
 the verdict those numbers give, in words; mode ``none``'s clean return against the SB3
@@ -163,14 +164,15 @@ def _audit_of_final_policy(run: Run) -> AuditedFinal | None:
     return AuditedFinal(episodes, min(min(by_size[size]) for size in sizes), clean)
 
 
-def _audited_finals(runs: list[Run]) -> list[str]:
+def _audited_finals(runs: list[Run]) -> tuple[list[str], Difference | None]:
     """Markdown lines: the final policies audited afresh in Gymnasium's own env, per mode
     (mean ± 95% t-interval over the audited seeds) beside the training's own final estimate
-    of the same runs, and adversarial − uniform on the audited min_u a_u; none where no run
-    has an audit of its final policy."""
+    of the same runs, and adversarial − uniform on the audited min_u a_u, which is also
+    returned (for the verdict and the top table; None without both modes); no lines where no
+    run has an audit of its final policy."""
     audited = [(run, audit) for run in runs if (audit := _audit_of_final_policy(run)) is not None]
     if not audited:
-        return []
+        return [], None
     episodes = " or ".join(map(str, sorted({audit.episodes for _, audit in audited})))
     trained_episodes = " or ".join(map(str, sorted({run.score_episodes for run, _ in audited})))
     lines = [f"**The final policies, audited afresh** ({len(audited)} of {len(runs)} runs, `<run>/{AUDITED_FINAL}/`: "
@@ -187,10 +189,11 @@ def _audited_finals(runs: list[Run]) -> list[str]:
         clean = np.array([audit.clean_score for _, audit in of_mode])
         lines.append(f"| {mode} | {len(of_mode)} | {estimate(minimum[mode])} | {estimate(trained)} | "
                      f"{estimate(clean)} |")
+    difference = None
     if {"adversarial", "uniform"} <= minimum.keys():
         difference = Difference("audited final min_u a_u", minimum["adversarial"], minimum["uniform"])
         lines += ["", *comparison_header("metric"), f"| {difference.metric} | {difference.cells()} |"]
-    return lines + [""]
+    return lines + [""], difference
 
 
 def _cost_line(run_dirs: list[str]) -> str:
@@ -235,7 +238,7 @@ def env_section(env: str, folder: str, window: int, out_file: str, formats: tupl
         raise ValueError(f"the runs in {folder} differ in {', '.join(differing)}: Figure 1 compares the modes at one "
                          "setting per env (plot draws each setting as its own curve)")
     steps = min(int(run.env_steps[-1]) for run in runs)
-    audited = _audited_finals(runs)  # before anything is drawn: an audit of another policy stops here
+    audited, audited_difference = _audited_finals(runs)  # before anything is drawn: a bad audit stops here
     figures = new_folder(os.path.join(folder, "figures"))
     if made is not None:
         made.append(figures)
@@ -244,6 +247,7 @@ def env_section(env: str, folder: str, window: int, out_file: str, formats: tupl
                               for path in write_tables(run_dirs, figures))
     compared = mode_differences(run_dirs)
     differences = compared.get(env, [])
+    audited_differences = [] if audited_difference is None else [audited_difference]
     partial = "" if steps >= PAPER_STEPS else ", not the paper's 1M"
     figure = os.path.relpath(os.path.join(figures, "min_score.png"), os.path.dirname(os.path.abspath(out_file)))
     lines = [
@@ -252,7 +256,7 @@ def env_section(env: str, folder: str, window: int, out_file: str, formats: tupl
         f"Settings: {_settings(run_dirs)}.", "",
         summary_table(run_dirs), format_comparison(compared) or "Not both adversarial and uniform runs: no comparison.\n",
         "**Verdict (computed):**", "",
-        *(f"- {_verdict(difference)}" for difference in differences),
+        *(f"- {_verdict(difference)}" for difference in differences + audited_differences),
         f"- {_clean_sac_line(env, runs)}", "",
         *audited,
         _cost_line(run_dirs), "",
@@ -262,7 +266,7 @@ def env_section(env: str, folder: str, window: int, out_file: str, formats: tupl
         f"scoring) and `{scores_csv}` (a row per run, scoring and hidden set).", "",
     ]
     rows = [f"| {env} | {steps:,} | {d.metric} | {d.mean:+.1f} | {d.improvement_text()} | {d.reading()} |"
-            for d in differences[:2]]
+            for d in differences[:2] + audited_differences]
     return "\n".join(lines), rows
 
 

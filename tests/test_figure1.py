@@ -101,6 +101,10 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys, 
     assert "| uniform | 2 | 11.0 ± 12.7 | 9.0 ± 12.7 | 900.0 ± 0.0 |" in text and "\n| none |" not in text
     assert ("| audited final min_u a_u | +49.0 | [-72.9, 170.9] | 0.125 | 1.00 [1.00, 1.00] | not distinguishable "
             "(95% interval holds 0) |") in text
+    # ...which the verdict and the top table name too.
+    assert "- audited final min_u a_u: adversarial − uniform = +49.0 [-72.9, 170.9], p = 0.125, P(adversarial" in text
+    assert ("| hopper | 20,000 | audited final min_u a_u | +49.0 | 1.00 [1.00, 1.00] | not distinguishable (95% interval "
+            "holds 0) |") in text
     assert "![min_u a_u, mean_u a_u and clean return](hopper/figures/min_score.png)" in text
     assert "![every env's min_u a_u, as the paper's Figure 1 lays it out](figure1.png)" in text
     # The formats asked for, and PNG always (the file shows the PNGs).
