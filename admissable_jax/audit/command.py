@@ -199,7 +199,8 @@ def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
     dropout = _dropout(config, d)
     check_audit_size(config.gym, d, audited.ks, config.episodes, None, plan=_plan(config, d), dropout=dropout)
     out = config.out or _policy_folder(config, f"audit-{config.gym}-{audited.name}{_failing(config)}")
-    with _audit_folder(out, {"Gymnasium env": config.gym, "policy": config.policy, **audited.source}):
+    source = {"Gymnasium env": config.gym, "policy": config.policy, **audited.source}  # checked, then recorded
+    with _audit_folder(out, source):
         with reporting(f"auditing {config.policy} on {config.gym} for k={_sizes(audited.ks)} "
                        f"({_episodes_asked(config)})"):
             result = audit_gymnasium(config.gym, _named(audited.policy, config.policy), audited.ks, config.episodes,
@@ -207,7 +208,7 @@ def audit_python_policy(config: AuditConfig) -> tuple[AuditResult, list[str]]:
                                      feature_names=audited.feature_names if len(audited.feature_names or ()) == d
                                      else None, shapley=_shapley(config.shapley), progress=True,
                                      tell_apart=config.tell_apart, dropout=dropout, fail_at=_fail_at(config))
-        result = dataclasses.replace(result, source={**result.source, **audited.source})
+        result = dataclasses.replace(result, source=source)  # audit_gymnasium's own: its first two keys
         return result, write_audit(result, out, config.top)
 
 
