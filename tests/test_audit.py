@@ -742,6 +742,30 @@ def test_several_runs_audited_each_and_compared_by_curve(short_run, tmp_path, ca
                 f"{estimate(np.array(late[3:]))} |") in table
         assert (f"| 1 | {step} | adversarial, fail_at=0,5, lower_bound=0 | {np.mean(late[:2]) - np.mean(late[3:]):+.1f} | ["
                 in table)
+    # The same run elsewhere is the same policy: moved with its audits in it, reached by a link, or
+    # copied, its audit there is written over (an audit again); another run of the same settings's
+    # audit is not, nor a moved run's audit outside its folder (either run's, for all it knows).
+    moved, link = tmp_path / "moved-s1", tmp_path / "link-s0"
+    os.rename(runs[1], moved)
+    link.symlink_to(runs[0])
+    copied = shutil.copytree(runs[3], tmp_path / "copied-u0")
+    assert audit_main([str(moved), str(link), str(copied), "k=1", "episodes=3", f"out={tmp_path / 'again'}"]) == 0
+    for run in (moved, link, copied):
+        record = json.loads((run / "audit-step600" / "audit.json").read_text())
+        assert (record["n_episodes"], record["source"]["run"]) == (3, str(run))
+    rerun = shutil.copytree(moved, tmp_path / "rerun-s1", ignore=shutil.ignore_patterns("audit-*"))
+    first, *later = (rerun / "invocations.jsonl").read_text().splitlines(keepends=True)
+    (rerun / "invocations.jsonl").write_text("".join([first.replace('"started": "', '"started": "1'), *later]))
+    outside = shutil.copytree(pathlib.Path(runs[4]) / "audit-step600", tmp_path / "outside")
+    os.rename(runs[4], tmp_path / "moved-u1")
+    capsys.readouterr()
+    for run, out, earlier in [(rerun, moved / "audit-step600", moved), (tmp_path / "moved-u1", outside, runs[4])]:
+        before = (out / "audit.json").read_text()
+        assert audit_main([str(run), "k=1", "episodes=2", f"out={out}"]) == 2
+        assert capsys.readouterr().err.strip().splitlines()[-1] == (
+            f"error: {out} holds the audit of another policy ({earlier}, 600): it is left as it is; give another out= "
+            "(or remove it)")
+        assert (out / "audit.json").read_text() == before
     other_env = shutil.copytree(short_run.run_dir, tmp_path / "hopper")  # (refused before its policy is read)
     config_path = other_env / "config.yaml"
     config_path.write_text(config_path.read_text().replace("env: point_mass", "env: Hopper-v5"))
