@@ -7,7 +7,8 @@ checkpoint, ``step=``'s, or with ``best=true`` the one the run kept at its best 
 written as plain arrays (:mod:`admissable_jax.exported_policy`), by default to
 ``RUN_DIR/exported/policy-step<STEP>.npz`` (``policy-best-step<STEP>.npz``). Given an
 experiment's folder, each pair's policy goes into its own folder. A file at ``out`` that
-is no exported policy is never written over.
+is no exported policy, or another policy's (another run's, step's, or best-or-not), is never
+written over: the checkpoint it came from may be gone. The same policy's is.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import os
 
 from admissable_jax.cli import parse_args, run_from_cli, run_main, setting
 from admissable_jax.errors import make_directory
-from admissable_jax.exported_policy import ExportedPolicy, is_exported_policy
+from admissable_jax.exported_policy import ExportedPolicy
 
 
 @dataclasses.dataclass
@@ -56,6 +57,25 @@ def _pair_dirs(config: ExportConfig) -> list[str]:
     return experiment_pairs(root)
 
 
+def _check_free_for(out: str, policy: ExportedPolicy) -> None:
+    """FileExistsError in one line where ``out`` holds a file that is no exported policy, or
+    the exported policy of another run, step or kind (best or not) than ``policy``: never
+    written over. The same policy's is, also from its run moved, linked or copied since."""
+    from admissable_jax.run_directory import same_run_at
+
+    if not os.path.exists(out):
+        return
+    try:
+        earlier = ExportedPolicy.load(out).source
+    except (ValueError, FileNotFoundError):
+        raise FileExistsError(f"{out} exists and is no exported policy: it is left as it is; give another out=") from None
+    now, then = policy.source, earlier.get("run")
+    if earlier != now and not (then and {**earlier, "run": now["run"]} == now and same_run_at(then, now["run"], out)):
+        kept = "" if earlier.get("best_min_score") is None else ", its best"
+        raise FileExistsError(f"{out} holds the exported policy of another run or step ({then}, env step "
+                              f"{earlier.get('env_steps')}{kept}): it is left as it is; give another out=")
+
+
 def export_policies(config: ExportConfig) -> list[tuple[str, ExportedPolicy]]:
     """Export ``config``'s policy (an experiment's: each pair's); (path written, policy) each."""
     from admissable_jax.policies import load_policy, requested_step
@@ -66,8 +86,7 @@ def export_policies(config: ExportConfig) -> list[tuple[str, ExportedPolicy]]:
         policy = load_policy(run_dir, requested_step(config.step, config.best)).exported()
         name = f"policy-{'best-' * config.best}step{policy.source['env_steps']}.npz"
         out = config.out or os.path.join(run_dir, "exported", name)
-        if os.path.exists(out) and not is_exported_policy(out):
-            raise FileExistsError(f"{out} exists and is no exported policy: it is left as it is; give another out=")
+        _check_free_for(out, policy)
         make_directory(os.path.dirname(os.path.abspath(out)), "export folder")
         policy.save(out)
         written.append((out, policy))

@@ -134,12 +134,3 @@ class ExportedPolicy:
 
 class ExportNotWritten(RunFailed):
     """An exported policy could not be written (a full disk, no permission)."""
-
-
-def is_exported_policy(path: str) -> bool:
-    """Whether ``path`` holds an exported policy (so that writing another over it loses nothing)."""
-    try:
-        ExportedPolicy.load(path)
-    except (ValueError, FileNotFoundError):
-        return False
-    return True

@@ -124,7 +124,8 @@ def load_policy(run_dir: str, step: int | str | None = None) -> TrainedPolicy:
     best = isinstance(step, str) and step == BEST
     if step is not None and not best and not isinstance(step, (int, np.integer)):
         raise TypeError(f"step must be an env step (an int), {BEST!r} or None for the latest, got {step!r}")
-    config = load_config(run_config_path(run_dir), TrainConfig).resolved()
+    # out: where the run is now (moved or copied since, its config.yaml names where it trained)
+    config = dataclasses.replace(load_config(run_config_path(run_dir), TrainConfig), out=run_dir).resolved()
     if best:  # a pair's own networks, as a run of its own has them
         trainer, like = _own_state_shapes(config)
         kept = read_best_policy(run_dir, like.sac.actor_params, like.sac.critic_params)

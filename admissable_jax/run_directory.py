@@ -81,6 +81,28 @@ def experiment_of(run_dir: str) -> str | None:
     return parent
 
 
+def _first_command(run: str) -> str | None:
+    """The first line of ``run``'s ``invocations.jsonl`` (when and where the run began, and
+    the command): a run keeps it wherever it is moved or copied; None where ``run`` holds none."""
+    try:
+        with open(os.path.join(run, INVOCATIONS)) as file:
+            return file.readline() or None
+    except OSError:
+        return None
+
+
+def same_run_at(then: str, now: str, written: str) -> bool:
+    """Whether the run that was at ``then`` when ``written`` (a file or folder made for it:
+    an audit, an exported policy) was written is the run now at ``now``: the same folder by
+    another name (a link) or a copy (the same first command), or moved since with ``written``
+    in its folder (``then`` holds no run any more)."""
+    first = _first_command(then)
+    if first is None:
+        inside = os.path.realpath(now)
+        return os.path.commonpath([inside, os.path.realpath(written)]) == inside
+    return first == _first_command(now)
+
+
 def check_folder_kind(out: str, command: str) -> None:
     """FileExistsError in one line where ``out`` of ``command`` (``train`` or ``experiment``)
     is another command's folder: an experiment's, or one of its pairs, for ``train`` (whose

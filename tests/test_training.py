@@ -300,6 +300,16 @@ def test_load_policy_is_the_trainers_deterministic_policy(point_mass_run, monkey
                                          "'admissable_jax exported policy 1'\\)$"):
         ExportedPolicy.load(str(tmp_path / "later.npz"))
     assert export_main([run_dir, f"out={path}"]) == 0 and capsys.readouterr().out.startswith(f"wrote {path}: ")
+    # Nor is another policy's (the run's best over its last checkpoint's: that checkpoint may be
+    # gone), but the same run's, copied (or moved) since, is: its policy names where it is now.
+    before = open(path, "rb").read()
+    assert export_main([run_dir, "best=true", f"out={path}"]) == 2
+    assert capsys.readouterr().err == (f"error: {path} holds the exported policy of another run or step "
+                                       f"({os.path.abspath(run_dir)}, env step 6000): it is left as it is; give "
+                                       "another out=\n") and open(path, "rb").read() == before
+    twin = shutil.copytree(run_dir, tmp_path / "twin")
+    assert export_main([str(twin)]) == 0
+    assert ExportedPolicy.load(str(twin / "exported" / "policy-step6000.npz")).source["run"] == str(twin)
     with monkeypatch.context() as patched:  # a write that fails (a full disk): nothing half-written, the file before kept
         patched.setattr(np, "savez", disk_full)
         assert export_main([run_dir, f"out={path}"]) == 1

@@ -19,8 +19,7 @@ from admissable_jax.audit.sets import AuditResult, audit, audit_gymnasium, audit
 from admissable_jax.cli import enable_compilation_cache, parse_args, reporting, run_from_cli, setting
 from admissable_jax.errors import make_directory, remove_if_unused
 from admissable_jax.method import check_fail_at, fail_steps, set_sizes
-from admissable_jax.provenance import INVOCATIONS
-from admissable_jax.run_directory import experiment_pairs, is_experiment
+from admissable_jax.run_directory import experiment_pairs, is_experiment, same_run_at
 from admissable_jax.scoring import SCORE_ESTIMATORS
 from admissable_jax.scoring.attribution import MIN_ORDERS, ShapleyPlan
 from admissable_jax.scoring.dropout import DropoutPlan, check_masks, parse_rates, plan_dropout
@@ -277,29 +276,13 @@ def _audited_policy(source: dict[str, Any]) -> tuple:
         None if "exported from" in source else source.get("policy"),)
 
 
-def _first_command(run: str) -> str | None:
-    """The first line of ``run``'s ``invocations.jsonl`` (when and where the run began, and
-    the command): a run keeps it wherever it is moved or copied; None where ``run`` holds none."""
-    try:
-        with open(os.path.join(run, INVOCATIONS)) as file:
-            return file.readline() or None
-    except OSError:
-        return None
-
-
 def _same_run_elsewhere(earlier: dict[str, Any], source: dict[str, Any], out: str) -> bool:
     """Whether ``earlier`` audited the same policy as ``source`` (checkpoint, mode, seed and
-    the rest alike) of the same run at another path: one whose folder was moved since, with
-    its audits in it (the earlier path holds no run any more and ``out`` lies in the run's
-    folder), or reached by another name (a link) or copied (the same first command)."""
+    the rest alike) of the same run at another path (moved since with its audit ``out`` in
+    it, reached by a link, or copied: :func:`~admissable_jax.run_directory.same_run_at`)."""
     run, then = source.get("run"), earlier.get("run")
-    if run is None or then is None or {**earlier, "run": run} != source:
-        return False
-    first = _first_command(then)
-    if first is None:
-        inside = os.path.realpath(run)
-        return os.path.commonpath([inside, os.path.realpath(out)]) == inside
-    return first == _first_command(run)
+    return (run is not None and then is not None and {**earlier, "run": run} == source
+            and same_run_at(then, run, out))
 
 
 def _check_free_for(out: str, source: dict[str, Any]) -> None:
