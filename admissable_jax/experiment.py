@@ -25,6 +25,7 @@ the budget and stops there).
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import sys
 
@@ -87,8 +88,8 @@ def run_experiment(config: ExperimentConfig) -> list[TrainResult]:
             return []
         state = loop.run()
     return [
-        TrainResult(pairs[index], trainer, placement.pair_state(state, index), run.read("scores.jsonl"),
-                    run.read("metrics.jsonl"))
+        TrainResult(pairs[index], trainer, functools.partial(placement.pair_state, state, index),
+                    run.read("scores.jsonl"), run.read("metrics.jsonl"))
         for index, run in zip(local_pairs, runs)
     ]
 

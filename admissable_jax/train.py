@@ -9,8 +9,9 @@ finished before.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
-from typing import Any
+from typing import Any, Callable
 
 import jax
 
@@ -25,13 +26,21 @@ from admissable_jax.training import Trainer, TrainState
 
 @dataclasses.dataclass
 class TrainResult:
-    """What a run produced. ``scores`` and ``metrics`` are the rows of the JSONL files."""
+    """What a run produced. ``scores`` and ``metrics`` are the rows of the JSONL files;
+    ``state``, the final training state, is read by ``read_state`` when first asked for: an
+    experiment's pair's is its part of the experiment's state, and taking every pair's part
+    at the run's end would have copied their replay buffers (GBs) for nobody to read."""
 
     config: TrainConfig
     trainer: Trainer
-    state: TrainState
+    read_state: Callable[[], TrainState]
     scores: list[dict[str, Any]]
     metrics: list[dict[str, Any]]
+
+    @functools.cached_property
+    def state(self) -> TrainState:
+        """Networks, optimizer states, p_miss, counters, RNG, env states and replay buffer."""
+        return self.read_state()
 
     @property
     def actor_params(self):
@@ -90,7 +99,7 @@ def train_fn(config: TrainConfig) -> TrainResult:
         state = TrainingLoop(trainer, config, [run], checkpoints, init).run()
     finally:
         run.close()
-    return TrainResult(config, trainer, state, run.read("scores.jsonl"), run.read("metrics.jsonl"))
+    return TrainResult(config, trainer, lambda: state, run.read("scores.jsonl"), run.read("metrics.jsonl"))
 
 
 def main(argv: list[str]) -> int:

@@ -52,6 +52,9 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
     spread, programs = PairPlacement.spread, []  # how each program spreads its pairs
     monkeypatch.setattr(PairPlacement, "spread", lambda placement, per_pair, in_turn=False: (
         programs.append((per_pair.__name__, in_turn)) or spread(placement, per_pair, in_turn)))
+    pair_state, taken = PairPlacement.pair_state, []  # which pairs' states were taken from the experiment's
+    monkeypatch.setattr(PairPlacement, "pair_state", lambda placement, tree, pair: (
+        taken.append(pair) or pair_state(placement, tree, pair)))
     straight = run_experiment(ExperimentConfig(**EXPERIMENT, total_steps=3000, out=str(tmp_path / "straight")))
     monkeypatch.setattr(PairPlacement, "spread", spread)
     # The pairs train vmapped; on a CPU, where a batched step costs each pair's work, they score
@@ -72,8 +75,14 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
             assert not np.allclose(result.scores[-1]["p_miss"], 0.25)
     # Seeds differ, so pairs of one mode differ.
     assert straight[0].scores[-1]["scores"] != straight[1].scores[-1]["scores"]
-    # A pair's policy outside the trainer: the experiment's checkpoint, that pair's part.
+    # A pair's policy outside the trainer: the experiment's checkpoint, that pair's part. The
+    # result's state is that pair's part of the experiment's final state, taken when first read,
+    # not every pair's at the run's end (copies of their replay buffers: GBs).
     policy = load_policy(straight[2].run_dir)
+    assert taken == []
+    for kept, saved in zip(jax.tree.leaves(straight[2].actor_params), jax.tree.leaves(policy.actor_params), strict=True):
+        np.testing.assert_array_equal(kept, saved)
+    assert straight[2].state is straight[2].state and taken == [2]
     # Each pair keeps its own best policy: that pair's networks at its best scoring, as the
     # experiment's checkpoint holds them where one was kept at that step.
     compared = 0
