@@ -14,6 +14,10 @@ writes, e.g. ``png,svg``):
   moving average over ``window`` records, shaded with a 95% t-interval over seeds; beside
   it, on the same scale, mean_u a_u (the average case: where the paper warns a weak spot
   hides) and the clean return (nothing hidden) the same way;
+* ``min_score_by_time.*`` — min_u a_u the same way against the wall time of training and
+  scoring, as the runs' ``metrics.jsonl`` timed each interval (compiling not counted): how
+  soon each curve gets robust in time (a cheaper score estimator, another backend or
+  device); drawn where every run timed every interval;
 * ``scores_<mode>.*`` — a_u for every missing set over time (mean over seeds), a heatmap
   whose rows are named after Gymnasium's observation entries ("torso z", ...) and whose
   cells are centred on their scoring steps;
@@ -52,6 +56,7 @@ import dataclasses
 import os
 import re
 import sys
+import textwrap
 from typing import Any, Sequence
 
 import matplotlib
@@ -59,7 +64,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from matplotlib.backend_bases import FigureCanvasBase  # noqa: E402
-from matplotlib.ticker import FuncFormatter  # noqa: E402
+from matplotlib.ticker import FuncFormatter, MultipleLocator  # noqa: E402
 import numpy as np  # noqa: E402
 
 from admissable_jax.cli import fail, parse_args, run_main  # noqa: E402
@@ -68,7 +73,7 @@ from admissable_jax.errors import INTERRUPTED, UnusableDirectory, make_directory
 from admissable_jax.results import (  # noqa: E402
     ADVERSARY_SETTINGS, Run, aligned, comparison_section, differing_settings, final_scores, find_runs, group_curves,
     load_run, load_runs, mean_and_interval, mode_differences, moving_average, numbers_in_order, per_feature_of_sets,
-    shared_records, steps_text, summary_table, trained_on, write_tables,
+    shared_records, steps_text, summary_table, trained_on, wall_time_text, write_tables,
 )
 
 MODE_COLORS = {"adversarial": "tab:blue", "uniform": "tab:red", "none": "tab:gray"}
@@ -80,6 +85,7 @@ LINE_STYLES = ("-", "--", ":", "-.")
 # larger U (Ant at k = 2: 5,460) is drawn per feature, as a pool is, and its bars are the
 # LOWEST_BARS sets of lowest a_u.
 MOST_ROWS, LOWEST_BARS = 120, 40
+CAPTION_WIDTH = 110  # characters a one-panel figure's caption line holds
 
 
 def curve_colors(curves: list[tuple[str, str]]) -> dict[tuple[str, str], Any]:
@@ -146,6 +152,13 @@ def _figure_caption(runs: list[Run], window: int, per_seed: bool = False) -> str
             f"unsmoothed (the summary's 'final' is the last dot).")
 
 
+def _wrapped(text: str, width: int) -> str:
+    """``text``'s lines wrapped at ``width`` characters, never inside ``$...$`` (matplotlib's
+    mathtext, which a line break would leave unrendered)."""
+    kept = re.sub(r"\$[^$]*\$", lambda math: math.group(0).replace(" ", "\0"), text)
+    return "\n".join(textwrap.fill(line, width) for line in kept.splitlines()).replace("\0", " ")
+
+
 def _seeds(n: int) -> str:
     return f"{n} seed" if n == 1 else f"{n} seeds"
 
@@ -162,6 +175,21 @@ def env_steps_axis(ax, label: str = "env steps") -> None:
     """Label ``ax``'s x axis as env steps, its ticks short (:func:`~admissable_jax.results.steps_text`)."""
     ax.set_xlabel(label)
     ax.xaxis.set_major_formatter(FuncFormatter(steps_text))
+
+
+# Tick spacings a wall-time axis takes (seconds): whole seconds, minutes, hours, days.
+TIME_TICKS = (1, 2, 5, 10, 15, 30, 60, 120, 300, 600, 900, 1800, 3600, 7200, 10800, 21600, 43200, 86400)
+
+
+def wall_time_axis(ax, most_ticks: int = 8) -> None:
+    """Label ``ax``'s x axis (drawn) as the wall time of training and scoring, ticked at the
+    first of :data:`TIME_TICKS` that gives at most ``most_ticks`` (``2 min``, ``4 min``, ...;
+    :func:`~admissable_jax.results.wall_time_text`)."""
+    span = max(ax.get_xlim()[1], 1.0)
+    ax.xaxis.set_major_locator(MultipleLocator(next((tick for tick in TIME_TICKS if span / tick <= most_ticks),
+                                                    TIME_TICKS[-1])))
+    ax.xaxis.set_major_formatter(FuncFormatter(wall_time_text))
+    ax.set_xlabel("wall time of training and scoring")
 
 
 FEW_COLUMNS = 10  # scorings a heatmap's x axis can label one by one
@@ -208,18 +236,23 @@ def _save(figure, out_dir: str, name: str, formats: tuple[str, ...]) -> list[str
     return paths
 
 
-def draw_curves(ax, runs: list[Run], attribute: str, window: int, per_seed: bool = False) -> None:
+def draw_curves(ax, runs: list[Run], attribute: str, window: int, per_seed: bool = False,
+                against: str = "env_steps") -> None:
     """One panel: ``attribute`` (``min_score``, ``mean_score``, ``clean_score``) of each curve
     of these labelled runs of one env against env steps: the mean over seeds of the trailing
     moving average (mode's colour, variant's line style), its 95% t-band, and the unsmoothed
     mean of each record as dots; with ``per_seed``, each seed's own moving average as a thin
-    line (is one seed the outlier behind a wide band?)."""
+    line (is one seed the outlier behind a wide band?). ``against="wall_seconds"``: against
+    the wall time of training and scoring instead, each curve's scorings at its seeds' mean
+    time (:attr:`~admissable_jax.results.Run.wall_seconds`)."""
     used = effective_window(runs, window)
     variants = sorted({run.variant for run in runs})
     curves = group_curves(runs)
     colors = curve_colors([(mode, variant) for _, mode, variant in curves])
     for (_, mode, variant), curve_runs in curves.items():
         steps, values = aligned(curve_runs, attribute)
+        if against == "wall_seconds":
+            steps = aligned(curve_runs, "wall_seconds")[1].mean(axis=0)
         smoothed = moving_average(values, used)
         mean, low, high = mean_and_interval(smoothed)
         color = colors[mode, variant]
@@ -229,7 +262,10 @@ def draw_curves(ax, runs: list[Run], attribute: str, window: int, per_seed: bool
             ax.plot(steps, seed_curve, color=color, linestyle=style, linewidth=0.6, alpha=0.45)
         ax.fill_between(steps, low, high, color=color, alpha=0.2, linewidth=0)
         ax.plot(steps, values.mean(axis=0), ".", color=color, alpha=0.35, markersize=3)
-    env_steps_axis(ax)
+    if against == "wall_seconds":
+        wall_time_axis(ax)
+    else:
+        env_steps_axis(ax)
     ax.grid(alpha=0.3)
     ax.legend()
 
@@ -301,6 +337,18 @@ def plot_runs(run_dirs: list[str] | str, out_dir: str, window: int = 0,
     axes[0].set_ylabel("return")
     figure.suptitle(_figure_caption(runs, window, per_seed), fontsize=9, y=-0.02, va="top")
     written += _save(figure, out_dir, "min_score", formats)
+    if all(np.isfinite(run.wall_seconds).all() for run in runs):
+        # How soon each curve gets robust, in time: what a cheaper score estimator, another
+        # backend or device buys (the runs' own timings of their intervals).
+        figure, ax = plt.subplots(figsize=(6.5, 4))
+        draw_curves(ax, runs, "min_score", window, per_seed, against="wall_seconds")
+        ax.set_title(f"{envs[0]}: adversarial performance $\\mathrm{{min}}_u\\, a_u$ against wall time", fontsize=10)
+        ax.set_ylabel("return")
+        caption = (f"{_figure_caption(runs, window, per_seed)}\nWall time: each interval's training and scoring as the "
+                   "run's metrics.jsonl timed them, summed (compiling, checkpoints and start-up not counted; an "
+                   "experiment's pairs share one program's); each curve at its seeds' mean.")
+        figure.suptitle(_wrapped(caption, CAPTION_WIDTH), fontsize=8, y=-0.02, va="top")
+        written += _save(figure, out_dir, "min_score_by_time", formats)
 
     for (_, mode, variant), mode_runs in curves.items():
         run = mode_runs[0]

@@ -30,6 +30,7 @@ import math
 import os
 import re
 import sys
+from typing import Any
 
 import numpy as np
 
@@ -67,6 +68,7 @@ class Run:
     min_score: np.ndarray  # (T,)
     mean_score: np.ndarray  # (T,) mean_u a_u over U, the average case; NaN with a pool (it scores only its sets)
     clean_score: np.ndarray  # (T,)
+    wall_seconds: np.ndarray  # (T,) training and scoring up to each scoring (interval_seconds); NaN where untimed
     p_miss: np.ndarray  # (T, |U|); with a pool (T, d): the p_miss mass on the pool's sets hiding each feature
     set_names: list[str]  # (|U|,) the hidden features of each candidate set; with a pool each feature's name
     set_members: np.ndarray  # (|U|, d) bool: which features each set hides; with a pool the identity
@@ -101,6 +103,26 @@ def per_feature_of_sets(values: np.ndarray, members: np.ndarray, attribute: str)
         return values @ members
     return np.stack([values[:, hiding].min(axis=1) if hiding.any() else np.full(len(values), np.nan)
                      for hiding in members.T], axis=1)
+
+
+def interval_seconds(row: dict[str, Any], score_every: int) -> float:
+    """The wall seconds of one scoring interval, from its ``metrics.jsonl`` row: the training
+    chunk (ζ env steps at the row's ``env_steps_per_s``, each run's own) and the scoring
+    round. Compiling, checkpoints and start-up are in no interval."""
+    return score_every / row["env_steps_per_s"] + row["score_seconds"]
+
+
+def _wall_seconds(path: str, env_steps: np.ndarray, score_every: int) -> np.ndarray:
+    """(T,) the wall seconds of training and scoring up to each scoring at ``env_steps``: the
+    :func:`interval_seconds` of the run's ``metrics.jsonl`` summed, NaN from the first
+    interval it has not timed (no file, a row without the times; an unreadable file: all)."""
+    try:
+        rows = read_jsonl(os.path.join(path, "metrics.jsonl"), torn="drop", required=("env_steps",))
+    except (OSError, ValueError):
+        rows = []
+    seconds = {int(row["env_steps"]): interval_seconds(row, score_every) for row in rows
+               if row.get("env_steps_per_s") and isinstance(row.get("score_seconds"), (int, float))}
+    return np.cumsum([seconds.get(int(steps), np.nan) for steps in env_steps])
 
 
 def load_run(path: str) -> Run:
@@ -144,7 +166,8 @@ def load_run(path: str) -> Run:
     return Run(
         path=path, env=str(config.env), mode=str(config.missingness), seed=int(config.seed),
         env_steps=column("env_steps"), scores=scores, min_score=column("min_score"), mean_score=mean_score,
-        clean_score=column("clean_score"), p_miss=p_miss, set_names=names, set_members=members,
+        clean_score=column("clean_score"), wall_seconds=_wall_seconds(path, column("env_steps"), int(config.score_every)),
+        p_miss=p_miss, set_names=names, set_members=members,
         features=list(features), worst_sets=worst_sets,
         score_episodes=int(config.score_episodes), pooled=pooled, uniform_draws=uniform_draws,
         settings={key: setting_text(value) for key, value in {**dataclasses.asdict(TrainConfig()), **config}.items()
@@ -287,6 +310,15 @@ def final_scores(curve_runs: list[Run]) -> tuple[int, np.ndarray, np.ndarray, np
     scored no set hiding the feature."""
     steps, values = aligned(curve_runs, "scores")  # (seeds, records, sets)
     return (int(steps[-1]), *mean_and_interval(values[:, -1, :]))
+
+
+def wall_time_text(seconds: float, _position: object = None) -> str:
+    """A wall time as a figure's axis labels it: 0, 45 s, 12.5 min, 3.2 h (as a matplotlib
+    ``FuncFormatter``)."""
+    for scale, unit in ((3600, "h"), (60, "min")):
+        if abs(seconds) >= scale:
+            return f"{seconds / scale:.3g} {unit}"
+    return f"{seconds:.3g} s" if seconds else "0"
 
 
 def steps_text(steps: float, _position: object = None) -> str:
@@ -540,13 +572,14 @@ def trained_on(run_dirs: list[str]) -> str:
 
 
 CURVE_COLUMNS = ("env", "mode", "variant", "seed", "env_steps", "min_score", "mean_score", "clean_score",
-                 "worst_set", "score_episodes", "pooled", "run")
+                 "worst_set", "score_episodes", "pooled", "wall_seconds", "run")
 SET_COLUMNS = ("env", "mode", "variant", "seed", "env_steps", "hidden", "a_u", "p_miss", "pooled", "run")
 
 
 def tidy_rows(runs: list[Run]) -> tuple[list[dict], list[dict]]:
     """The runs' histories in long form: (a row per run and scoring with min_u a_u, mean_u
-    a_u, the clean return and the worst set; a row per run, scoring and candidate set with
+    a_u, the clean return, the worst set and the wall seconds of training and scoring so far
+    (:attr:`Run.wall_seconds`); a row per run, scoring and candidate set with
     a_u and p_miss). A run with a pool (``pooled``) has a row per feature instead of per
     set: the lowest a_u of the pool's sets that hide it (NaN where none does) and the
     p_miss mass on them, as its heatmaps show."""
@@ -554,13 +587,13 @@ def tidy_rows(runs: list[Run]) -> tuple[list[dict], list[dict]]:
     for run in runs:
         labels = {"env": run.env, "mode": run.mode, "variant": run.variant, "seed": run.seed}
         # As Python numbers: the csv module writes a NumPy float as its repr, "np.float64(...)".
-        minimum, mean, clean, scores, p_miss = (values.tolist() for values in (
-            run.min_score, run.mean_score, run.clean_score, run.scores, run.p_miss))
+        minimum, mean, clean, scores, p_miss, seconds = (values.tolist() for values in (
+            run.min_score, run.mean_score, run.clean_score, run.scores, run.p_miss, run.wall_seconds))
         for t, env_steps in enumerate(run.env_steps.astype(int).tolist()):
             common = {**labels, "env_steps": env_steps}
             curves.append({**common, "min_score": minimum[t], "mean_score": mean[t], "clean_score": clean[t],
                            "worst_set": run.worst_sets[t], "score_episodes": run.score_episodes,
-                           "pooled": run.pooled, "run": run.path})
+                           "pooled": run.pooled, "wall_seconds": seconds[t], "run": run.path})
             sets += [{**common, "hidden": name, "a_u": scores[t][i], "p_miss": p_miss[t][i],
                       "pooled": run.pooled, "run": run.path} for i, name in enumerate(run.set_names)]
     return curves, sets

@@ -41,7 +41,7 @@ from admissable_jax.cli import fail, parse_args, run_main, setting
 from admissable_jax.config import EXPERIMENT_SETTINGS, RUN_SETTINGS, TrainConfig
 from admissable_jax.locks import LOCK_NAME, live_holder
 from admissable_jax.loggers import FINGERPRINT
-from admissable_jax.results import check_is_folder, distinct_directories, paths_of
+from admissable_jax.results import check_is_folder, distinct_directories, interval_seconds, paths_of
 from admissable_jax.run_directory import (best_scoring, experiment_of, load_config, read_run_file, run_config_path,
                                           trained_at)
 
@@ -123,7 +123,7 @@ def _interval_seconds(metrics: list[dict], config: TrainConfig) -> float | None:
     recent = trained[-PACE_INTERVALS:]
     if not recent:
         return None
-    return sum(config.score_every / row["env_steps_per_s"] + row["score_seconds"] for row in recent) / len(recent)
+    return sum(interval_seconds(row, config.score_every) for row in recent) / len(recent)
 
 
 def _continue_with(run_dir: str, experiment: str, checkpoint_steps: int, metrics: list[dict]) -> str:

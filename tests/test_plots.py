@@ -19,7 +19,7 @@ from admissable_jax.plot import LOWEST_BARS, _cell_edges, _final_scores_figure, 
     curve_colors, draw_curves, effective_window, env_steps_axis, main, plot_envs_side_by_side, plot_runs
 from admissable_jax.results import (
     Difference, final_scores, find_runs, format_comparison, load_run, load_runs, mean_and_interval, mode_differences,
-    moving_average, per_feature_of_sets, set_names, steps_text, summary_table,
+    moving_average, per_feature_of_sets, set_names, steps_text, summary_table, wall_time_text, write_tables,
 )
 
 
@@ -29,7 +29,9 @@ def _names(env, k=1, include_empty=False):
     return set_names(features, candidate_sets(len(features), k, include_empty))
 
 
-def _fake_run(root, mode, seed, records=12, sets=11, env="hopper", **settings):
+def _fake_run(root, mode, seed, records=12, sets=11, env="hopper", timed=None, **settings):
+    """A run folder with ``records`` scorings of made-up a_u; ``timed``: (env steps/s, scoring
+    seconds) of every interval, written as its metrics.jsonl rows."""
     path = os.path.join(root, f"{mode}-s{seed}")
     os.makedirs(path)
     config = TrainConfig(env=env, missingness=mode, seed=seed, **settings)
@@ -42,6 +44,10 @@ def _fake_run(root, mode, seed, records=12, sets=11, env="hopper", **settings):
             p_miss = (inverse / inverse.sum() if mode == "adversarial" else np.ones(sets) / sets).tolist()
             file.write(json.dumps({"env_steps": 5000 * (t + 1), "scores": scores, "min_score": min(scores),
                                    "clean_score": max(scores) + 5, "p_miss": p_miss}) + "\n")
+    if timed is not None:
+        with open(os.path.join(path, "metrics.jsonl"), "w") as file:
+            file.writelines(json.dumps({"env_steps": 5000 * (t + 1), "env_steps_per_s": timed[0],
+                                        "score_seconds": timed[1]}) + "\n" for t in range(records))
     return path
 
 
@@ -161,6 +167,42 @@ def _check_tables(folder, run_dirs):
                  float(row["p_miss"])) for row in sets]
     assert sorted(got_curves) == sorted(expected_curves)
     assert sorted(got_sets) == sorted(expected_sets)
+
+
+def test_min_score_against_the_wall_time_the_runs_timed(tmp_path):
+    """min_score_by_time: each curve's scorings at its seeds' mean wall time of training and
+    scoring so far, summed from metrics.jsonl (ζ / env_steps_per_s + score_seconds per
+    interval; here a cheap-scoring curve beside a slow one), in curves.csv too; not drawn
+    where a run has not timed every interval (its times NaN from there)."""
+    import matplotlib.pyplot as plt
+    timings = {("adversarial", 0): (500.0, 2.0), ("adversarial", 1): (250.0, 4.0), ("uniform", 0): (1000.0, 1.0)}
+    runs = [_fake_run(str(tmp_path / "runs"), mode, seed, timed=timed) for (mode, seed), timed in timings.items()]
+    written = plot_runs(runs, str(tmp_path / "figures"), window=1, formats="png")
+    assert os.path.join(tmp_path, "figures", "min_score_by_time.png") in written
+    per_interval = {key: 5000 / sps + seconds for key, (sps, seconds) in timings.items()}  # 12, 24 and 6 s
+    np.testing.assert_allclose(load_run(runs[1]).wall_seconds, 24.0 * np.arange(1, 13))
+    figure, ax = plt.subplots()
+    draw_curves(ax, [load_run(run) for run in runs], "min_score", 1, against="wall_seconds")
+    lines = {line.get_label(): line.get_xdata() for line in ax.get_lines() if not line.get_label().startswith("_")}
+    np.testing.assert_allclose(lines["adversarial (2 seeds)"], 18.0 * np.arange(1, 13))  # (12 + 24) / 2 per interval
+    np.testing.assert_allclose(lines["uniform (1 seed)"], per_interval["uniform", 0] * np.arange(1, 13))
+    figure.canvas.draw()
+    labels = [tick.get_text() for tick in ax.get_xticklabels()]  # (218 s wide: a tick every 30 s)
+    assert labels[labels.index("0"):][:4] == ["0", "30 s", "1 min", "1.5 min"]
+    plt.close(figure)
+    assert [wall_time_text(seconds) for seconds in (0, 45, 750, 11520)] == ["0", "45 s", "12.5 min", "3.2 h"]
+    write_tables(runs, str(tmp_path / "tables"))
+    with open(tmp_path / "tables" / "curves.csv") as file:
+        first = [row for row in csv.DictReader(file) if row["mode"] == "uniform"]
+    assert [float(row["wall_seconds"]) for row in first] == pytest.approx(6.0 * np.arange(1, 13))
+    # A run that did not time its fourth interval: NaN from there, an empty cell, no figure.
+    with open(os.path.join(runs[2], "metrics.jsonl")) as file:
+        rows = file.readlines()
+    with open(os.path.join(runs[2], "metrics.jsonl"), "w") as file:
+        file.writelines(rows[:3] + [json.dumps({"env_steps": 20000}) + "\n"] + rows[4:])
+    assert np.isnan(load_run(runs[2]).wall_seconds[3:]).all() and load_run(runs[2]).wall_seconds[2] == 18.0
+    written = plot_runs(runs, str(tmp_path / "untimed"), window=1, formats="png")
+    assert not any(path.endswith("min_score_by_time.png") for path in written)
 
 
 def test_runs_that_differ_in_settings_are_separate_curves(tmp_path, capsys):
