@@ -15,7 +15,7 @@ writes, e.g. ``png,svg``):
   it, on the same scale, mean_u a_u (the average case: where the paper warns a weak spot
   hides) and the clean return (nothing hidden) the same way;
 * ``min_score_by_time.*`` — min_u a_u the same way against the wall time of training and
-  scoring, as the runs' ``metrics.jsonl`` timed each interval (compiling not counted): how
+  scoring, as the runs' ``metrics.jsonl`` timed each interval (start-up and the compile before training not counted): how
   soon each curve gets robust in time (a cheaper score estimator, another backend or
   device); drawn where every run timed every interval;
 * ``scores_<mode>.*`` — a_u for every missing set over time (mean over seeds), a heatmap
@@ -345,7 +345,8 @@ def plot_runs(run_dirs: list[str] | str, out_dir: str, window: int = 0,
         ax.set_title(f"{envs[0]}: adversarial performance $\\mathrm{{min}}_u\\, a_u$ against wall time", fontsize=10)
         ax.set_ylabel("return")
         caption = (f"{_figure_caption(runs, window, per_seed)}\nWall time: each interval's training and scoring as the "
-                   "run's metrics.jsonl timed them, summed (compiling, checkpoints and start-up not counted; an "
+                   "run's metrics.jsonl timed them, summed (start-up, the compile before training and checkpoints not "
+                   "counted; what compiles within the first interval, as Warp's kernels do, is in it; an "
                    "experiment's pairs share one program's); each curve at its seeds' mean.")
         figure.suptitle(_wrapped(caption, CAPTION_WIDTH), fontsize=8, y=-0.02, va="top")
         written += _save(figure, out_dir, "min_score_by_time", formats)

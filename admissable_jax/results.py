@@ -108,7 +108,8 @@ def per_feature_of_sets(values: np.ndarray, members: np.ndarray, attribute: str)
 def interval_seconds(row: dict[str, Any], score_every: int) -> float:
     """The wall seconds of one scoring interval, from its ``metrics.jsonl`` row: the training
     chunk (ζ env steps at the row's ``env_steps_per_s``, each run's own) and the scoring
-    round. Compiling, checkpoints and start-up are in no interval."""
+    round. Start-up, the compile before training and checkpoints are in no interval (what
+    compiles at its first call inside the first chunk, as Warp's kernels do, is in it)."""
     return score_every / row["env_steps_per_s"] + row["score_seconds"]
 
 
