@@ -249,7 +249,8 @@ def env_section(env: str, folder: str, window: int, out_file: str, formats: tupl
     differences = compared.get(env, [])
     audited_differences = [] if audited_difference is None else [audited_difference]
     partial = "" if steps >= PAPER_STEPS else ", not the paper's 1M"
-    figure = os.path.relpath(os.path.join(figures, "min_score.png"), os.path.dirname(os.path.abspath(out_file)))
+    figure, by_time = (os.path.relpath(os.path.join(figures, name), os.path.dirname(os.path.abspath(out_file)))
+                       for name in ("min_score.png", "min_score_by_time.png"))
     lines = [
         f"## {env}", "",
         f"Runs: `{folder}` ({len(run_dirs)} runs, {steps:,} env steps each{partial}). "
@@ -260,6 +261,8 @@ def env_section(env: str, folder: str, window: int, out_file: str, formats: tupl
         f"- {_clean_sac_line(env, runs)}", "",
         *audited,
         _cost_line(run_dirs), "",
+        *([f"![min_u a_u against the wall time of training and scoring]({by_time})", ""]
+          if os.path.exists(os.path.join(figures, "min_score_by_time.png")) else []),
         trained_on(run_dirs), "",
         f"![min_u a_u, mean_u a_u and clean return]({figure})", "",
         f"Every scoring of every run, as tidy tables for one's own analysis: `{curves_csv}` (a row per run and "
