@@ -68,7 +68,8 @@ def _check_free_for(out: str, policy: ExportedPolicy) -> None:
     try:
         earlier = ExportedPolicy.load(out).source
     except (ValueError, FileNotFoundError):
-        raise FileExistsError(f"{out} exists and is no exported policy: it is left as it is; give another out=") from None
+        raise FileExistsError(f"{out} exists and is no exported policy: it is left as it is; give another "
+                              "out=") from None
     now, then = policy.source, earlier.get("run")
     if earlier != now and not (then and {**earlier, "run": now["run"]} == now and same_run_at(then, now["run"], out)):
         kept = "" if earlier.get("best_min_score") is None else ", its best"

@@ -15,9 +15,9 @@ writes, e.g. ``png,svg``):
   it, on the same scale, mean_u a_u (the average case: where the paper warns a weak spot
   hides) and the clean return (nothing hidden) the same way;
 * ``min_score_by_time.*`` — min_u a_u the same way against the wall time of training and
-  scoring, as the runs' ``metrics.jsonl`` timed each interval (start-up and the compile before training not counted): how
-  soon each curve gets robust in time (a cheaper score estimator, another backend or
-  device); drawn where every run timed every interval;
+  scoring, as the runs' ``metrics.jsonl`` timed each interval (start-up and the compile
+  before training not counted): how soon each curve gets robust in time (a cheaper score
+  estimator, another backend or device); drawn where every run timed every interval;
 * ``scores_<mode>.*`` — a_u for every missing set over time (mean over seeds), a heatmap
   whose rows are named after Gymnasium's observation entries ("torso z", ...) and whose
   cells are centred on their scoring steps;

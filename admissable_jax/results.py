@@ -167,8 +167,9 @@ def load_run(path: str) -> Run:
     return Run(
         path=path, env=str(config.env), mode=str(config.missingness), seed=int(config.seed),
         env_steps=column("env_steps"), scores=scores, min_score=column("min_score"), mean_score=mean_score,
-        clean_score=column("clean_score"), wall_seconds=_wall_seconds(path, column("env_steps"), int(config.score_every)),
-        p_miss=p_miss, set_names=names, set_members=members,
+        clean_score=column("clean_score"),
+        wall_seconds=_wall_seconds(path, column("env_steps"), int(config.score_every)), p_miss=p_miss,
+        set_names=names, set_members=members,
         features=list(features), worst_sets=worst_sets,
         score_episodes=int(config.score_episodes), pooled=pooled, uniform_draws=uniform_draws,
         settings={key: setting_text(value) for key, value in {**dataclasses.asdict(TrainConfig()), **config}.items()
