@@ -340,6 +340,7 @@ def plot_runs(run_dirs: list[str] | str, out_dir: str, window: int = 0,
     if all(np.isfinite(run.wall_seconds).all() for run in runs):
         # How soon each curve gets robust, in time: what a cheaper score estimator, another
         # backend or device buys (the runs' own timings of their intervals).
+        _warn_of_unlike_times(curves)
         figure, ax = plt.subplots(figsize=(6.5, 4))
         draw_curves(ax, runs, "min_score", window, per_seed, against="wall_seconds")
         ax.set_title(f"{envs[0]}: adversarial performance $\\mathrm{{min}}_u\\, a_u$ against wall time", fontsize=10)
@@ -393,6 +394,22 @@ def plot_runs(run_dirs: list[str] | str, out_dir: str, window: int = 0,
         name = "final_scores" + (f"_{_file_name(variant)}" if len(groups) > 1 and variant else "")
         written += _save(_final_scores_figure(envs[0], list(names), group), out_dir, name, formats)
     return written
+
+
+UNLIKE_TIMES = 1.5  # a curve's seeds whose times differ by more than this factor ran unlike
+
+
+def _warn_of_unlike_times(curves: dict[tuple[str, str, str], list[Run]]) -> None:
+    """One line per curve whose seeds took times apart by more than :data:`UNLIKE_TIMES` to
+    their last shared scoring: seeds of one curve may have run on other devices or physics
+    (which the curve does not split), and its time axis is their mean."""
+    for curve_runs in curves.values():
+        last = shared_records(curve_runs) - 1
+        times = [run.wall_seconds[last] for run in curve_runs]
+        if max(times) > UNLIKE_TIMES * min(times):
+            print(f"warning: min_score_by_time: the seeds of {curve_runs[0].curve} took {wall_time_text(min(times))} to "
+                  f"{wall_time_text(max(times))} (other devices or physics?); its time axis is their mean",
+                  file=sys.stderr)
 
 
 def _final_scores_figure(env: str, names: list[str], group: list[list[Run]]):

@@ -1644,6 +1644,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                     "    if True:", "test_plots.py"),
     "curves_csv_wall_time_of_the_first_scoring": ("admissable_jax/results.py", '"wall_seconds": seconds[t]',
                                                   '"wall_seconds": seconds[0]', "test_plots.py"),
+    "unlike_times_unsaid": ("admissable_jax/plot.py", "        if max(times) > UNLIKE_TIMES * min(times):",
+                            "        if False:", "test_plots.py"),
     "scoring_columns_of_any_shape": ("admissable_jax/results.py", "        except (TypeError, ValueError):  # ragged",
                                      "        except ImportError:  # ragged", "test_runs.py"),
     "score_estimators_of_one_episode": ("benchmarks/score_estimators.py", "if config.n_episodes < 2 or any(",

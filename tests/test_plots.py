@@ -169,16 +169,19 @@ def _check_tables(folder, run_dirs):
     assert sorted(got_sets) == sorted(expected_sets)
 
 
-def test_min_score_against_the_wall_time_the_runs_timed(tmp_path):
+def test_min_score_against_the_wall_time_the_runs_timed(tmp_path, capsys):
     """min_score_by_time: each curve's scorings at its seeds' mean wall time of training and
     scoring so far, summed from metrics.jsonl (ζ / env_steps_per_s + score_seconds per
-    interval; here a cheap-scoring curve beside a slow one), in curves.csv too; not drawn
-    where a run has not timed every interval (its times NaN from there)."""
+    interval; here a cheap-scoring curve beside a slow one), in curves.csv too; seeds of a
+    curve whose times differ by over 1.5x are warned of (other devices?); not drawn where a
+    run has not timed every interval (its times NaN from there)."""
     import matplotlib.pyplot as plt
     timings = {("adversarial", 0): (500.0, 2.0), ("adversarial", 1): (250.0, 4.0), ("uniform", 0): (1000.0, 1.0)}
     runs = [_fake_run(str(tmp_path / "runs"), mode, seed, timed=timed) for (mode, seed), timed in timings.items()]
     written = plot_runs(runs, str(tmp_path / "figures"), window=1, formats="png")
     assert os.path.join(tmp_path, "figures", "min_score_by_time.png") in written
+    assert capsys.readouterr().err == ("warning: min_score_by_time: the seeds of adversarial took 2.4 min to 4.8 min "
+                                       "(other devices or physics?); its time axis is their mean\n")
     per_interval = {key: 5000 / sps + seconds for key, (sps, seconds) in timings.items()}  # 12, 24 and 6 s
     np.testing.assert_allclose(load_run(runs[1]).wall_seconds, 24.0 * np.arange(1, 13))
     figure, ax = plt.subplots()
