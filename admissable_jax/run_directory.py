@@ -103,6 +103,14 @@ def same_run_at(then: str, now: str, written: str) -> bool:
     return first == _first_command(now)
 
 
+def same_record_elsewhere(then: dict[str, Any], now: dict[str, Any], written: str) -> bool:
+    """Whether ``then``, what ``written`` (an audit, an exported policy) recorded of the run
+    it came from, is ``now`` but for the ``"run"`` path, and that path's run the run now at
+    ``now``'s (:func:`same_run_at`): the same policy of the same run, moved, linked or copied."""
+    run, earlier = now.get("run"), then.get("run")
+    return bool(run and earlier) and {**then, "run": run} == now and same_run_at(earlier, run, written)
+
+
 def check_folder_kind(out: str, command: str) -> None:
     """FileExistsError in one line where ``out`` of ``command`` (``train`` or ``experiment``)
     is another command's folder: an experiment's, or one of its pairs, for ``train`` (whose

@@ -19,7 +19,7 @@ from admissable_jax.audit.sets import AuditResult, audit, audit_gymnasium, audit
 from admissable_jax.cli import enable_compilation_cache, parse_args, reporting, run_from_cli, setting
 from admissable_jax.errors import make_directory, remove_if_unused
 from admissable_jax.method import check_fail_at, fail_steps, set_sizes
-from admissable_jax.run_directory import experiment_pairs, is_experiment, same_run_at
+from admissable_jax.run_directory import experiment_pairs, is_experiment, same_record_elsewhere
 from admissable_jax.scoring import SCORE_ESTIMATORS
 from admissable_jax.scoring.attribution import MIN_ORDERS, ShapleyPlan
 from admissable_jax.scoring.dropout import DropoutPlan, check_masks, parse_rates, plan_dropout
@@ -276,15 +276,6 @@ def _audited_policy(source: dict[str, Any]) -> tuple:
         None if "exported from" in source else source.get("policy"),)
 
 
-def _same_run_elsewhere(earlier: dict[str, Any], source: dict[str, Any], out: str) -> bool:
-    """Whether ``earlier`` audited the same policy as ``source`` (checkpoint, mode, seed and
-    the rest alike) of the same run at another path (moved since with its audit ``out`` in
-    it, reached by a link, or copied: :func:`~admissable_jax.run_directory.same_run_at`)."""
-    run, then = source.get("run"), earlier.get("run")
-    return (run is not None and then is not None and {**earlier, "run": run} == source
-            and same_run_at(then, run, out))
-
-
 def _check_free_for(out: str, source: dict[str, Any]) -> None:
     """FileExistsError in one line where ``out`` holds the audit of another policy than
     ``source``'s (a second Python policy of the same name, an ``out=`` given twice): a
@@ -299,7 +290,8 @@ def _check_free_for(out: str, source: dict[str, Any]) -> None:
         earlier = _audited_policy(recorded)
     except (OSError, ValueError, KeyError, TypeError):
         earlier = None
-    if earlier != _audited_policy(source) and not (earlier is not None and _same_run_elsewhere(recorded, source, out)):
+    if earlier != _audited_policy(source) and not (
+            earlier is not None and same_record_elsewhere(recorded, source, out)):
         whose = "another policy's audit" if earlier is None else (
             f"the audit of another policy ({', '.join(str(part) for part in earlier if part is not None)})")
         raise FileExistsError(f"{out} holds {whose}: it is left as it is; give another out= (or remove it)")
