@@ -98,6 +98,11 @@ def test_plot_runs_writes_every_figure(tmp_path, capsys):
     shutil.copytree(tmp_path / "runs" / "adversarial-s0", tmp_path / "mixed" / "adversarial-s0")
     written = plot_runs(find_runs([str(tmp_path / "mixed")]), str(tmp_path / "mixed_figures"), window=4, formats="PNG")
     assert height("p_miss_adversarial", "mixed_figures") > 450
+    # Mode none hides nothing in training, so nothing was drawn from its recorded p_miss: no
+    # p_miss figure (it read "stayed uniform", as if uniform missingness had been trained on).
+    _fake_run(str(tmp_path / "clean"), "none", 0)
+    written = plot_runs(find_runs([str(tmp_path / "clean")]), str(tmp_path / "clean_figures"), window=4, formats="png")
+    assert sorted(os.path.basename(path) for path in written) == ["final_scores.png", "min_score.png", "scores_none.png"]
     assert {os.path.splitext(path)[1] for path in written} == {".png"}  # one format as a string ("png,svg" too), not
     assert check_formats(" png, SVG,png") == ("png", "svg")  # its letters ('formats: 'p', 'n', 'g': give formats ...')
     with pytest.raises(FileNotFoundError, match=f"no such directory: {tmp_path / 'missing'}$"):
