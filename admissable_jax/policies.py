@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
-from typing import Iterable
+from typing import Any, Iterable
 
 import jax
 import jax.numpy as jnp
@@ -76,6 +76,17 @@ class TrainedPolicy:
         check_masked_batch(masked_obs, self.observation_size)
         return np.asarray(self._act(self.actor_params, jnp.asarray(masked_obs, jnp.float32)))
 
+    @property
+    def source(self) -> dict[str, Any]:
+        """Where this policy came from, as what it makes records it (an exported policy, a
+        video): the run (where it is now), its settings that matter, the env step, and its
+        min_u a_u where it is the run's best."""
+        train = self.config
+        return {"run": os.path.abspath(train.out), "env": train.env, "gymnasium_id": self.trainer.env.gymnasium_id,
+                "missingness": train.missingness, "seed": train.seed, "k": train.k, "up_to_k": train.up_to_k,
+                "env_steps": self.step, "best_min_score": self.best_min_score,
+                **{name: getattr(train, name) for name in FAILURE_STEPS if getattr(train, name) != "0"}}
+
     def exported(self) -> ExportedPolicy:
         """This policy as NumPy arrays (:mod:`admissable_jax.exported_policy`): the actor's
         hidden layers and mean head (not its log-std head, which only exploration reads), the
@@ -83,15 +94,11 @@ class TrainedPolicy:
         layers = self.actor_params["params"]
         mean_head = len(self.trainer.agent.hp.hidden_sizes)  # agent.Actor: Dense_0.. hidden, the mean head, the log-std head
         order = [f"Dense_{index}" for index in range(mean_head + 1)]
-        train, env = self.config, self.trainer.env
-        source = {"run": os.path.abspath(train.out), "env": train.env, "gymnasium_id": env.gymnasium_id,
-                  "missingness": train.missingness, "seed": train.seed, "k": train.k, "up_to_k": train.up_to_k,
-                  "env_steps": self.step, "best_min_score": self.best_min_score,
-                  **{name: getattr(train, name) for name in FAILURE_STEPS if getattr(train, name) != "0"}}
+        env = self.trainer.env
         return ExportedPolicy(tuple(np.asarray(layers[name]["kernel"], np.float32) for name in order),
                               tuple(np.asarray(layers[name]["bias"], np.float32) for name in order),
                               np.asarray(env.action_low, np.float32), np.asarray(env.action_high, np.float32),
-                              tuple(observation_names(train.env)), source)
+                              tuple(observation_names(self.config.env)), self.source)
 
 
 def _checkpoint_dir(run_dir: str) -> str:

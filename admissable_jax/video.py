@@ -10,7 +10,10 @@ paper's m_u). The default u is the worst set of the checkpoint's own scoring (ar
 Frames come from MuJoCo's renderer through Gymnasium: ``MUJOCO_GL=egl`` (the default here;
 a GPU, or Mesa's software EGL on a headless CPU: Debian/Ubuntu ``libegl1 libgl1-mesa-dri``)
 or ``MUJOCO_GL=osmesa`` (``libosmesa6``). The file is written by imageio-ffmpeg (H.264) at
-the env's real-time frame rate.
+the env's real-time frame rate, whole or not at all, and records what it shows (its mp4
+comment: the policy's source as ``export`` records it, u, ``fail_at``, the reset seed). A file
+at ``out`` that holds another video, or no record of one, is never written over; the same
+video's is (its run moved, linked or copied since, too).
 """
 
 from __future__ import annotations
@@ -21,8 +24,11 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # read by MuJoCo when it is first imp
 
 import contextlib  # noqa: E402
 import dataclasses  # noqa: E402
+import json  # noqa: E402
+import re  # noqa: E402
+import subprocess  # noqa: E402
 import warnings  # noqa: E402
-from typing import Callable, Iterator  # noqa: E402
+from typing import Any, Callable, Iterator  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -30,7 +36,7 @@ from admissable_jax.cli import parse_args, run_from_cli, run_main, setting  # no
 from admissable_jax.envs import observation_names, settotalmass_warning_dropped  # noqa: E402
 from admissable_jax.errors import RunFailed, make_directory  # noqa: E402
 from admissable_jax.method import check_fail_at, parse_set  # noqa: E402
-from admissable_jax.run_directory import SCORING_KEYS, read_jsonl  # noqa: E402
+from admissable_jax.run_directory import SCORING_KEYS, read_jsonl, same_record_elsewhere  # noqa: E402
 
 PANEL_WIDTH, PANEL_HEIGHT, LABEL_HEIGHT = 480, 352, 32  # multiples of 16, as H.264 wants
 
@@ -42,11 +48,13 @@ class VideoConfig:
                               "run's Gymnasium env; name hidden= (it holds no scorings)")
     hidden: str = setting("worst", "u: feature indices or names, comma separated (e.g. 2 or 'thigh joint angle'); "
                                    "worst = argmin_u a_u of the checkpoint's scoring")
-    out: str = setting("", "the .mp4 to write (default RUN_DIR/videos/step<STEP>-hidden<u>[-fail<T>].mp4; best=true: "
-                           "best-step<STEP>-...; policy=: videos/<its name>-hidden<u>.mp4 beside the file)")
+    out: str = setting("", "the .mp4 to write (default RUN_DIR/videos/step<STEP>-hidden<u>[-fail<T>][-seed<S>].mp4; "
+                           "best=true: best-step<STEP>-...; policy=: videos/<its name>-hidden<u>.mp4 beside the file); "
+                           "another video's file is never written over")
     step: int = setting(-1, "the checkpoint (env step); -1 = the latest")
     best: bool = setting(False, "the policy the run kept at its best scoring (best_policy.npz) instead of a checkpoint")
-    seed: int = setting(0, "reset seed of the start state both sides share")
+    seed: int = setting(0, "reset seed of the start state both sides share (the default file ends in -seed<S> where "
+                           "it is not 0)")
     frames: int = setting(1000, "frames at most: the start, then one per env step (Gymnasium's episodes end at 1000 "
                                 "steps, or when the agent falls; the end is then held for a second)")
     fail_at: int = setting(0, "the env step at which u's sensors fail, every feature seen before it (a sensor "
@@ -117,6 +125,7 @@ class _Shown:
     """What the video shows: the policy, its Gymnasium env, u, and the default file's path."""
 
     act: Callable[..., np.ndarray]  # policy(obs, hidden=()) -> action
+    source: dict[str, Any]  # where the policy came from (ExportedPolicy.source)
     gymnasium_id: str | None
     env_name: str
     hidden: tuple[int, ...]
@@ -134,8 +143,8 @@ def _shown(config: VideoConfig) -> _Shown:
         env_name, names = exported.source.get("env"), list(exported.observation_names)
         hidden = resolve_hidden(config.hidden, env_name, names, [], -1)
         stem = os.path.splitext(os.path.basename(config.policy))[0]
-        out = os.path.join(os.path.dirname(config.policy), "videos", f"{stem}-{_file_ending(hidden, config.fail_at)}")
-        return _Shown(exported, exported.source.get("gymnasium_id"), env_name, hidden,
+        out = os.path.join(os.path.dirname(config.policy), "videos", f"{stem}-{_file_ending(hidden, config)}")
+        return _Shown(exported, exported.source, exported.source.get("gymnasium_id"), env_name, hidden,
                       tuple(names[i] for i in hidden), exported.source.get("env_steps"), out)
     from admissable_jax.policies import load_policy, requested_step
 
@@ -145,9 +154,9 @@ def _shown(config: VideoConfig) -> _Shown:
     names = observation_names(train.env)
     hidden = resolve_hidden(config.hidden, train.env, names, scorings, policy.step)
     best = "best-" * (policy.best_min_score is not None)
-    out = os.path.join(config.run_dir, "videos", f"{best}step{policy.step}-{_file_ending(hidden, config.fail_at)}")
-    return _Shown(policy, policy.trainer.env.gymnasium_id, train.env, hidden, tuple(names[i] for i in hidden),
-                  policy.step, out)
+    out = os.path.join(config.run_dir, "videos", f"{best}step{policy.step}-{_file_ending(hidden, config)}")
+    return _Shown(policy, policy.source, policy.trainer.env.gymnasium_id, train.env, hidden,
+                  tuple(names[i] for i in hidden), policy.step, out)
 
 
 def panel_titles(hidden: tuple[int, ...], names: tuple[str, ...], fail_at: int) -> list[str]:
@@ -157,9 +166,68 @@ def panel_titles(hidden: tuple[int, ...], names: tuple[str, ...], fail_at: int) 
     return ["nothing hidden", f"hidden {indices}{failing}: {', '.join(names) or 'nothing'}"]
 
 
-def _file_ending(hidden: tuple[int, ...], fail_at: int) -> str:
-    """The default file name's end: u, and when its sensors fail where not at the start."""
-    return f"hidden{'-'.join(map(str, hidden)) or 'none'}{f'-fail{fail_at}' * bool(fail_at)}.mp4"
+def _file_ending(hidden: tuple[int, ...], config: VideoConfig) -> str:
+    """The default file name's end: u, when its sensors fail where not at the start, and the
+    reset seed where not 0 (each another video)."""
+    return (f"hidden{'-'.join(map(str, hidden)) or 'none'}{f'-fail{config.fail_at}' * bool(config.fail_at)}"
+            f"{f'-seed{config.seed}' * bool(config.seed)}.mp4")
+
+
+def video_record(source: dict[str, Any], hidden: tuple[int, ...], config: VideoConfig) -> dict[str, Any]:
+    """What a video shows, as its file records it: the policy's source, u, when u's sensors
+    fail, and the reset seed of the start both sides share."""
+    return {**source, "hidden": list(hidden), "fail_at": config.fail_at, "reset_seed": config.seed}
+
+
+def recorded_video(path: str) -> dict[str, Any] | None:
+    """The record of the video in ``path`` (its mp4 comment, :func:`render_video`), or None
+    where it holds none: a video of another program, or of this one before videos recorded
+    theirs, or no video."""
+    import imageio_ffmpeg
+
+    try:
+        with ffmpeg_forks_quietly():
+            metadata = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-v", "error", "-i", path, "-f", "ffmetadata",
+                                       "-"], capture_output=True, text=True, timeout=60, check=True).stdout
+    except (OSError, subprocess.SubprocessError):
+        return None
+    comments = [line[len("comment="):] for line in metadata.splitlines() if line.startswith("comment=")]
+    try:  # ffmetadata escapes =, ;, # and \ with a backslash
+        record = json.loads(re.sub(r"\\(.)", r"\1", comments[0])) if comments else None
+    except ValueError:
+        return None
+    return record if isinstance(record, dict) else None
+
+
+@contextlib.contextmanager
+def video_writer(path: str, fps: float, record: dict[str, Any]) -> Iterator[Any]:
+    """imageio-ffmpeg's H.264 writer of ``path``, ``record`` in its mp4 comment
+    (:func:`recorded_video`), closed on leaving: its own exit leaves ffmpeg running after an
+    exception, to write the file on after it has been removed; ``close()`` waits for it."""
+    import imageio.v2 as imageio
+
+    comment = ["-metadata", f"comment={json.dumps(record)}"]
+    with contextlib.closing(imageio.get_writer(path, fps=fps, codec="libx264", macro_block_size=16,
+                                               output_params=comment)) as writer:
+        yield writer
+
+
+def _check_free_for(out: str, record: dict[str, Any]) -> None:
+    """FileExistsError in one line where ``out`` holds a file that is not the video ``record``
+    describes (another policy's, set's, failure step's or start's, or one with no record):
+    never written over, as its policy's checkpoint may be gone. The same video's is, also
+    from its run moved, linked or copied since."""
+    if not os.path.exists(out):
+        return
+    earlier = recorded_video(out)
+    if earlier is None:
+        raise FileExistsError(f"{out} exists and holds no record of a video of this command (another program's, or "
+                              "one written before videos recorded theirs): it is left as it is; give another out=")
+    if earlier != record and not same_record_elsewhere(earlier, record, out):
+        hidden = "{" + ",".join(map(str, earlier.get("hidden", []))) + "}"
+        raise FileExistsError(f"{out} holds another video ({earlier.get('run')}, env step {earlier.get('env_steps')}, "
+                              f"hidden {hidden}, fail_at {earlier.get('fail_at')}, seed {earlier.get('reset_seed')}): "
+                              "it is left as it is; give another out=")
 
 
 def _labelled(frame: np.ndarray, text: str) -> np.ndarray:
@@ -183,7 +251,6 @@ def ffmpeg_forks_quietly() -> Iterator[None]:
 def render_video(config: VideoConfig) -> Video:
     """Render ``config``'s video; see the module docstring."""
     import gymnasium
-    import imageio.v2 as imageio
 
     check_video_config(config)
     shown = _shown(config)
@@ -191,7 +258,10 @@ def render_video(config: VideoConfig) -> Video:
         raise ValueError(f"{shown.env_name} has no Gymnasium env to render")
     hidden, names, policy = shown.hidden, shown.names, shown.act
     out = config.out or shown.out
+    record = video_record(shown.source, hidden, config)
+    _check_free_for(out, record)
     make_directory(os.path.dirname(os.path.abspath(out)), "video folder")
+    partial = f"{out}.partial.mp4"  # renamed over out once whole: a stop mid-way leaves out as it was
 
     sides = [(), hidden]
     with settotalmass_warning_dropped():
@@ -208,7 +278,7 @@ def render_video(config: VideoConfig) -> Video:
         returns, lengths, running, held = [0.0, 0.0], [0, 0], [True, True], 0
         fps = envs[0].metadata.get("render_fps", 30)
         titles = panel_titles(hidden, names, config.fail_at)
-        with ffmpeg_forks_quietly(), imageio.get_writer(out, fps=fps, codec="libx264", macro_block_size=16) as writer:
+        with ffmpeg_forks_quietly(), video_writer(partial, fps, record) as writer:
             for frame in range(config.frames):
                 panels = []
                 for side, env in enumerate(envs):
@@ -230,9 +300,12 @@ def render_video(config: VideoConfig) -> Video:
                         lengths[side] += 1
                         running[side] = not (terminated or truncated)
                         last[side] = env.render()
+        os.replace(partial, out)
     finally:
         for env in envs:
             env.close()
+        if os.path.exists(partial):
+            os.remove(partial)
     return Video(out, hidden, names, shown.step, returns[0], returns[1], lengths[0], lengths[1], frame + 1)
 
 

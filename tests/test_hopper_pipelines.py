@@ -339,7 +339,7 @@ def test_capacity_overflow_is_detected_and_stops_the_run_in_one_line(tmp_path, m
     assert "\n" not in str(error.value)
 
 
-def test_video_of_the_trained_hopper_beside_its_worst_set(jax_run, tmp_path, capsys):
+def test_video_of_the_trained_hopper_beside_its_worst_set(jax_run, tmp_path, capsys, monkeypatch):
     """The video: nothing hidden beside the same start with the checkpoint's worst set hidden,
     in Gymnasium's C-MuJoCo env; on the command line, bad input is one line."""
     import imageio.v3 as iio
@@ -373,6 +373,36 @@ def test_video_of_the_trained_hopper_beside_its_worst_set(jax_run, tmp_path, cap
     scene = frames[0, video.LABEL_HEIGHT:].astype(np.float32)
     assert np.abs(scene[:, :video.PANEL_WIDTH] - scene[:, video.PANEL_WIDTH:]).mean() < 5
     assert made.clean_return != made.hidden_return
+    # The file records what it shows. Another video (here another start) is never written
+    # over, nor a file that records none; the same video is (here shorter), whole or not at
+    # all: a render stopped mid-way leaves the earlier file as it was, and no part of its own.
+    run = os.path.abspath(jax_run.run_dir)
+    recorded = video.recorded_video(made.path)
+    assert {key: recorded[key] for key in ("run", "env_steps", "hidden", "fail_at", "reset_seed")} == {
+        "run": run, "env_steps": 80, "hidden": list(worst), "fail_at": 0, "reset_seed": 0}
+    before = open(made.path, "rb").read()
+    assert video.main([jax_run.run_dir, "frames=3", "seed=1", f"out={made.path}"]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"error: {made.path} holds another video ({run}, env step 80, hidden {{{','.join(map(str, worst))}}}, fail_at 0, "
+        "seed 0): it is left as it is; give another out=")
+    odd = {"run": "/runs/l=0;#1\\", "hidden": [1]}  # what ffmetadata escapes, read back
+    with video.ffmpeg_forks_quietly(), video.video_writer(str(tmp_path / "odd.mp4"), 30, odd) as writer:
+        writer.append_data(np.zeros((16, 16, 3), np.uint8))
+    assert video.recorded_video(str(tmp_path / "odd.mp4")) == odd
+    os.remove(tmp_path / "odd.mp4")
+    (tmp_path / "notes.mp4").write_text("not a video")
+    with pytest.raises(FileExistsError, match="notes.mp4 exists and holds no record of a video of this command"):
+        video._check_free_for(str(tmp_path / "notes.mp4"), recorded)
+    labelled, frames_labelled = video._labelled, iter(range(1000))
+    monkeypatch.setattr(video, "_labelled", lambda *args: labelled(*args) if next(frames_labelled) < 9 else 1 / 0)
+    with pytest.raises(ZeroDivisionError):
+        video.render_video(video.VideoConfig(run_dir=jax_run.run_dir, frames=20, out=made.path))
+    monkeypatch.undo()
+    assert open(made.path, "rb").read() == before and sorted(os.listdir(tmp_path)) == ["hopper.mp4", "notes.mp4"]
+    shorter = video.render_video(video.VideoConfig(run_dir=jax_run.run_dir, frames=3, out=made.path))
+    assert shorter.frames == 3 and open(made.path, "rb").read() != before
+    # Another start's default file is its own: named for its seed.
+    assert video._file_ending((3, 7), video.VideoConfig(fail_at=19, seed=1)) == "hidden3-7-fail19-seed1.mp4"
     # Each panel's title names u by its indices (it said {0} for u = {10}: a 0/1 row's reading of indices).
     assert video.panel_titles((3, 10), ("leg joint angle", "foot joint angular velocity"), 50) == [
         "nothing hidden", "hidden {3,10} from step 50: leg joint angle, foot joint angular velocity"]
