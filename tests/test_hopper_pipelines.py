@@ -383,8 +383,8 @@ def test_video_of_the_trained_hopper_beside_its_worst_set(jax_run, tmp_path, cap
     before = open(made.path, "rb").read()
     assert video.main([jax_run.run_dir, "frames=3", "seed=1", f"out={made.path}"]) == 2
     assert capsys.readouterr().err.strip() == (
-        f"error: {made.path} holds another video ({run}, env step 80, hidden {{{','.join(map(str, worst))}}}, fail_at 0, "
-        "seed 0): it is left as it is; give another out=")
+        f"error: {made.path} holds another video ({run}, env step 80, hidden {{{','.join(map(str, worst))}}}, "
+        "fail_at 0, seed 0): it is left as it is; give another out=")
     odd = {"run": "/runs/l=0;#1\\", "hidden": [1]}  # what ffmetadata escapes, read back
     with video.ffmpeg_forks_quietly(), video.video_writer(str(tmp_path / "odd.mp4"), 30, odd) as writer:
         writer.append_data(np.zeros((16, 16, 3), np.uint8))
