@@ -33,8 +33,10 @@ import time
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
-# name: (file, text, its replacement, the test file that caught it last)
+# name: (file, text, its replacement, the test file that caught it last, or that test: FILE::NAME,
+# where the file's other tests take minutes before it)
 # envs/warp_package.py's MuJoCo Warp passes built in RUN_TO_RUN mode, which two mutations each cut by one.
+_VIDEO_TEST = "test_hopper_pipelines.py::test_video_of_the_trained_hopper_beside_its_worst_set"
 _BOTH_PASSES = '_RUN_TO_RUN_PASSES = (("collision_driver", "collision"), ("constraint", "make_constraint"))'
 MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     # The paper's mechanism (§3): u per episode, masking, the adversary's p_miss.
@@ -1646,6 +1648,26 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                                   '"wall_seconds": seconds[0]', "test_plots.py"),
     "unlike_times_unsaid": ("admissable_jax/plot.py", "        if max(times) > UNLIKE_TIMES * min(times):",
                             "        if False:", "test_plots.py"),
+    "p_miss_figure_of_mode_none": ("admissable_jax/plot.py", '            if attribute == "p_miss" and mode == "none":',
+                                   "            if False:", "test_plots.py"),
+    "video_written_over_another": ("admissable_jax/video.py",
+                                   "    if earlier != record and not same_record_elsewhere(earlier, record, out):",
+                                   "    if False:", _VIDEO_TEST),
+    "video_same_video_refused": ("admissable_jax/video.py",
+                                 "    if earlier != record and not same_record_elsewhere(earlier, record, out):",
+                                 "    if True:", _VIDEO_TEST),
+    "video_file_of_no_record_written_over": ("admissable_jax/video.py", "    if earlier is None:", "    if False:",
+                                             _VIDEO_TEST),
+    "video_written_in_place": ("admissable_jax/video.py", '    partial = f"{out}.partial.mp4"', "    partial = out",
+                               _VIDEO_TEST),
+    "video_writer_left_running": ("admissable_jax/video.py", "    with contextlib.closing(imageio.get_writer(",
+                                  "    with (imageio.get_writer(", _VIDEO_TEST),
+    "video_record_read_unescaped": ("admissable_jax/video.py", r'json.loads(re.sub(r"\\(.)", r"\1", comments[0]))',
+                                    "json.loads(comments[0])", _VIDEO_TEST),
+    "video_record_without_the_seed": ("admissable_jax/video.py", ', "reset_seed": config.seed}', "}", _VIDEO_TEST),
+    "video_default_name_without_the_seed": ("admissable_jax/video.py",
+                                            "            f\"{f'-seed{config.seed}' * bool(config.seed)}.mp4\")",
+                                            '            ".mp4")', _VIDEO_TEST),
     "scoring_columns_of_any_shape": ("admissable_jax/results.py", "        except (TypeError, ValueError):  # ragged",
                                      "        except ImportError:  # ragged", "test_runs.py"),
     "score_estimators_of_one_episode": ("benchmarks/score_estimators.py", "if config.n_episodes < 2 or any(",
