@@ -24,6 +24,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # read by MuJoCo when it is first imp
 
 import contextlib  # noqa: E402
 import dataclasses  # noqa: E402
+import importlib.util  # noqa: E402
 import json  # noqa: E402
 import re  # noqa: E402
 import subprocess  # noqa: E402
@@ -66,6 +67,9 @@ class RenderingUnavailable(RunFailed):
 
 
 def check_video_config(config: VideoConfig) -> None:
+    missing = [name for name in ("imageio", "imageio_ffmpeg") if importlib.util.find_spec(name) is None]
+    if missing:  # (Gymnasium's renderer imports imageio too)
+        raise ValueError(f"video needs the video extra ({', '.join(missing)} not installed): pip install -e '.[video]'")
     if bool(config.run_dir) == bool(config.policy):
         raise ValueError("give the run directory, or an exported policy's file: python -m admissable_jax.video RUN_DIR "
                          "[hidden=...] [out=FILE.mp4], or policy=FILE.npz hidden=...")

@@ -447,6 +447,13 @@ def test_video_of_the_trained_hopper_beside_its_worst_set(jax_run, tmp_path, cap
         assert refused.value.code == 2 and capsys.readouterr().err.strip() == f"error: {message}"
     assert video.main([jax_run.run_dir, "out=/dev/null/x.mp4"]) == 2
     assert capsys.readouterr().err.strip() == "error: cannot create the video folder /dev/null: File exists"
+    find_spec = video.importlib.util.find_spec  # without the video extra: one line, not a traceback
+    monkeypatch.setattr(video.importlib.util, "find_spec",
+                        lambda name: None if name == "imageio_ffmpeg" else find_spec(name))
+    with pytest.raises(SystemExit) as refused:
+        video.main([jax_run.run_dir])
+    assert refused.value.code == 2 and capsys.readouterr().err.strip() == (
+        "error: video needs the video extra (imageio_ffmpeg not installed): pip install -e '.[video]'")
 
 
 def test_warp_experiment_pairs_keep_their_modes(warp_experiment):
