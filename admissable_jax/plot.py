@@ -22,7 +22,8 @@ writes, e.g. ``png,svg``):
   whose rows are named after Gymnasium's observation entries ("torso z", ...) and whose
   cells are centred on their scoring steps;
 * ``p_miss_<mode>.*`` — the adversary's distribution over time (mean over seeds), or a
-  note that it stayed uniform (none for mode ``none``, which hides nothing in training); for a run with a candidate pool (``pool_size`` > 0), whose
+  note that it stayed uniform (none for mode ``none``, which hides nothing in training); for
+  a run with a candidate pool (``pool_size`` > 0), whose
   scored sets change every round, both heatmaps have a row per feature instead: the lowest
   a_u of the pool's sets that hide it (blank where none does) and the p_miss mass on them,
   and so does a U of more than ``MOST_ROWS`` sets (Ant at k = 2), over all its sets;

@@ -102,7 +102,8 @@ def test_plot_runs_writes_every_figure(tmp_path, capsys):
     # p_miss figure (it read "stayed uniform", as if uniform missingness had been trained on).
     _fake_run(str(tmp_path / "clean"), "none", 0)
     written = plot_runs(find_runs([str(tmp_path / "clean")]), str(tmp_path / "clean_figures"), window=4, formats="png")
-    assert sorted(os.path.basename(path) for path in written) == ["final_scores.png", "min_score.png", "scores_none.png"]
+    assert sorted(os.path.basename(path) for path in written) == ["final_scores.png", "min_score.png",
+                                                                   "scores_none.png"]
     assert {os.path.splitext(path)[1] for path in written} == {".png"}  # one format as a string ("png,svg" too), not
     assert check_formats(" png, SVG,png") == ("png", "svg")  # its letters ('formats: 'p', 'n', 'g': give formats ...')
     with pytest.raises(FileNotFoundError, match=f"no such directory: {tmp_path / 'missing'}$"):
