@@ -61,7 +61,7 @@ def _check_free_for(out: str, policy: ExportedPolicy) -> None:
     """FileExistsError in one line where ``out`` holds a file that is no exported policy, or
     the exported policy of another run, step or kind (best or not) than ``policy``: never
     written over. The same policy's is, also from its run moved, linked or copied since."""
-    from admissable_jax.run_directory import same_record_elsewhere
+    from admissable_jax.run_directory import same_policy_record
 
     if not os.path.exists(out):
         return
@@ -70,7 +70,7 @@ def _check_free_for(out: str, policy: ExportedPolicy) -> None:
     except (ValueError, FileNotFoundError):
         raise FileExistsError(f"{out} exists and is no exported policy: it is left as it is; give another "
                               "out=") from None
-    if earlier != policy.source and not same_record_elsewhere(earlier, policy.source, out):
+    if not same_policy_record(earlier, policy.source, out):
         kept = "" if earlier.get("best_min_score") is None else ", its best"
         raise FileExistsError(f"{out} holds the exported policy of another run or step ({earlier.get('run')}, env step "
                               f"{earlier.get('env_steps')}{kept}): it is left as it is; give another out=")

@@ -103,10 +103,13 @@ def same_run_at(then: str, now: str, written: str) -> bool:
     return first == _first_command(now)
 
 
-def same_record_elsewhere(then: dict[str, Any], now: dict[str, Any], written: str) -> bool:
-    """Whether ``then``, what ``written`` (an audit, an exported policy) recorded of the run
-    it came from, is ``now`` but for the ``"run"`` path, and that path's run the run now at
-    ``now``'s (:func:`same_run_at`): the same policy of the same run, moved, linked or copied."""
+def same_policy_record(then: dict[str, Any], now: dict[str, Any], written: str) -> bool:
+    """Whether ``then``, what ``written`` (an audit, an exported policy, a video) recorded of
+    the run it came from, is ``now``: equal (its run may be gone since), or equal but for the
+    ``"run"`` path, that path's run the run now at ``now``'s (:func:`same_run_at`): the same
+    policy of the same run, moved, linked or copied."""
+    if then == now:
+        return True
     run, earlier = now.get("run"), then.get("run")
     return bool(run and earlier) and {**then, "run": run} == now and same_run_at(earlier, run, written)
 

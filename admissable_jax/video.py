@@ -37,7 +37,7 @@ from admissable_jax.cli import parse_args, run_from_cli, run_main, setting  # no
 from admissable_jax.envs import observation_names, settotalmass_warning_dropped  # noqa: E402
 from admissable_jax.errors import RunFailed, make_directory  # noqa: E402
 from admissable_jax.method import check_fail_at, parse_set  # noqa: E402
-from admissable_jax.run_directory import SCORING_KEYS, read_jsonl, same_record_elsewhere  # noqa: E402
+from admissable_jax.run_directory import SCORING_KEYS, read_jsonl, same_policy_record  # noqa: E402
 
 PANEL_WIDTH, PANEL_HEIGHT, LABEL_HEIGHT = 480, 352, 32  # multiples of 16, as H.264 wants
 
@@ -227,7 +227,7 @@ def _check_free_for(out: str, record: dict[str, Any]) -> None:
     if earlier is None:
         raise FileExistsError(f"{out} exists and holds no record of a video of this command (another program's, or "
                               "one written before videos recorded theirs): it is left as it is; give another out=")
-    if earlier != record and not same_record_elsewhere(earlier, record, out):
+    if not same_policy_record(earlier, record, out):
         hidden = "{" + ",".join(map(str, earlier.get("hidden", []))) + "}"
         raise FileExistsError(f"{out} holds another video ({earlier.get('run')}, env step {earlier.get('env_steps')}, "
                               f"hidden {hidden}, fail_at {earlier.get('fail_at')}, seed {earlier.get('reset_seed')}): "

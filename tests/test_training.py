@@ -40,7 +40,7 @@ from admissable_jax.exported_policy import ExportedPolicy
 from admissable_jax.host_loop import TrainingDiverged, TrainingLoop
 from admissable_jax.method import inverse_score_p_miss
 from admissable_jax.policies import load_policy
-from admissable_jax.run_directory import metrics_row, recorded_observation_names
+from admissable_jax.run_directory import metrics_row, recorded_observation_names, same_policy_record
 from admissable_jax.run_spec import RunSpec
 from admissable_jax.training import Trainer
 
@@ -309,6 +309,11 @@ def test_load_policy_is_the_trainers_deterministic_policy(point_mass_run, monkey
                                        "another out=\n") and open(path, "rb").read() == before
     twin = shutil.copytree(run_dir, tmp_path / "twin")
     assert export_main([str(twin)]) == 0
+    # An equal record is its policy's even where its run is gone (an exported policy outlives
+    # its run: a video of it written again), wherever the file lies.
+    gone = {"run": str(tmp_path / "deleted-run"), "env_steps": 6000}
+    assert same_policy_record(gone, dict(gone), str(tmp_path / "elsewhere.mp4"))
+    assert not same_policy_record(gone, {**gone, "env_steps": 4000}, str(tmp_path / "elsewhere.mp4"))
     assert ExportedPolicy.load(str(twin / "exported" / "policy-step6000.npz")).source["run"] == str(twin)
     with monkeypatch.context() as patched:  # a write that fails (a full disk): nothing half-written, the file before kept
         patched.setattr(np, "savez", disk_full)

@@ -19,7 +19,7 @@ from admissable_jax.audit.sets import AuditResult, audit, audit_gymnasium, audit
 from admissable_jax.cli import enable_compilation_cache, parse_args, reporting, run_from_cli, setting
 from admissable_jax.errors import make_directory, remove_if_unused
 from admissable_jax.method import check_fail_at, fail_steps, set_sizes
-from admissable_jax.run_directory import experiment_pairs, is_experiment, same_record_elsewhere
+from admissable_jax.run_directory import experiment_pairs, is_experiment, same_policy_record
 from admissable_jax.scoring import SCORE_ESTIMATORS
 from admissable_jax.scoring.attribution import MIN_ORDERS, ShapleyPlan
 from admissable_jax.scoring.dropout import DropoutPlan, check_masks, parse_rates, plan_dropout
@@ -291,7 +291,7 @@ def _check_free_for(out: str, source: dict[str, Any]) -> None:
     except (OSError, ValueError, KeyError, TypeError):
         earlier = None
     if earlier != _audited_policy(source) and not (
-            earlier is not None and same_record_elsewhere(recorded, source, out)):
+            earlier is not None and same_policy_record(recorded, source, out)):
         whose = "another policy's audit" if earlier is None else (
             f"the audit of another policy ({', '.join(str(part) for part in earlier if part is not None)})")
         raise FileExistsError(f"{out} holds {whose}: it is left as it is; give another out= (or remove it)")
