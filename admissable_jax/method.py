@@ -182,7 +182,9 @@ def parse_set(text: str) -> list[int]:
 def hidden_row(hidden, num_features: int) -> np.ndarray:
     """u's 0/1 float32 row of length d from its feature indices (ints; one int is one
     feature), or from a 0/1 row given as floats or bools; ValueError for an index outside
-    [0, d) or not whole, TypeError for a string (its characters are no indices)."""
+    [0, d), not whole or given twice (a 0/1 row of the wrong length reads so, and is no set
+    of indices), or for a bool row not of length d; TypeError for a string (its characters
+    are no indices)."""
     if isinstance(hidden, str):
         raise TypeError(f"hidden must be feature indices or a 0/1 row, got the string {hidden!r}")
     if isinstance(hidden, (int, np.integer)):
@@ -190,11 +192,16 @@ def hidden_row(hidden, num_features: int) -> np.ndarray:
     hidden = np.asarray(list(hidden) if not isinstance(hidden, np.ndarray) else hidden)
     if hidden.dtype.kind in "fb" and hidden.shape == (num_features,) and np.isin(hidden, (0, 1)).all():
         return hidden.astype(np.float32)
+    if hidden.dtype.kind == "b":
+        raise ValueError(f"a 0/1 row of hidden features needs d = {num_features} entries, got shape {hidden.shape}")
     indices = hidden.astype(np.int64)
     if not np.array_equal(indices, hidden):
         raise ValueError(f"hidden features must be whole indices, got {hidden.tolist()}")
     if indices.size and (indices.min() < 0 or indices.max() >= num_features):
         raise ValueError(f"hidden features must be in [0, {num_features}), got {indices.tolist()}")
+    if len(np.unique(indices)) < indices.size:
+        raise ValueError(f"hidden features are given twice in {indices.tolist()}: give each index once, "
+                         f"or a 0/1 row of d = {num_features} entries")
     row = np.zeros(num_features, np.float32)
     row[indices] = 1.0
     return row

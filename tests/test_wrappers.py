@@ -116,10 +116,18 @@ def test_masked_observation_and_its_space():
     assert drawn == {0, 3} and onsets.fail_steps == (0, 3)
     with pytest.raises(ValueError, match="^fail_at=5 is not below the episodes' 5 steps: nothing would fail$"):
         MissingnessObservation(gymnasium.make("ConstantFeatures-v0", max_episode_steps=5), hidden=[0], fail_at=[0, 5])
-    # One index is one feature; a string's characters, or a fraction, are no indices.
+    # One index is one feature; a string's characters, or a fraction, are no indices; nor is a 0/1 row of
+    # another length (a bool row, or floats that would read as repeated indices).
     np.testing.assert_array_equal(MissingnessObservation(ConstantFeatures(), hidden=2).hidden_row, [0, 0, 1])
+    np.testing.assert_array_equal(MissingnessObservation(ConstantFeatures(), hidden=[True, False, True]).hidden_row,
+                                  [1, 0, 1])
     for hidden, error, message in (("12", TypeError, "hidden must be feature indices or a 0/1 row, got the string '12'"),
-                                   ([1.5], ValueError, "hidden features must be whole indices, got [1.5]")):
+                                   ([1.5], ValueError, "hidden features must be whole indices, got [1.5]"),
+                                   ([True, False], ValueError, "a 0/1 row of hidden features needs d = 3 entries, got "
+                                                               "shape (2,)"),
+                                   ([0.0, 1.0, 0.0, 1.0], ValueError, "hidden features are given twice in [0, 1, 0, 1]: "
+                                                                      "give each index once, or a 0/1 row of d = 3 "
+                                                                      "entries")):
         with pytest.raises(error, match=f"^{re.escape(message)}$"):
             MissingnessObservation(ConstantFeatures(), hidden=hidden)
     # A feature of a dict or image observation has no single index to hide: refused, not a traceback.
