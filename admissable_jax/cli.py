@@ -10,6 +10,7 @@ from __future__ import annotations
 import concurrent.futures
 import contextlib
 import dataclasses
+import difflib
 import gc
 import math
 import os
@@ -17,7 +18,7 @@ import signal
 import sys
 import threading
 import time
-from typing import Any, Callable, NoReturn, TypeVar
+from typing import Any, Callable, Iterable, NoReturn, TypeVar
 
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
@@ -190,7 +191,7 @@ def _with_config_file(schema: Any, path: str, config_file: ConfigFile, int_keys:
         from_file = _whole_numbers_as_ints(_read_config_file(path, config_file, resumed), int_keys)
         return OmegaConf.merge(schema, OmegaConf.create(from_file))
     except OmegaConfBaseException as error:
-        fail(f"in {_file_label(path, resumed)}: {_one_line(error)}")
+        fail(f"in {_file_label(path, resumed)}: {_one_line(error, schema.keys())}")
 
 
 def _file_label(path: str, resumed: bool) -> str:
@@ -206,7 +207,7 @@ def _config_of(schema: Any, argv: list[str], int_keys: set[str]) -> Any:
         overrides = _whole_numbers_as_ints(OmegaConf.to_container(_read_items(argv)), int_keys)
         return OmegaConf.to_object(OmegaConf.merge(schema, OmegaConf.create(overrides)))
     except OmegaConfBaseException as error:
-        fail(_one_line(error))
+        fail(_one_line(error, schema.keys()))
 
 
 def _read_items(argv: list[str]) -> Any:
@@ -268,7 +269,7 @@ def _read_config_file(path: str, config_file: ConfigFile, resumed: bool = False)
         fail(f"{label} must hold key: value lines, got {type(loaded).__name__}")
     unknown = sorted(str(key) for key in loaded if key not in config_file.taken | config_file.skipped)
     if unknown:
-        fail(f"unknown key {unknown[0]!r} in {label} (see --help for the valid keys)")
+        fail(unknown_key(unknown[0], config_file.taken | config_file.skipped, f" in {label}"))
     skipped = sorted(key for key in loaded if key in config_file.skipped)
     if skipped and not resumed:
         report(f"config={path}: {', '.join(skipped)} not taken from it (they say which run it came from)")
@@ -283,11 +284,25 @@ def yaml_problem(error: Exception, with_line: bool = True) -> str:
     return f"{line}: {getattr(error, 'problem', None) or str(error).splitlines()[0]}"
 
 
-def _one_line(error: OmegaConfBaseException) -> str:
+# Names a researcher may bring from the paper (ζ, l) or other trainers, and our keys for them.
+OTHER_NAMES = {"lr": "learning_rate", "zeta": "score_every", "l": "lower_bound", "steps": "total_steps"}
+
+
+def unknown_key(key: str, keys: Iterable[str], where: str = "") -> str:
+    """The error for a key no command takes, naming the valid keys closest to it: a typo,
+    another tool's spelling (``n_episodes`` for ``episodes``) or name (:data:`OTHER_NAMES`)."""
+    keys = sorted(keys)
+    close = [OTHER_NAMES[key]] if OTHER_NAMES.get(key) in keys else difflib.get_close_matches(key, keys, 2, 0.7)
+    guess = f"did you mean {' or '.join(close)}? " if close else ""
+    return f"unknown key {key!r}{where} ({guess}see --help for the valid keys)"
+
+
+def _one_line(error: OmegaConfBaseException, keys: Iterable[str]) -> str:
+    """OmegaConf's error in one line, ``keys`` being those the command takes."""
     message = str(error).strip().splitlines()[0]
     key = getattr(error, "full_key", None)
     if "not in struct" in message or "Key '" in message and "not" in message:
-        return f"unknown key {key!r} (see --help for the valid keys)"
+        return unknown_key(str(key), keys)
     return f"bad value for {key!r}: {message}" if key else message
 
 

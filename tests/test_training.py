@@ -756,7 +756,9 @@ def test_a_checkpoint_of_an_older_state_layout_is_named_and_its_networks_still_r
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["bogus=1"], "unknown key 'bogus'"),
+        (["bogus=1"], "unknown key 'bogus' (see --help for the valid keys)"),
+        (["total_step=5000"], "unknown key 'total_step' (did you mean total_steps? see --help"),
+        (["zeta=5000"], "unknown key 'zeta' (did you mean score_every? see --help"),
         (["total_steps=ten"], "bad value for 'total_steps'"),
         (["env=cheetah"], "unknown env 'cheetah'"),
         (["missingness=sometimes"], "missingness must be one of"),
@@ -951,7 +953,8 @@ def test_config_file_sets_keys_the_command_line_overrides(tmp_path, capsys, monk
     (tmp_path / "list.yaml").write_text("- k\n")
     for main, args, message in [
         (train_main, [f"config={tmp_path / 'missing.yaml'}"], f"cannot read config={tmp_path / 'missing.yaml'}: No such file"),
-        (train_main, [f"config={tmp_path / 'typo.yaml'}"], f"unknown key 'lerning_rate' in config={tmp_path / 'typo.yaml'}"),
+        (train_main, [f"config={tmp_path / 'typo.yaml'}"],
+         f"unknown key 'lerning_rate' in config={tmp_path / 'typo.yaml'} (did you mean learning_rate? see --help"),
         (experiment_main, [f"config={tmp_path / 'bad_value.yaml'}"], f"in config={tmp_path / 'bad_value.yaml'}: bad value for 'k'"),
         (experiment_main, [f"config={tmp_path / 'broken.yaml'}"], f"config={tmp_path / 'broken.yaml'} is not valid YAML (line 2)"),
         (train_main, [f"config={tmp_path / 'list.yaml'}"], f"config={tmp_path / 'list.yaml'} must hold key: value lines"),
