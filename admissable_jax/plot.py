@@ -11,7 +11,9 @@ writes, e.g. ``png,svg``):
 
 * ``min_score.*`` — the paper's Figure 1: min_u a_u against env steps, one line per mode
   (adversarial blue, uniform red, as in the paper; none grey), the mean over seeds of the
-  moving average over ``window`` records, shaded with a 95% t-interval over seeds; beside
+  moving average over ``window`` records, shaded with a 95% t-interval over seeds (cut at
+  the axes where it reaches past the seeds' values by more than their range:
+  :func:`keep_to_seeds`); beside
   it, on the same scale, mean_u a_u (the average case: where the paper warns a weak spot
   hides) and the clean return (nothing hidden) the same way;
 * ``min_score_by_time.*`` — min_u a_u the same way against the wall time of training and
@@ -139,13 +141,13 @@ def _has_interval(runs: list[Run]) -> bool:
     return max(collections.Counter(run.curve for run in runs).values()) > 1
 
 
-def _figure_caption(runs: list[Run], window: int, per_seed: bool = False) -> str:
+def _figure_caption(runs: list[Run], window: int, per_seed: bool = False, cut: bool = False) -> str:
     """What Figure 1 shows, in words under it: a_u, the smoothing, the dots, the band (and
-    the seeds' own lines)."""
+    the seeds' own lines; ``cut``: a band cut at the axes, :func:`keep_to_seeds`)."""
     episodes = sorted({run.score_episodes for run in runs})
     average = ("" if any(run.pooled for run in runs) else
                "; $\\mathrm{mean}_u\\, a_u$: the mean over all u (the average case, u drawn uniformly)")
-    shaded = "; shaded: 95% t-interval over seeds" if _has_interval(runs) else ""
+    shaded = "; shaded: 95% t-interval over seeds" + CUT_BANDS * cut if _has_interval(runs) else ""
     thin = "; thin lines: each seed, smoothed alike" if per_seed else ""
     return (f"$a_u$: mean undiscounted return of N = {'/'.join(map(str, episodes))} deterministic episodes with the "
             f"features u hidden; $\\mathrm{{min}}_u\\, a_u$: the worst u at each scoring{average}.\n"
@@ -238,15 +240,18 @@ def _save(figure, out_dir: str, name: str, formats: tuple[str, ...]) -> list[str
 
 
 def draw_curves(ax, runs: list[Run], attribute: str, window: int, per_seed: bool = False,
-                against: str = "env_steps") -> None:
+                against: str = "env_steps") -> tuple[float, float]:
     """One panel: ``attribute`` (``min_score``, ``mean_score``, ``clean_score``) of each curve
     of these labelled runs of one env against env steps: the mean over seeds of the trailing
     moving average (mode's colour, variant's line style), its 95% t-band, and the unsmoothed
     mean of each record as dots; with ``per_seed``, each seed's own moving average as a thin
     line (is one seed the outlier behind a wide band?). ``against="wall_seconds"``: against
     the wall time of training and scoring instead, each curve's scorings at its seeds' mean
-    time (:attr:`~admissable_jax.results.Run.wall_seconds`)."""
+    time (:attr:`~admissable_jax.results.Run.wall_seconds`). Returns the lowest and highest
+    value the seeds took (each record and each seed's moving average), for
+    :func:`keep_to_seeds`."""
     used = effective_window(runs, window)
+    seen = []
     variants = sorted({run.variant for run in runs})
     curves = group_curves(runs)
     colors = curve_colors([(mode, variant) for _, mode, variant in curves])
@@ -263,12 +268,39 @@ def draw_curves(ax, runs: list[Run], attribute: str, window: int, per_seed: bool
             ax.plot(steps, seed_curve, color=color, linestyle=style, linewidth=0.6, alpha=0.45)
         ax.fill_between(steps, low, high, color=color, alpha=0.2, linewidth=0)
         ax.plot(steps, values.mean(axis=0), ".", color=color, alpha=0.35, markersize=3)
+        seen += [values, smoothed]
     if against == "wall_seconds":
         wall_time_axis(ax)
     else:
         env_steps_axis(ax)
     ax.grid(alpha=0.3)
     ax.legend()
+    return _extent(seen)
+
+
+def _extent(arrays: list[np.ndarray]) -> tuple[float, float]:
+    """The lowest and highest finite value of ``arrays``."""
+    finite = np.concatenate([np.ravel(array) for array in arrays])
+    finite = finite[np.isfinite(finite)]
+    return (float(finite.min()), float(finite.max())) if finite.size else (np.nan, np.nan)
+
+
+CUT_BANDS = " (where it reaches past the seeds' values by more than their range, cut at the axes)"
+
+
+def keep_to_seeds(ax, low: float, high: float) -> bool:
+    """Limit ``ax``'s y axis to the seeds' values ``low`` to ``high`` and their range
+    beyond on each side, where the 95% intervals reach farther: with 2 seeds a t-interval
+    is 6.4 times their difference on each side of their mean, and a y axis drawn to hold it
+    flattens every curve. Whether it cut one (the caption then says :data:`CUT_BANDS`)."""
+    if not np.isfinite([low, high]).all():
+        return False
+    margin = high - low if high > low else max(abs(high), 1.0)
+    bottom, top = ax.get_ylim()
+    kept = (max(bottom, low - margin), min(top, high + margin))
+    if kept != (bottom, top):
+        ax.set_ylim(*kept)
+    return kept != (bottom, top)
 
 
 def plot_envs_side_by_side(run_dirs: list[str], out_dir: str, window: int = 0,
@@ -284,17 +316,18 @@ def plot_envs_side_by_side(run_dirs: list[str], out_dir: str, window: int = 0,
     order = list(ENV_SPECS)
     envs = sorted({run.env for run in runs}, key=lambda env: (order.index(env) if env in order else len(order), env))
     figure, axes = plt.subplots(1, len(envs), figsize=(5 * len(envs), 4), squeeze=False)
-    notes, shaded = [], False
+    notes, shaded, cut = [], False, False
     for ax, env in zip(axes[0], envs):
         env_runs = [run for run in runs if run.env == env]
-        draw_curves(ax, env_runs, "min_score", window, per_seed)
+        cut = keep_to_seeds(ax, *draw_curves(ax, env_runs, "min_score", window, per_seed)) or cut
         ax.set_title(getattr(ENV_SPECS.get(env), "gymnasium_id", None) or env)
         notes.append(f"{env}: {_window_note(env_runs, window)}")
         shaded = shaded or _has_interval(env_runs)
     axes[0][0].set_ylabel("adversarial performance $\\mathrm{min}_u\\, a_u$")
     figure.suptitle(f"Performance under adversarial missingness: $\\mathrm{{min}}_u\\, a_u$ at every scoring. Lines: "
                     f"mean over seeds, smoothed per env ({'; '.join(notes)})"
-                    + ("; shaded: 95% t-interval over seeds" if shaded else "") + ("; thin lines: each seed" if per_seed else ""),
+                    + ("; shaded: 95% t-interval over seeds" + CUT_BANDS * cut if shaded else "")
+                    + ("; thin lines: each seed" if per_seed else ""),
                     fontsize=8, y=-0.02, va="top", wrap=True)
     make_directory(out_dir, "figures folder")
     return _save(figure, out_dir, "figure1", formats)
@@ -332,21 +365,24 @@ def plot_runs(run_dirs: list[str] | str, out_dir: str, window: int = 0,
         panels.append(("mean_score", "average over hidden sets $\\mathrm{mean}_u\\, a_u$"))
     panels.append(("clean_score", "clean return (nothing hidden)"))
     figure, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 4), sharey=True)
+    extents = []
     for ax, (attribute, title) in zip(axes, panels):
-        draw_curves(ax, runs, attribute, window, per_seed)
+        extents.append(draw_curves(ax, runs, attribute, window, per_seed))
         ax.set_title(f"{envs[0]}: {title}", fontsize=10)
     axes[0].set_ylabel("return")
-    figure.suptitle(_figure_caption(runs, window, per_seed), fontsize=9, y=-0.02, va="top")
+    cut = keep_to_seeds(axes[0], *_extent([np.array(extents)]))  # one y scale: the panels share it
+    caption = _wrapped(_figure_caption(runs, window, per_seed, cut), int(15 * 5.5 * len(panels)))  # 15 characters an inch
+    figure.suptitle(caption, fontsize=9, y=-0.02, va="top")
     written += _save(figure, out_dir, "min_score", formats)
     if all(np.isfinite(run.wall_seconds).all() for run in runs):
         # How soon each curve gets robust, in time: what a cheaper score estimator, another
         # backend or device buys (the runs' own timings of their intervals).
         _warn_of_unlike_times(curves)
         figure, ax = plt.subplots(figsize=(6.5, 4))
-        draw_curves(ax, runs, "min_score", window, per_seed, against="wall_seconds")
+        cut = keep_to_seeds(ax, *draw_curves(ax, runs, "min_score", window, per_seed, against="wall_seconds"))
         ax.set_title(f"{envs[0]}: adversarial performance $\\mathrm{{min}}_u\\, a_u$ against wall time", fontsize=10)
         ax.set_ylabel("return")
-        caption = (f"{_figure_caption(runs, window, per_seed)}\nWall time: each interval's training and scoring as the "
+        caption = (f"{_figure_caption(runs, window, per_seed, cut)}\nWall time: each interval's training and scoring as the "
                    "run's metrics.jsonl timed them, summed (start-up, the compile before training and checkpoints not "
                    "counted; what compiles within the first interval, as Warp's kernels do, is in it; an "
                    "experiment's pairs share one program's); each curve at its seeds' mean.")
@@ -434,6 +470,7 @@ def _final_scores_figure(env: str, names: list[str], group: list[list[Run]]):
     colors = curve_colors([(curve_runs[0].mode, curve_runs[0].variant) for curve_runs in group])
     seeded = _has_interval([run for curve_runs in group for run in curve_runs])
     figure, ax = plt.subplots(figsize=(min(30.0, max(8.0, 0.25 * len(names) * len(group))), 4.5))
+    seen = [np.zeros(1)]  # the bars' foot, each seed's a_u and clean return: what the y axis keeps to
     for index, (curve_runs, (steps, mean, low, high)) in enumerate(zip(group, finals)):
         mean, low, high = mean[shown], low[shown], high[shown]
         run = curve_runs[0]
@@ -442,14 +479,17 @@ def _final_scores_figure(env: str, names: list[str], group: list[list[Run]]):
                hatch=("", "//", "..", "xx")[variants.index(run.variant) % 4],
                label=f"{run.curve} ({_seeds(len(curve_runs))}, {steps_text(steps)} env steps)")
         clean = aligned(curve_runs, "clean_score")[1][:, -1]  # each seed's, at the bars' record
+        seen += [aligned(curve_runs, "scores")[1][:, -1, shown], clean]
         if np.isfinite(clean).all():
             ax.axhline(clean.mean(), color=colors[run.mode, run.variant], linestyle="--", linewidth=1,
                        label=f"{run.curve}: clean return {clean.mean():.1f} (nothing hidden)")
     ax.set_xticks(x, names, rotation=60, ha="right", fontsize=7 if len(names) <= 40 else 5)
     ax.set_xlim(-0.6, len(names) - 0.4)
+    cut = keep_to_seeds(ax, *_extent(seen))
     ax.set_ylabel("lowest $a_u$ of the pool's sets hiding it" if group[0][0].pooled else "$a_u$")
     ax.set_title(f"{env}: the last scoring's $a_u$ per hidden {'feature' if group[0][0].pooled else 'set'} "
-                 f"({lowest}{'mean over seeds; bars: 95% t-interval' if seeded else 'one seed per curve: no interval'})",
+                 f"({lowest}{'mean over seeds; bars: 95% t-interval' if seeded else 'one seed per curve: no interval'})"
+                 + "\n(bars reaching past the seeds' values by more than their range are cut at the axes)" * cut,
                  fontsize=10)
     ax.grid(alpha=0.3, axis="y")
     ax.legend(fontsize=8)

@@ -15,8 +15,9 @@ from omegaconf import OmegaConf
 from admissable_jax.config import TrainConfig
 from admissable_jax.envs import observation_names
 from admissable_jax.method import candidate_sets
-from admissable_jax.plot import LOWEST_BARS, _cell_edges, _final_scores_figure, _heatmap, _seeds, check_formats, \
-    curve_colors, draw_curves, effective_window, env_steps_axis, main, plot_envs_side_by_side, plot_runs
+from admissable_jax.plot import CUT_BANDS, LOWEST_BARS, _cell_edges, _final_scores_figure, _heatmap, _seeds, \
+    check_formats, curve_colors, draw_curves, effective_window, env_steps_axis, keep_to_seeds, main, \
+    plot_envs_side_by_side, plot_runs
 from admissable_jax.results import (
     Difference, final_scores, find_runs, format_comparison, load_run, load_runs, mean_and_interval, mode_differences,
     moving_average, per_feature_of_sets, set_names, steps_text, summary_table, wall_time_text, write_tables,
@@ -415,7 +416,8 @@ def test_plots_say_what_they_show(tmp_path, capsys, monkeypatch):
     # per_seed: each seed's own moving average, thin, after the mean's line (here one curve of 2 seeds).
     for per_seed in (False, True):
         figure, ax = plt.subplots()
-        draw_curves(ax, runs, "min_score", 3, per_seed)
+        extent = draw_curves(ax, runs, "min_score", 3, per_seed)  # what the seeds took: their raw records bound it
+        assert extent == (min(run.min_score.min() for run in runs), max(run.min_score.max() for run in runs))
         lines = ax.get_lines()  # the mean, each seed's line where asked, the dots
         assert len(lines) == (4 if per_seed else 2)
         for run, line in zip(runs, lines[1:-1]):
@@ -424,6 +426,14 @@ def test_plots_say_what_they_show(tmp_path, capsys, monkeypatch):
         np.testing.assert_allclose(lines[0].get_ydata(), np.mean([moving_average(run.min_score, 3) for run in runs], 0))
         np.testing.assert_allclose(lines[-1].get_ydata(), np.mean([run.min_score for run in runs], axis=0))
         plt.close(figure)
+    # Two seeds' t-interval reaches 6.4 times their difference past their mean: the y axis keeps to the seeds'
+    # values and their range beyond, and says it cut; a band within that is drawn whole.
+    figure, ax = plt.subplots()
+    ax.fill_between([0, 1], -1000, 1000)
+    assert keep_to_seeds(ax, 20.0, 80.0) and ax.get_ylim() == (-40.0, 140.0)
+    ax.set_ylim(0, 100)
+    assert not keep_to_seeds(ax, 20.0, 80.0) and ax.get_ylim() == (0, 100)
+    plt.close(figure)
 
     # The last scoring's bars carry a t-interval over seeds; one seed has none to draw, and says so.
     for group, interval in (([runs], True), ([runs[:1]], False)):
@@ -432,6 +442,7 @@ def test_plots_say_what_they_show(tmp_path, capsys, monkeypatch):
         assert any(type(container).__name__ == "ErrorbarContainer" for container in ax.containers) == interval
         assert ("bars: 95% t-interval" in ax.get_title()) == interval
         assert ("one seed per curve: no interval" in ax.get_title()) == (not interval)
+        assert ("are cut at the axes" in ax.get_title()) == interval  # as the curves' bands, these 2 seeds' bars
         # The curve's clean return at that record, dashed: what hiding each set costs.
         (clean,) = [line for line in ax.get_lines() if line.get_linestyle() == "--"]
         clean_mean = np.mean([run.clean_score[-1] for run in group[0]])
@@ -444,6 +455,7 @@ def test_plots_say_what_they_show(tmp_path, capsys, monkeypatch):
     for run_dirs, interval in ((paths, True), (paths[:1], False)):
         plot_envs_side_by_side(run_dirs, str(tmp_path / "side"))
         assert ("shaded: 95% t-interval over seeds" in captions[-1]) == interval
+        assert (CUT_BANDS in captions[-1]) == interval  # these 2 seeds' band reaches far past them
     monkeypatch.undo()
 
     # The CLI writes into a new folder each time, never over earlier figures, and its
