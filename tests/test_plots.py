@@ -52,6 +52,26 @@ def _fake_run(root, mode, seed, records=12, sets=11, env="hopper", timed=None, *
     return path
 
 
+def _captions(monkeypatch) -> dict[str, tuple[str, bool]]:
+    """What the figures drawn from here on would be saved with, by name: the caption in one
+    line, and whether a band reaches past the axes (so the caption must say it is cut)."""
+    def band_cut(figure) -> bool:
+        return any(band.get_paths()[0].vertices[:, 1].min() < ax.get_ylim()[0]
+                   or band.get_paths()[0].vertices[:, 1].max() > ax.get_ylim()[1]
+                   for ax in figure.axes for band in ax.collections)
+
+    def save(figure, _, name: str, *__) -> list[str]:
+        import matplotlib.pyplot as plt
+
+        captions[name] = " ".join(figure._suptitle.get_text().split()) if figure._suptitle else "", band_cut(figure)
+        plt.close(figure)
+        return []
+
+    captions = {}
+    monkeypatch.setattr("admissable_jax.plot._save", save)
+    return captions
+
+
 def _edit_rows(run_dir, change):
     """Rewrite ``run_dir``'s scores.jsonl, each row as ``change(t, row)`` gives it (t: its index)."""
     path = os.path.join(run_dir, "scores.jsonl")
@@ -176,7 +196,7 @@ def _check_tables(folder, run_dirs):
     assert sorted(got_sets) == sorted(expected_sets)
 
 
-def test_min_score_against_the_wall_time_the_runs_timed(tmp_path, capsys):
+def test_min_score_against_the_wall_time_the_runs_timed(tmp_path, capsys, monkeypatch):
     """min_score_by_time: each curve's scorings at its seeds' mean wall time of training and
     scoring so far, summed from metrics.jsonl (ζ / env_steps_per_s + score_seconds per
     interval; here a cheap-scoring curve beside a slow one), in curves.csv too; seeds of a
@@ -213,6 +233,14 @@ def test_min_score_against_the_wall_time_the_runs_timed(tmp_path, capsys):
     assert np.isnan(load_run(runs[2]).wall_seconds[3:]).all() and load_run(runs[2]).wall_seconds[2] == 18.0
     written = plot_runs(runs, str(tmp_path / "untimed"), window=1, formats="png")
     assert not any(path.endswith("min_score_by_time.png") for path in written)
+    # Its caption says where a band is cut at the axes (2 seeds' band reaches far past them, but not
+    # that of 5 seeds alike).
+    captions = _captions(monkeypatch)
+    for seeds in (2, 5):
+        like = [_fake_run(str(tmp_path / f"seeds{seeds}"), "adversarial", seed, timed=(500.0, 2.0)) for seed in range(seeds)]
+        plot_runs(like, str(tmp_path / f"figures{seeds}"), window=1)
+        caption, cut = captions["min_score_by_time"]
+        assert (CUT_BANDS in caption) == cut == (seeds == 2), caption
 
 
 def test_runs_that_differ_in_settings_are_separate_curves(tmp_path, capsys):
@@ -449,13 +477,16 @@ def test_plots_say_what_they_show(tmp_path, capsys, monkeypatch):
         np.testing.assert_allclose(clean.get_ydata(), [clean_mean] * 2)
         assert clean.get_label() == f"{runs[0].curve}: clean return {clean_mean:.1f} (nothing hidden)"
         plt.close(figure)
-    # So does the envs-side-by-side caption: a band is promised only where one is drawn.
-    captions = []
-    monkeypatch.setattr("admissable_jax.plot._save", lambda figure, *_: captions.append(figure._suptitle.get_text()) or [])
+    # So do the curves' captions: a band is promised only where one is drawn, and said cut where one
+    # reaches past the axes (these 2 seeds' band does in Figure 1's panel).
+    captions = _captions(monkeypatch)
     for run_dirs, interval in ((paths, True), (paths[:1], False)):
         plot_envs_side_by_side(run_dirs, str(tmp_path / "side"))
-        assert ("shaded: 95% t-interval over seeds" in captions[-1]) == interval
-        assert (CUT_BANDS in captions[-1]) == interval  # these 2 seeds' band reaches far past them
+        plot_runs(run_dirs, str(tmp_path / "curves"))
+        assert captions["figure1"][1] == interval
+        for caption, cut in (captions.pop(name) for name in ("figure1", "min_score")):
+            assert ("shaded: 95% t-interval over seeds" in caption) == interval
+            assert (CUT_BANDS in caption) == cut, caption
     monkeypatch.undo()
 
     # The CLI writes into a new folder each time, never over earlier figures, and its
