@@ -286,7 +286,9 @@ def act_with_hidden(masked_policy, obs, hidden, num_features: int) -> np.ndarray
     the action(s) in ``obs``'s leading shape. ValueError for observations of another d."""
     obs = np.asarray(obs, np.float32)
     if obs.shape[-1:] != (num_features,):
-        raise ValueError(f"expected observations of {num_features} features, got shape {obs.shape}")
+        masked = (f"; a masked observation ({2 * num_features}: features, then the indicator) goes to the policy's "
+                  ".masked(batch)" if obs.shape[-1:] == (2 * num_features,) else "")
+        raise ValueError(f"expected observations of {num_features} features, got shape {obs.shape}{masked}")
     batch = obs.reshape(-1, num_features)
     actions = np.asarray(masked_policy(mask_observation(batch, hidden_row(hidden, num_features))))
     return actions.reshape(*obs.shape[:-1], -1)

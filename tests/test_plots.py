@@ -233,14 +233,18 @@ def test_min_score_against_the_wall_time_the_runs_timed(tmp_path, capsys, monkey
     assert np.isnan(load_run(runs[2]).wall_seconds[3:]).all() and load_run(runs[2]).wall_seconds[2] == 18.0
     written = plot_runs(runs, str(tmp_path / "untimed"), window=1, formats="png")
     assert not any(path.endswith("min_score_by_time.png") for path in written)
-    # Its caption says where a band is cut at the axes (2 seeds' band reaches far past them, but not
-    # that of 5 seeds alike).
+    # Its caption, and min_score's, say where a band is cut at the axes: 2 seeds 10 apart at every
+    # scoring, rising by 1 a scoring (their band reaches 64 past their mean), but not 5 seeds of the made-up a_u.
     captions = _captions(monkeypatch)
     for seeds in (2, 5):
         like = [_fake_run(str(tmp_path / f"seeds{seeds}"), "adversarial", seed, timed=(500.0, 2.0)) for seed in range(seeds)]
+        for seed, path in enumerate(like if seeds == 2 else ()):
+            _edit_rows(path, lambda t, row, seed=seed: {**row, "scores": [100.0 + t + 10 * seed] * 11,
+                                                        "min_score": 100.0 + t + 10 * seed, "clean_score": 105.0 + t + 10 * seed})
         plot_runs(like, str(tmp_path / f"figures{seeds}"), window=1)
-        caption, cut = captions["min_score_by_time"]
-        assert (CUT_BANDS in caption) == cut == (seeds == 2), caption
+        for name in ("min_score", "min_score_by_time"):
+            caption, cut = captions[name]
+            assert (CUT_BANDS in caption) == cut == (seeds == 2), (name, caption)
 
 
 def test_runs_that_differ_in_settings_are_separate_curves(tmp_path, capsys):
