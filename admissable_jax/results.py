@@ -448,6 +448,17 @@ class Difference:
         low, high = np.quantile(wins(*drawn), [(1 - confidence) / 2, (1 + confidence) / 2])
         return float(wins(self.adversarial, self.uniform)), float(low), float(high)
 
+    def chance_of_order(self) -> float | None:
+        """Where every seed of one mode ends above every seed of the other (P(adversarial >
+        uniform) 0 or 1, whose bootstrap interval is then that one value, resample as one
+        may), how often chance alone orders the seeds so: Mann–Whitney's exact two-sided p,
+        2 / C(n + m, n) (2 and 2 seeds: 0.333); None otherwise, or with fewer than two seeds
+        in a mode."""
+        improvement = self.probability_of_improvement()
+        if improvement is None or improvement[0] not in (0.0, 1.0):
+            return None
+        return min(1.0, 2 / math.comb(len(self.adversarial) + len(self.uniform), len(self.adversarial)))
+
     def improvement_text(self) -> str:
         """:meth:`probability_of_improvement` as "0.88 [0.60, 1.00]", or "—"."""
         improvement = self.probability_of_improvement()
@@ -530,13 +541,18 @@ def format_comparison(differences: dict[str, list[Difference]]) -> str:
 
 
 def seeds_sentence(differences: list[tuple[str, Difference]]) -> str:
-    """A sentence under a comparison: for each labelled difference the seeds cannot tell from
-    0, the seeds per mode that would (:meth:`Difference.seeds_needed`); '' where there is none."""
+    """Sentences under a comparison: for each labelled difference the seeds cannot tell from
+    0, the seeds per mode that would (:meth:`Difference.seeds_needed`); for each whose seeds
+    never cross, how likely that order is by chance (:meth:`Difference.chance_of_order`: a
+    bootstrap interval of one value reads surer than a few seeds are); '' where there is none."""
     needed = [f"{label}: {seeds}" for label, difference in differences if (seeds := difference.seeds_needed())]
-    if not needed:
-        return ""
+    ordered = [f"{label}: {p:.3g} ({len(difference.adversarial)} and {len(difference.uniform)} seeds)"
+               for label, difference in differences if (p := difference.chance_of_order()) is not None]
     return ("Seeds per mode that would tell adversarial from uniform apart where these cannot (80% power at the "
-            f"difference and spread seen, two-sided 5% t-test): {'; '.join(needed)}.\n")
+            f"difference and spread seen, two-sided 5% t-test): {'; '.join(needed)}.\n" if needed else "") + (
+        "Where every seed of one mode ends above every seed of the other, the bootstrap interval is that one value "
+        "whatever the seeds; how often chance alone orders seeds so (Mann–Whitney's exact two-sided p): "
+        f"{'; '.join(ordered)}.\n" if ordered else "")
 
 
 def seeds_note(differences: dict[str, list[Difference]]) -> str:

@@ -99,6 +99,10 @@ def _verdict(difference: Difference) -> str:
     seeds = difference.seeds_needed()
     if seeds:
         words += f"; {seeds} seeds per mode would (80% power at the difference and spread seen)"
+    chance = difference.chance_of_order()
+    if chance is not None:
+        words += (f"; every seed of one mode ends above every seed of the other, an order chance alone gives with "
+                  f"p = {chance:.3g} (Mann–Whitney, exact; the bootstrap interval cannot widen past one value then)")
     return (f"{difference.metric}: adversarial − uniform = {difference.mean:+.1f} [{low:.1f}, {high:.1f}], "
             f"p = {p:.3g}{improvement}: {words}.")
 

@@ -94,7 +94,8 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys, 
     assert ("- final min_u a_u: adversarial − uniform = +41.0 [-80.9, 162.9], p = 0.149, P(adversarial > uniform) "
             "= 1.00 [1.00, 1.00]: the seeds cannot tell "
             "the modes apart (the 95% interval holds 0); about 4 seeds per mode would (80% power at the difference "
-            "and spread seen).") in text
+            "and spread seen); every seed of one mode ends above every seed of the other, an order chance alone gives "
+            "with p = 0.333 (Mann–Whitney, exact; the bootstrap interval cannot widen past one value then).") in text
     assert ("Clean SAC (mode `none`, 2 seeds): final clean return 550.0 [-85.3, 1185.3] against the SB3 RL-Zoo "
             "SAC at 1M, 2,326 ± 1,130 (v3 envs): clearly below SB3's (our 95% interval lies under its mean − 1 sd).") in text
     assert "(6 runs, 20,000 env steps each, not the paper's 1M)" in text
@@ -210,10 +211,12 @@ def test_figure1_words_each_reading_the_clean_check_above_sb3_and_the_late_round
     to 1M at 2 s + the last ten rounds' mean 7.5 s: 102 + 188 · 9.5 = 1,888 s."""
     higher = figure1._verdict(Difference("final min_u a_u", np.array([200.0, 210.0]), np.array([10.0, 12.0])))
     assert higher.startswith("final min_u a_u: adversarial − uniform = +194.0 [")
-    assert higher.endswith(": adversarial training is higher, and 0 lies outside the 95% interval.")
+    separated = ("; every seed of one mode ends above every seed of the other, an order chance alone gives with p = 0.333 "
+                 "(Mann–Whitney, exact; the bootstrap interval cannot widen past one value then).")
+    assert higher.endswith(": adversarial training is higher, and 0 lies outside the 95% interval" + separated)
     lower = figure1._verdict(Difference("AUC min_u a_u", np.array([10.0, 12.0]), np.array([200.0, 210.0])))
     assert lower.startswith("AUC min_u a_u: adversarial − uniform = -194.0 [")
-    assert lower.endswith(": uniform training is higher, and 0 lies outside the 95% interval.")
+    assert lower.endswith(": uniform training is higher, and 0 lies outside the 95% interval" + separated)
     assert figure1._verdict(Difference("final min_u a_u", np.array([40.0]), np.array([8.0, 10.0]))) == (
         "final min_u a_u: adversarial − uniform = +31.0 (one seed in a mode: no test).")
 

@@ -371,6 +371,12 @@ def test_adversarial_minus_uniform_is_welchs_t(tmp_path):
     assert Difference("x", np.array([1.0, 3.0]), np.array([0.0, 2.0])).probability_of_improvement() == (0.75, 0.0, 1.0)
     assert Difference("x", tight_low, tight_high).improvement_text() == "0.00 [0.00, 0.00]"
     assert Difference("x", np.array([5.0]), tight_low).improvement_text() == "—"
+    # Seeds that never cross: how often chance alone orders them so, Mann–Whitney's exact two-sided
+    # p = 2 / C(n + m, n): 2 of the 6 orders of 2 and 2 seeds, 2 of the 20 of 3 and 3; none where they cross.
+    assert difference.chance_of_order() == pytest.approx(1 / 3)
+    assert Difference("x", tight_low, tight_high).chance_of_order() == pytest.approx(0.1)
+    assert Difference("x", np.array([2.0, 3.0]), np.array([2.0, 1.0])).chance_of_order() is None
+    assert Difference("x", np.array([5.0]), tight_low).chance_of_order() is None
 
     # From run directories: final and AUC min_u a_u, final mean_u a_u and clean return, over
     # the records both modes share (AUC: mean(25, 40) − mean(6.5, 7.5) = 25.5; clean: 110 − 92
@@ -403,6 +409,10 @@ def test_adversarial_minus_uniform_is_welchs_t(tmp_path):
     assert ("Seeds per mode that would tell adversarial from uniform apart where these cannot (80% power at the "
             "difference and spread seen, two-sided 5% t-test): hopper final min_u a_u: about 4; hopper AUC min_u a_u: "
             "about 4; hopper final mean_u a_u: about 3; hopper final clean return: about 8.") in summary
+    assert ("Where every seed of one mode ends above every seed of the other, the bootstrap interval is that one value "
+            "whatever the seeds; how often chance alone orders seeds so (Mann–Whitney's exact two-sided p): hopper final "
+            "min_u a_u: 0.333 (2 and 2 seeds); hopper AUC min_u a_u: 0.333 (2 and 2 seeds); hopper final mean_u a_u: "
+            "0.333 (2 and 2 seeds); hopper final clean return: 0.333 (2 and 2 seeds).") in summary
     tight = Difference("x", tight_high, tight_low)
     assert tight.seeds_to_separate() is None and Difference("x", np.array([5.0]), tight_low).seeds_to_separate() is None
 
