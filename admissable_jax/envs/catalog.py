@@ -183,6 +183,9 @@ def canonical_env_name(name: str) -> str:
     if is_external(name):
         return _external(name)[0].name
     key = _catalog_key(name)
+    if "," in name and all(_catalog_key(part.strip()) in ENV_SPECS for part in name.split(",")):
+        raise ValueError(f"env={name} names {name.count(',') + 1} envs; a command trains or scores one: run one "
+                         f"command per env (env={name.split(',')[0].strip()}, ...), then plot them together")
     if key not in ENV_SPECS:
         valid = ", ".join([*ENV_SPECS, *(spec.gymnasium_id for spec in ENV_SPECS.values() if spec.gymnasium_id)])
         raise ValueError(f"unknown env {name!r}; valid names: {valid}, or package.module:Class for an env of "
