@@ -371,7 +371,8 @@ def plot_runs(run_dirs: list[str] | str, out_dir: str, window: int = 0,
         ax.set_title(f"{envs[0]}: {title}", fontsize=10)
     axes[0].set_ylabel("return")
     cut = keep_to_seeds(axes[0], *_extent([np.array(extents)]))  # one y scale: the panels share it
-    caption = _wrapped(_figure_caption(runs, window, per_seed, cut), int(15 * 5.5 * len(panels)))  # 15 characters an inch
+    width = int(15 * 5.5 * len(panels))  # characters: 15 an inch
+    caption = _wrapped(_figure_caption(runs, window, per_seed, cut), width)
     figure.suptitle(caption, fontsize=9, y=-0.02, va="top")
     written += _save(figure, out_dir, "min_score", formats)
     if all(np.isfinite(run.wall_seconds).all() for run in runs):
@@ -382,8 +383,8 @@ def plot_runs(run_dirs: list[str] | str, out_dir: str, window: int = 0,
         cut = keep_to_seeds(ax, *draw_curves(ax, runs, "min_score", window, per_seed, against="wall_seconds"))
         ax.set_title(f"{envs[0]}: adversarial performance $\\mathrm{{min}}_u\\, a_u$ against wall time", fontsize=10)
         ax.set_ylabel("return")
-        caption = (f"{_figure_caption(runs, window, per_seed, cut)}\nWall time: each interval's training and scoring as the "
-                   "run's metrics.jsonl timed them, summed (start-up, the compile before training and checkpoints not "
+        caption = (f"{_figure_caption(runs, window, per_seed, cut)}\nWall time: each interval's training and scoring "
+                   "as the run's metrics.jsonl timed them, summed (start-up, the compile before training and checkpoints not "
                    "counted; what compiles within the first interval, as Warp's kernels do, is in it; an "
                    "experiment's pairs share one program's); each curve at its seeds' mean.")
         figure.suptitle(_wrapped(caption, CAPTION_WIDTH), fontsize=8, y=-0.02, va="top")

@@ -139,8 +139,9 @@ def test_experiment_runs_pairs_resumes_as_one_unit_and_plots(tmp_path, capsys, m
     expected = jax.vmap(straight[2].trainer.policy, (None, 0))(straight[2].actor_params, mask_observation(obs, np.array([0, 1, 0, 0])))
     assert policy.step == 3000 and policy.config.missingness == "uniform"
     np.testing.assert_allclose(policy(obs, hidden=[1]), expected, rtol=1e-5, atol=1e-6)
-    with pytest.raises(ValueError, match=r"^expected observations of 4 features, got shape \(5, 8\); a masked observation "
-                                         r"\(8: features, then the indicator\) goes to the policy's \.masked\(batch\)$"):
+    with pytest.raises(ValueError, match=r"^expected observations of 4 features, got shape \(5, 8\); a masked "
+                                         r"observation \(8: features, then the indicator\) goes to the policy's "
+                                         r"\.masked\(batch\)$"):
         policy(np.concatenate([obs, obs], axis=1))  # an 8-wide row is no two 4-wide ones, but may be one masked
     # The whole experiment audited: every pair into its own folder, then the modes compared per k.
     results, written = audit_experiment(AuditConfig(run_dir=str(tmp_path / "straight"), k="1,2", episodes=3,

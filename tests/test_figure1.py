@@ -211,8 +211,8 @@ def test_figure1_words_each_reading_the_clean_check_above_sb3_and_the_late_round
     to 1M at 2 s + the last ten rounds' mean 7.5 s: 102 + 188 · 9.5 = 1,888 s."""
     higher = figure1._verdict(Difference("final min_u a_u", np.array([200.0, 210.0]), np.array([10.0, 12.0])))
     assert higher.startswith("final min_u a_u: adversarial − uniform = +194.0 [")
-    separated = ("; every seed of one mode ends above every seed of the other, an order chance alone gives with p = 0.333 "
-                 "(Mann–Whitney, exact; the bootstrap interval cannot widen past one value then).")
+    separated = ("; every seed of one mode ends above every seed of the other, an order chance alone gives with "
+                 "p = 0.333 (Mann–Whitney, exact; the bootstrap interval cannot widen past one value then).")
     assert higher.endswith(": adversarial training is higher, and 0 lies outside the 95% interval" + separated)
     lower = figure1._verdict(Difference("AUC min_u a_u", np.array([10.0, 12.0]), np.array([200.0, 210.0])))
     assert lower.startswith("AUC min_u a_u: adversarial − uniform = -194.0 [")

@@ -237,10 +237,12 @@ def test_min_score_against_the_wall_time_the_runs_timed(tmp_path, capsys, monkey
     # scoring, rising by 1 a scoring (their band reaches 64 past their mean), but not 5 seeds of the made-up a_u.
     captions = _captions(monkeypatch)
     for seeds in (2, 5):
-        like = [_fake_run(str(tmp_path / f"seeds{seeds}"), "adversarial", seed, timed=(500.0, 2.0)) for seed in range(seeds)]
+        like = [_fake_run(str(tmp_path / f"seeds{seeds}"), "adversarial", seed, timed=(500.0, 2.0))
+                for seed in range(seeds)]
         for seed, path in enumerate(like if seeds == 2 else ()):
             _edit_rows(path, lambda t, row, seed=seed: {**row, "scores": [100.0 + t + 10 * seed] * 11,
-                                                        "min_score": 100.0 + t + 10 * seed, "clean_score": 105.0 + t + 10 * seed})
+                                                        "min_score": 100.0 + t + 10 * seed,
+                                                        "clean_score": 105.0 + t + 10 * seed})
         plot_runs(like, str(tmp_path / f"figures{seeds}"), window=1)
         for name in ("min_score", "min_score_by_time"):
             caption, cut = captions[name]
@@ -409,10 +411,10 @@ def test_adversarial_minus_uniform_is_welchs_t(tmp_path):
     assert ("Seeds per mode that would tell adversarial from uniform apart where these cannot (80% power at the "
             "difference and spread seen, two-sided 5% t-test): hopper final min_u a_u: about 4; hopper AUC min_u a_u: "
             "about 4; hopper final mean_u a_u: about 3; hopper final clean return: about 8.") in summary
-    assert ("Where every seed of one mode ends above every seed of the other, the bootstrap interval is that one value "
-            "whatever the seeds; how often chance alone orders seeds so (Mann–Whitney's exact two-sided p): hopper final "
-            "min_u a_u: 0.333 (2 and 2 seeds); hopper AUC min_u a_u: 0.333 (2 and 2 seeds); hopper final mean_u a_u: "
-            "0.333 (2 and 2 seeds); hopper final clean return: 0.333 (2 and 2 seeds).") in summary
+    assert ("Where every seed of one mode ends above every seed of the other, the bootstrap interval is that one "
+            "value whatever the seeds; how often chance alone orders seeds so (Mann–Whitney's exact two-sided p): "
+            "hopper final min_u a_u: 0.333 (2 and 2 seeds); hopper AUC min_u a_u: 0.333 (2 and 2 seeds); hopper final "
+            "mean_u a_u: 0.333 (2 and 2 seeds); hopper final clean return: 0.333 (2 and 2 seeds).") in summary
     tight = Difference("x", tight_high, tight_low)
     assert tight.seeds_to_separate() is None and Difference("x", np.array([5.0]), tight_low).seeds_to_separate() is None
 

@@ -761,8 +761,8 @@ def test_a_checkpoint_of_an_older_state_layout_is_named_and_its_networks_still_r
         (["zeta=5000"], "unknown key 'zeta' (did you mean score_every? see --help"),
         (["total_steps=ten"], "bad value for 'total_steps'"),
         (["env=cheetah"], "unknown env 'cheetah'"),
-        (["env=hopper,Walker2d-v5"], "env=hopper,Walker2d-v5 names 2 envs; a command trains or scores one: run one command "
-                                     "per env (env=hopper, ...), then plot them together"),
+        (["env=hopper,Walker2d-v5"], "env=hopper,Walker2d-v5 names 2 envs; a command trains or scores one: run one "
+                                     "command per env (env=hopper, ...), then plot them together"),
         (["missingness=sometimes"], "missingness must be one of"),
         (["env=hopper", "k=11"], "k must satisfy 1 <= k < d = 11"),
         (["score_envs=-1"], "score_envs must be >= 0"),
