@@ -1720,6 +1720,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
     "several_envs_named_unknown": ("admissable_jax/envs/catalog.py",
                                    '    if "," in name and all(_catalog_key(part.strip()) in ENV_SPECS for part in name.split(",")):',
                                    "    if False:", "test_training.py"),
+    "unnamed_features_as_bare_indices": ("admissable_jax/audit/sets.py", '    return [f"feature {i}" for i in range(d)]',
+                                         "    return [str(i) for i in range(d)]", "test_audit.py"),
     "scoring_columns_of_any_shape": ("admissable_jax/results.py", "        except (TypeError, ValueError):  # ragged",
                                      "        except ImportError:  # ragged", "test_runs.py"),
     "score_estimators_of_one_episode": ("benchmarks/score_estimators.py", "if config.n_episodes < 2 or any(",

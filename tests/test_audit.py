@@ -451,22 +451,23 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
     from admissable_jax.audit.sets import audit_sizes
 
     result = audit_gymnasium("ConstantFeatures-v0", sum_of_visible, ks=(1, 2), n_episodes=2, num_envs=3)
-    assert result.clean_score == 30.0 and result.n_episodes == 2 and result.feature_names == ["0", "1", "2"]
+    assert result.clean_score == 30.0 and result.n_episodes == 2 and result.feature_names == ["feature 0", "feature 1", "feature 2"]
     assert [(entry.hidden, entry.score) for entry in result.sets[1]] == [((0,), 25.0), ((1,), 20.0), ((2,), 15.0)]
     assert [(entry.hidden, entry.score) for entry in result.sets[2]] == [((0, 1), 15.0), ((0, 2), 10.0), ((1, 2), 5.0)]
     assert result.worst(2, 1)[0].drop_percent == pytest.approx(100 * 25 / 30)
     assert (result.mean(1), result.mean(2)) == (20.0, 10.0)
     assert repr(result) == (  # shown in a notebook: what was found, not every episode's return
         "<AuditResult of ConstantFeatures-v0, 2 episodes per set: clean 30.0 ± 0.0\n"
-        "  k=1: worst 2 ([2]): a_u 15.0 ± 0.0, 50.0% below clean 30.0; mean over the 3 sets 20.0; told apart from every "
-        "other set\n"
-        "  k=2: worst 1, 2 ([1, 2]): a_u 5.0 ± 0.0, 83.3% below clean 30.0; mean over the 3 sets 10.0; told apart from "
-        "every other set>")
+        "  k=1: worst feature 2 ([2]): a_u 15.0 ± 0.0, 50.0% below clean 30.0; mean over the 3 sets 20.0; told apart "
+        "from every other set\n"
+        "  k=2: worst feature 1, feature 2 ([1, 2]): a_u 5.0 ± 0.0, 83.3% below clean 30.0; mean over the 3 sets 10.0; "
+        "told apart from every other set>")
     written = write_audit(result, str(tmp_path / "audit"))
     assert sorted(os.path.basename(path) for path in written) == ["audit.json", "pairs_k2.png", "report.md", "scores_k1.png",
                                                                    "worst_by_k.png"]
     report = (tmp_path / "audit" / "report.md").read_text()
-    assert "Gymnasium env ConstantFeatures-v0, policy sum_of_visible" in report and "| 1 | 1, 2 | 1, 2 | 5.0 ± 0.0 | 83.3% |" in report
+    assert "Gymnasium env ConstantFeatures-v0, policy sum_of_visible" in report
+    assert "| 1 | feature 1, feature 2 | 1, 2 | 5.0 ± 0.0 | 83.3% |" in report  # an env that names no feature
     assert "N = 2 episodes of the policy as given, each set's from the vector env's own resets" in report
     assert ("Mean over all 3 sets (the average case, u drawn uniformly): 10.0, 66.7% below clean; the worst: 5.0."
             in report)  # k = 2: the mean's own drop, (30 − 10) / 30
@@ -486,7 +487,8 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
     written = write_audit(worth, str(tmp_path / "worth"))
     assert os.path.basename(written[-1]) == "shapley.png"
     report = (tmp_path / "worth" / "report.md").read_text()
-    assert "v(all) = 20.0, v(none) = 5.0, and the φ_i sum to v(all) − v(none) = 15.0. Beside it" in report and "| 2 | 1 | 1 | 4.2 ± 0.0 | 27.8% | 0.0 |" in report
+    assert "v(all) = 20.0, v(none) = 5.0, and the φ_i sum to v(all) − v(none) = 15.0. Beside it" in report
+    assert "| 2 | feature 1 | 1 | 4.2 ± 0.0 | 27.8% | 0.0 |" in report
 
     # From the command line: policy=MODULE:NAME on gym=ENV_ID, the same numbers.
     # slots=3: three Gymnasium envs stepped at once, so every batch the policy sees holds 3.
@@ -496,8 +498,8 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
     record = json.loads((tmp_path / "cli" / "audit.json").read_text())
     assert [entry["score"] for entry in record["sets"]["2"]] == [15.0, 10.0, 5.0]
     assert record["source"]["policy"] == "test_audit:counted_sum_of_visible"  # (it said "call", its wrapper's name)
-    assert ("k=2: worst 1, 2 ([1, 2]): a_u 5.0 ± 0.0, 83.3% below clean 30.0; mean over the 3 sets 10.0; told apart "
-            "from every other set") in capfd.readouterr().out
+    assert ("k=2: worst feature 1, feature 2 ([1, 2]): a_u 5.0 ± 0.0, 83.3% below clean 30.0; mean over the 3 sets "
+            "10.0; told apart from every other set") in capfd.readouterr().out
     # Random sensor failure on a Gymnasium env: each mask's return by hand, 5 · (6 − what it
     # hides), R(p) their mean; the sets' scores as without it.
     # The masks follow the law: each feature lost with probability p, independently of the others.
@@ -532,10 +534,11 @@ def test_audit_of_any_gymnasium_policy(tmp_path, capfd, monkeypatch):
     table = (times / "failure_times.md").read_text()
     assert table.startswith("# Robustness by when the sensors fail: ConstantFeatures-v0, Gymnasium env "
                             "ConstantFeatures-v0, policy test_wrappers:sum_of_visible\n")
-    assert ("| 0 (0 of 2) | 30.0 ± 0.0 | 15.0 ± 0.0 (2) | 20.0 |\n| 2 (0 of 2) | 30.0 ± 0.0 | 21.0 ± 0.0 (2) | 24.0 |\n"
-            "| 5 (2 of 2) | 30.0 ± 0.0 | 30.0 ± 0.0 (0) | 30.0 |\n") in table
+    assert ("| 0 (0 of 2) | 30.0 ± 0.0 | 15.0 ± 0.0 (feature 2) | 20.0 |\n"
+            "| 2 (0 of 2) | 30.0 ± 0.0 | 21.0 ± 0.0 (feature 2) | 24.0 |\n"
+            "| 5 (2 of 2) | 30.0 ± 0.0 | 30.0 ± 0.0 (feature 0) | 30.0 |\n") in table
     printed = capfd.readouterr()
-    assert "fail_at 2: k=1: worst 2 ([2]): a_u 21.0 ± 0.0" in printed.out and table in printed.out
+    assert "fail_at 2: k=1: worst feature 2 ([2]): a_u 21.0 ± 0.0" in printed.out and table in printed.out
     from PIL import Image  # the chart, and beside it each feature's a_u by step: two panels side by side
 
     assert Image.open(times / "failure_times.png").size[0] > 1.6 * Image.open(times / "fail0" / "scores_k1.png").size[0]

@@ -219,7 +219,7 @@ def audit(env, policy_fn, params, ks=(1,), n_episodes: int = 50, seed: int = 0, 
                           "ranker_scores": [[np.flatnonzero(row).tolist(), float(score_)]
                                             for row, score_ in zip(finalists, ranker_scores)]}
     result = _audit_result(env.name, estimator, lambda rows: score(rows, estimator), ks, blocks, plan,
-                           feature_names or [str(i) for i in range(d)], source or {}, search_info, dropout)
+                           feature_names or unnamed_features(d), source or {}, search_info, dropout)
     return dataclasses.replace(result, fail_at=fail_at)
 
 
@@ -303,6 +303,12 @@ def _audit_result(env_name: str, estimator: str, score_rows, ks, blocks: list[np
                        clean_lengths=np.asarray(scored.lengths)[-1].tolist())
 
 
+def unnamed_features(d: int) -> list[str]:
+    """Names for an observation of ``d`` entries that names none (a Gymnasium env other than
+    ours): ``feature 0``, ..., so that a report reads "worst feature 3", not "worst 3"."""
+    return [f"feature {i}" for i in range(d)]
+
+
 def gymnasium_features(env_id: str, **env_kwargs) -> int:
     """d of the Gymnasium env ``env_id``; one-line ValueError if it cannot be made."""
     import gymnasium
@@ -365,7 +371,7 @@ def audit_gymnasium(env_id: str, policy, ks=(1,), n_episodes: int = 50, num_envs
         except ValueError:  # not one of our envs
             feature_names = []
         if len(feature_names) != d:  # or made with other observation arguments
-            feature_names = [str(i) for i in range(d)]
+            feature_names = unnamed_features(d)
 
     def score_rows(rows: np.ndarray) -> PolicyScores:
         with settotalmass_warning_dropped():
