@@ -414,12 +414,15 @@ def validate(config: TrainConfig) -> None:
 
 def setting_warnings(config: TrainConfig) -> list[str]:
     """What a resolved run's settings do that its keys do not say, one line each: a
-    ``learning_starts`` not below the run's env steps (SAC, learning once env steps pass it,
+    ``total_steps`` that is no multiple of ζ (rounded up), a ``learning_starts`` not below the run's env steps (SAC, learning once env steps pass it,
     never updates; a random-policy baseline may mean it), a ``utd`` whose
     ``num_envs · utd`` gradient steps per iteration is no whole number (rounded, at least 1),
     and a replay buffer that holds fewer transitions than one minibatch (``buffer_size`` as
     rounded: every minibatch, drawn with replacement, repeats the last few env steps)."""
     warnings = []
+    if config.planned_steps != config.total_steps:
+        warnings.append(f"the run trains {config.planned_steps:,} env steps: total_steps={config.total_steps} rounded up "
+                        f"to a multiple of score_every={config.score_every}, as every interval ends in a scoring")
     if config.learning_starts >= config.planned_steps:
         warnings.append(f"learning_starts={config.learning_starts} is not below the run's {config.planned_steps} env "
                         "steps: SAC never updates, and every scoring scores the untrained policy (lower learning_starts "

@@ -1722,6 +1722,8 @@ MUTATIONS: dict[str, tuple[str, str, str, str]] = {
                                    "    if False:", "test_training.py"),
     "unnamed_features_as_bare_indices": ("admissable_jax/audit/sets.py", '    return [f"feature {i}" for i in range(d)]',
                                          "    return [str(i) for i in range(d)]", "test_audit.py"),
+    "rounded_total_steps_unsaid": ("admissable_jax/config.py", "    if config.planned_steps != config.total_steps:",
+                                   "    if False:", "test_training.py"),
     "scoring_columns_of_any_shape": ("admissable_jax/results.py", "        except (TypeError, ValueError):  # ragged",
                                      "        except ImportError:  # ragged", "test_runs.py"),
     "score_estimators_of_one_episode": ("benchmarks/score_estimators.py", "if config.n_episodes < 2 or any(",

@@ -825,8 +825,9 @@ def test_cli_rejects_bad_input_with_one_line(args, message, tmp_path, capsys, mo
 
 
 def test_settings_whose_effect_their_keys_do_not_say_are_warned():
-    """A run says, one warning line each, where its settings do what their keys do not say: a
-    learning_starts not below its planned env steps (SAC never updates), and a utd whose
+    """A run says, one warning line each, where its settings do what their keys do not say: its
+    total_steps rounded up to a multiple of ζ; a learning_starts not below its planned env
+    steps (SAC never updates), and a utd whose
     num_envs · utd gradient steps per iteration is rounded (the run's utd is another); not
     for a product that float arithmetic leaves a hair off a whole number (100 · 0.07); and a
     replay buffer that holds fewer transitions than one minibatch."""
@@ -842,7 +843,9 @@ def test_settings_whose_effect_their_keys_do_not_say_are_warned():
     assert warnings(total_steps=1000, learning_starts=1000) == [
         "learning_starts=1000 is not below the run's 1000 env steps: SAC never updates, and every scoring scores the "
         "untrained policy (lower learning_starts or raise total_steps)"]
-    assert warnings(total_steps=1001, learning_starts=1000) == []  # planned: 2000 env steps (ζ = 1000)
+    assert warnings(total_steps=1001, learning_starts=1000) == [  # planned: 2000 env steps (ζ = 1000), said
+        "the run trains 2,000 env steps: total_steps=1001 rounded up to a multiple of score_every=1000, as every "
+        "interval ends in a scoring"]
     # A replay buffer smaller than a minibatch (as rounded to whole iterations): minibatches repeat the last steps.
     assert warnings(buffer_size=1) == [
         "buffer_size=1 holds 4 transitions (rounded to a multiple of num_envs=4), fewer than one minibatch "
