@@ -50,6 +50,20 @@ def source_commit(exclude: tuple[str, ...] = ()) -> str | None:
     return commit + ("+changes" if changed else "")
 
 
+def command_line() -> list[str]:
+    """This process's command as one would type it again: ``python -m admissable_jax.train
+    env=ant`` for our commands (whose ``sys.argv[0]`` Python sets to the module's file,
+    ``.../admissable_jax/train.py``, which run as a script would not find its package), else
+    the interpreter and ``sys.argv`` as they are (a script calling ``train_fn``)."""
+    python = os.path.basename(sys.executable)
+    package = os.path.dirname(os.path.abspath(__file__))
+    script = os.path.abspath(sys.argv[0]) if sys.argv and sys.argv[0] else ""
+    if not (script.startswith(package + os.sep) and script.endswith(".py")):
+        return [python, *sys.argv]
+    module = os.path.relpath(script, os.path.dirname(package))[:-len(".py")].replace(os.sep, ".")
+    return [python, "-m", module.removesuffix(".__main__"), *sys.argv[1:]]
+
+
 def invocation_record(from_env_steps: int, fast_forward_to: int | None, device: str, devices: int, physics: str,
                       runs_in_program: int) -> dict[str, Any]:
     """One ``invocations.jsonl`` line for the command now training (``fast_forward_to``: the
@@ -60,7 +74,7 @@ def invocation_record(from_env_steps: int, fast_forward_to: int | None, device: 
         "started": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "from_env_steps": from_env_steps,
         "fast_forward_to": fast_forward_to,
-        "command": [os.path.basename(sys.executable), *sys.argv],
+        "command": command_line(),
         "host": platform.node(),
         "device": device,
         "devices": devices,

@@ -106,6 +106,17 @@ def test_run_directory_contents(point_mass_run, tmp_path):
     assert invocation["from_env_steps"] == 0 and invocation["physics"] == "jax" and invocation["runs_in_program"] == 1
     assert invocation["device"].startswith("cpu:") and invocation["devices"] == 1 and invocation["command"][1:] == sys.argv
     assert invocation["versions"]["jax"] == jax.__version__ and invocation["versions"]["mujoco"] == mujoco.__version__
+    # Our commands are recorded as typed (python -m ...), not as the module's file Python puts in argv[0].
+    import admissable_jax.provenance as provenance
+
+    package = os.path.dirname(provenance.__file__)
+    python = os.path.basename(sys.executable)
+    for argv, command in (([os.path.join(package, "train.py"), "env=ant"], ["-m", "admissable_jax.train", "env=ant"]),
+                          ([os.path.join(package, "__main__.py"), "audit", "x"], ["-m", "admissable_jax", "audit", "x"]),
+                          ([os.path.join(package, "audit", "__main__.py")], ["-m", "admissable_jax.audit"]),
+                          (["my_sweep.py", "--seed", "1"], ["my_sweep.py", "--seed", "1"])):
+        with unittest.mock.patch.object(sys, "argv", argv):
+            assert provenance.command_line() == [python, *command]
     for row in point_mass_run.scores:
         assert len(row["scores"]) == 4 and len(row["p_miss"]) == 4
         assert row["min_score"] == pytest.approx(min(row["scores"]), abs=1e-3)
