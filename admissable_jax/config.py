@@ -414,8 +414,9 @@ def validate(config: TrainConfig) -> None:
 
 def setting_warnings(config: TrainConfig) -> list[str]:
     """What a resolved run's settings do that its keys do not say, one line each: a
-    ``total_steps`` that is no multiple of ζ (rounded up), a ``learning_starts`` not below the run's env steps (SAC, learning once env steps pass it,
-    never updates; a random-policy baseline may mean it), a ``utd`` whose
+    ``total_steps`` that is no multiple of ζ (rounded up), a ``learning_starts`` not below the
+    run's env steps (SAC, learning once env steps pass it, never updates; a random-policy
+    baseline may mean it), a ``utd`` whose
     ``num_envs · utd`` gradient steps per iteration is no whole number (rounded, at least 1),
     and a replay buffer that holds fewer transitions than one minibatch (``buffer_size`` as
     rounded: every minibatch, drawn with replacement, repeats the last few env steps)."""

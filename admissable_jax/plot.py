@@ -298,9 +298,10 @@ def keep_to_seeds(ax, low: float, high: float) -> bool:
     margin = high - low if high > low else max(abs(high), 1.0)
     bottom, top = ax.get_ylim()
     kept = (max(bottom, low - margin), min(top, high + margin))
-    if kept != (bottom, top):
+    cut = kept != (bottom, top)
+    if cut:
         ax.set_ylim(*kept)
-    return kept != (bottom, top)
+    return cut
 
 
 def plot_envs_side_by_side(run_dirs: list[str], out_dir: str, window: int = 0,
@@ -384,9 +385,9 @@ def plot_runs(run_dirs: list[str] | str, out_dir: str, window: int = 0,
         ax.set_title(f"{envs[0]}: adversarial performance $\\mathrm{{min}}_u\\, a_u$ against wall time", fontsize=10)
         ax.set_ylabel("return")
         caption = (f"{_figure_caption(runs, window, per_seed, cut)}\nWall time: each interval's training and scoring "
-                   "as the run's metrics.jsonl timed them, summed (start-up, the compile before training and checkpoints not "
-                   "counted; what compiles within the first interval, as Warp's kernels do, is in it; an "
-                   "experiment's pairs share one program's); each curve at its seeds' mean.")
+                   "as the run's metrics.jsonl timed them, summed (start-up, the compile before training and "
+                   "checkpoints not counted; what compiles within the first interval, as Warp's kernels do, is in it; "
+                   "an experiment's pairs share one program's); each curve at its seeds' mean.")
         figure.suptitle(_wrapped(caption, CAPTION_WIDTH), fontsize=8, y=-0.02, va="top")
         written += _save(figure, out_dir, "min_score_by_time", formats)
 

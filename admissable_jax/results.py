@@ -436,17 +436,11 @@ class Difference:
         seeds of RL returns rarely show. None with fewer than two seeds in a mode."""
         if min(len(self.adversarial), len(self.uniform)) < 2:
             return None
-
-        def wins(adversarial: np.ndarray, uniform: np.ndarray) -> np.ndarray:
-            above = adversarial[..., :, None] > uniform[..., None, :]
-            tied = adversarial[..., :, None] == uniform[..., None, :]
-            return (above + 0.5 * tied).mean(axis=(-2, -1))
-
         rng = np.random.default_rng(0)
         drawn = [values[rng.integers(0, len(values), (resamples, len(values)))]
                  for values in (self.adversarial, self.uniform)]
-        low, high = np.quantile(wins(*drawn), [(1 - confidence) / 2, (1 + confidence) / 2])
-        return float(wins(self.adversarial, self.uniform)), float(low), float(high)
+        low, high = np.quantile(_wins(*drawn), [(1 - confidence) / 2, (1 + confidence) / 2])
+        return float(_wins(self.adversarial, self.uniform)), float(low), float(high)
 
     def chance_of_order(self) -> float | None:
         """Where every seed of one mode ends above every seed of the other (P(adversarial >
@@ -454,8 +448,7 @@ class Difference:
         may), how often chance alone orders the seeds so: Mann–Whitney's exact two-sided p,
         2 / C(n + m, n) (2 and 2 seeds: 0.333); None otherwise, or with fewer than two seeds
         in a mode."""
-        improvement = self.probability_of_improvement()
-        if improvement is None or improvement[0] not in (0.0, 1.0):
+        if min(len(self.adversarial), len(self.uniform)) < 2 or _wins(self.adversarial, self.uniform) not in (0, 1):
             return None
         return min(1.0, 2 / math.comb(len(self.adversarial) + len(self.uniform), len(self.adversarial)))
 
@@ -489,6 +482,14 @@ class Difference:
         interval = self.interval()
         low_high, p = ("—", "—") if interval is None else (f"[{interval[0]:.1f}, {interval[1]:.1f}]", f"{interval[2]:.3g}")
         return f"{self.mean:+.1f} | {low_high} | {p} | {self.improvement_text()} | {self.reading()}"
+
+
+def _wins(adversarial: np.ndarray, uniform: np.ndarray) -> np.ndarray:
+    """The share of (adversarial, uniform) seed pairs in which adversarial ends higher, ties
+    half, over the last axes (the leading ones: bootstrap resamples)."""
+    above = adversarial[..., :, None] > uniform[..., None, :]
+    tied = adversarial[..., :, None] == uniform[..., None, :]
+    return (above + 0.5 * tied).mean(axis=(-2, -1))
 
 
 IMPROVEMENT_COLUMN = "P(adversarial > uniform) [95% bootstrap]"  # Difference.improvement_text()'s
