@@ -5,7 +5,9 @@ adversarial mode,
 
     p_miss(u) = (1 / (a_u − l + ε)) / Σ_{u'} 1 / (a_{u'} − l + ε),
 
-with a_u below the lower bound l clipped to l. In uniform mode p_miss stays uniform.
+with a_u below the lower bound l clipped to l. In uniform mode p_miss stays uniform. Mode
+``worst``, the deterministic adversary the paper decides against (§3), puts p_miss on
+argmin_u a_u.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ import chex
 import jax
 import jax.numpy as jnp
 
-from admissable_jax.method import MODES, inverse_score_p_miss
+from admissable_jax.method import MODES, inverse_score_p_miss, worst_set_p_miss
 
 __all__ = ["MODES", "inverse_score_p_miss", "uniform_p_miss", "update_p_miss"]
 
@@ -27,11 +29,14 @@ def update_p_miss(
     p_miss: jax.Array,
     scores: jax.Array,
     adversarial: jax.Array,
+    greedy: jax.Array,
     lower_bound: float,
     epsilon: float,
 ) -> jax.Array:
-    """The next p_miss: the inverse-score update if ``adversarial`` (a traced bool, so that
-    adversarial and uniform runs share one compiled program), else ``p_miss`` unchanged."""
+    """The next p_miss: if ``adversarial``, the inverse-score update, or with ``greedy`` too
+    (mode ``worst``) all of it on the worst-scored set; else ``p_miss`` unchanged. Both flags
+    are traced bools, so that runs of every mode share one compiled program."""
     chex.assert_rank(scores, 1)
     chex.assert_equal_shape([p_miss, scores])
-    return jnp.where(adversarial, inverse_score_p_miss(scores, lower_bound, epsilon), p_miss)
+    adversary = jnp.where(greedy, worst_set_p_miss(scores), inverse_score_p_miss(scores, lower_bound, epsilon))
+    return jnp.where(adversarial, adversary, p_miss)

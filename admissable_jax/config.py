@@ -118,7 +118,10 @@ class RunSettings:
 class TrainConfig(RunSettings):
     """One training run: the shared settings plus its mode, seed and directory."""
 
-    missingness: str = setting("adversarial", "adversarial | uniform | none")
+    missingness: str = setting("adversarial", "adversarial (the paper's: p_miss ∝ 1/(a_u - l + eps)) | uniform (the "
+                                              "paper's baseline) | none (nothing hidden: clean SAC) | worst (every "
+                                              "episode hides argmin_u a_u: the deterministic adversary the paper "
+                                              "decides against)")
     seed: int = setting(0, "PRNG seed")
     out: str = setting("", "run directory; '' = runs/<env>-<missingness>-s<seed>")
 
@@ -189,7 +192,7 @@ class ExperimentConfig(RunSettings):
 
     seeds: int = setting(5, "seeds per mode: first_seed .. first_seed + seeds - 1")
     first_seed: int = setting(0, "the first seed")
-    modes: str = setting("adversarial,uniform", "comma-separated missingness modes (adversarial, uniform, none)")
+    modes: str = setting("adversarial,uniform", "comma-separated missingness modes (adversarial, uniform, none, worst)")
     lower_bounds: str = setting("", "comma-separated values of l to sweep in one program: the adversarial seeds train "
                                     "once per value (pairs adversarial-l<l>-s<seed>); '' = lower_bound alone")
     out: str = setting("", "experiment directory; '' = runs/fig1-<env>")

@@ -3,8 +3,8 @@
     python -m admissable_jax.experiment env=hopper seeds=5 modes=adversarial,uniform \
         total_steps=1000000 out=runs/fig1-hopper
 
-The missingness modes differ only in data (the ``adversarial`` and ``masking`` flags of the
-training state), not in code, and so does the adversary's lower bound l, so every pair's
+The missingness modes differ only in data (the ``adversarial``, ``masking`` and ``greedy``
+flags of the training state), not in code, and so does the adversary's lower bound l, so every pair's
 training state is stacked along a leading pair axis and the train chunk and the scoring
 round are ``jax.vmap``-ed over it; ``lower_bounds=0,50`` sweeps l in the one program (the
 adversarial seeds once per value, ``<out>/adversarial-l<l>-s<seed>``; the other modes,
@@ -16,7 +16,8 @@ run directory ``<out>/<mode>-s<seed>`` in the format of ``train`` (``config.yaml
 keeps one orbax checkpoint of the whole batch in ``<out>/checkpoints`` and resumes as one
 unit, onto the same device count or another. It ends with what the runs found
 (:func:`report`): per mode the final and area-under-curve min_u a_u, and adversarial −
-uniform with Welch's interval, as ``plot`` writes them to its ``summary.md``.
+uniform (and − worst, where that mode ran) with Welch's interval, as ``plot`` writes them to
+its ``summary.md``.
 Before anything is allocated the programs are compiled and their memory counted; an
 experiment that would not fit stops with a one-line message (``budget_only=true`` prints
 the budget and stops there).
@@ -38,7 +39,7 @@ from admissable_jax.config import EXPERIMENT_SETTINGS, ExperimentConfig, TrainCo
 from admissable_jax.errors import INTERRUPTED, make_directory, remove_if_unused
 from admissable_jax.host_loop import TrainingLoop, make_trainer, pairs_init
 from admissable_jax.placement import PairPlacement, initialize_distributed
-from admissable_jax.results import comparison_section, mode_differences, summary_table
+from admissable_jax.results import comparison_sections, summary_table
 from admissable_jax.run_directory import RunDirectory, check_folder_kind, load_config, read_jsonl
 from admissable_jax.train import TrainResult
 
@@ -109,11 +110,11 @@ def check_same_pairs(config, pairs: list[TrainConfig], experiment_yaml: str) -> 
 def report(run_dirs: list[str], root: str) -> str:
     """What the pairs found, in the paper's terms: per mode final and area-under-curve
     min_u a_u, mean_u a_u and the clean return (mean ± 95% interval over seeds) and the set
-    most often worst at the end; where both adversarial and uniform ran, their difference
-    with Welch's interval and, if the seeds cannot tell them apart, how many would
+    most often worst at the end; where both adversarial and uniform (or worst) ran, their
+    difference with Welch's interval and, if the seeds cannot tell them apart, how many would
     (:mod:`admissable_jax.results`, as ``plot``'s ``summary.md``); then the command that
     draws the figures."""
-    comparison = comparison_section(mode_differences(run_dirs))
+    comparison = comparison_sections(run_dirs)
     return (summary_table(run_dirs) + (f"\n{comparison}" if comparison else "")
             + f"\nfigures, summary.md and CSV tables: python -m admissable_jax.plot {root}")
 

@@ -49,17 +49,17 @@ class PhysicsCapacityExceeded(RunFailed):
     """The env's physics ran out of a fixed-size buffer; the last checkpoint is kept."""
 
 
-def init_arguments(config: TrainConfig) -> tuple[int, bool, bool, float]:
+def init_arguments(config: TrainConfig) -> tuple[int, bool, bool, float, bool]:
     """What :meth:`Trainer.init` takes for a run, the parts of it that are data and not code:
-    (seed, adversarial, masking, lower bound l)."""
+    (seed, adversarial, masking, lower bound l, greedy)."""
     mode = config.missingness
-    return config.seed, mode == "adversarial", mode != "none", config.lower_bound
+    return config.seed, mode in ("adversarial", "worst"), mode != "none", config.lower_bound, mode == "worst"
 
 
 def stacked_init_arguments(pairs: list[TrainConfig]) -> tuple[np.ndarray, ...]:
     """:func:`init_arguments` of every pair, each stacked along the pair axis (a vmapped
     :meth:`Trainer.init` takes them)."""
-    dtypes = (np.int32, bool, bool, np.float32)
+    dtypes = (np.int32, bool, bool, np.float32, bool)
     return tuple(np.array(column, dtype) for column, dtype in zip(zip(*map(init_arguments, pairs)), dtypes))
 
 

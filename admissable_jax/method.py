@@ -17,7 +17,8 @@ import numbers
 
 import numpy as np
 
-MODES = ("adversarial", "uniform", "none")
+MODES = ("adversarial", "uniform", "none", "worst")
+DRAWING_MODES = ("adversarial", "uniform", "worst")  # the modes that hide a drawn u in training (not "none")
 MAX_CANDIDATE_SETS = 100_000  # more sets than this cannot be scored in one batched rollout, nor kept as one matrix
 MAX_SET_INDEX = 2**31 - 1  # a set's index into U is an int32
 
@@ -305,3 +306,13 @@ def inverse_score_p_miss(scores, lower_bound: float, epsilon: float):
     xp = scores.__array_namespace__()
     weights = 1.0 / (xp.maximum(scores - lower_bound, 0.0) + epsilon)
     return weights / xp.sum(weights)
+
+
+def worst_set_p_miss(scores):
+    """p_miss of mode ``worst``: every episode hides argmin_u a_u, the deterministic
+    adversary that the paper decides against "to avoid training instabilities and
+    forgetting" (§3), so that the claim can be tested. Sets tied for the lowest score share
+    p_miss evenly; l and ε play no part."""
+    xp = scores.__array_namespace__()
+    worst = xp.astype(scores == xp.min(scores), scores.dtype)
+    return worst / xp.sum(worst)

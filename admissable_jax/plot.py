@@ -36,8 +36,8 @@ writes, e.g. ``png,svg``):
 * ``summary.md`` (CLI) — :func:`~admissable_jax.results.summary_table`: final and AUC
   min_u a_u, final mean_u a_u (the average over U), clean return and the set most often
   worst at the end per mode, and
-  :func:`~admissable_jax.results.comparison_section`: adversarial − uniform on each with
-  Welch's 95% interval and p-value;
+  :func:`~admissable_jax.results.comparison_sections`: adversarial − uniform on each with
+  Welch's 95% interval and p-value (and adversarial − worst, where mode worst ran);
 * ``curves.csv`` and ``scores.csv`` (CLI) — the same histories as tidy tables for one's own
   analysis (:func:`~admissable_jax.results.write_tables`): a row per run and scoring, and
   a row per run, scoring and hidden set.
@@ -74,13 +74,14 @@ from admissable_jax.cli import fail, parse_args, run_main  # noqa: E402
 from admissable_jax.envs import ENV_SPECS  # noqa: E402
 from admissable_jax.errors import INTERRUPTED, UnusableDirectory, make_directory, remove_if_unused  # noqa: E402
 from admissable_jax.results import (  # noqa: E402
-    ADVERSARY_SETTINGS, Run, aligned, comparison_section, differing_settings, final_scores, find_runs, group_curves,
-    load_run, load_runs, mean_and_interval, mode_differences, moving_average, numbers_in_order, per_feature_of_sets,
+    ADVERSARY_SETTINGS, Run, aligned, comparison_sections, differing_settings, final_scores, find_runs, group_curves,
+    load_run, load_runs, mean_and_interval, moving_average, numbers_in_order, per_feature_of_sets,
     shared_records, steps_text, summary_table, trained_on, wall_time_text, write_tables,
 )
 
-MODE_COLORS = {"adversarial": "tab:blue", "uniform": "tab:red", "none": "tab:gray"}
-MODE_COLORMAPS = {"adversarial": "Blues", "uniform": "Reds", "none": "Greys"}  # a mode's several curves: its shades
+MODE_COLORS = {"adversarial": "tab:blue", "uniform": "tab:red", "none": "tab:gray", "worst": "tab:green"}
+# a mode's several curves: its shades
+MODE_COLORMAPS = {"adversarial": "Blues", "uniform": "Reds", "none": "Greys", "worst": "Greens"}
 # Figure 1's smoothing: "a moving average over 40 records" of a 1M-step run scored every ζ = 5000.
 PAPER_WINDOW, PAPER_RECORDS = 40, 200
 LINE_STYLES = ("-", "--", ":", "-.")
@@ -560,7 +561,7 @@ def main(argv: list[str]) -> int:
             written += plot_envs_side_by_side(runs, out_dir, config.window, formats, config.per_seed)
         written += write_tables(runs, out_dir)
         table = summary_table(runs)
-        comparison = comparison_section(mode_differences(runs))
+        comparison = comparison_sections(runs)
         provenance = trained_on(runs)
     except (ValueError, FileNotFoundError, KeyError, UnusableDirectory) as error:
         fail(str(error))

@@ -8,9 +8,10 @@ curves (env, mode, variant), whose runs are the seeds. From those:
 * :func:`summary_table` — final and area-under-curve min_u a_u, the final mean_u a_u and
   the final clean return per curve, mean ± 95% t-interval over seeds, and the set most
   often worst at the end;
-* :func:`mode_differences` / :class:`Difference` — adversarial − uniform on each, with
-  Welch's 95% interval, p-value, a reading and, where the seeds cannot tell the modes
-  apart, how many seeds per mode would (:func:`comparison_section`);
+* :func:`mode_differences` / :class:`Difference` — adversarial − uniform on each (and
+  adversarial − worst, where mode worst ran), with Welch's 95% interval, p-value, a reading
+  and, where the seeds cannot tell the modes apart, how many seeds per mode would
+  (:func:`comparison_sections`);
 * :func:`trained_on` — where the runs were trained, from their ``invocations.jsonl``;
 * :func:`write_tables` — every run's history as two tidy CSV tables (``curves.csv``: a row
   per run and scoring; ``scores.csv``: a row per run, scoring and hidden set), for analyses
@@ -51,8 +52,10 @@ NOT_SETTINGS = frozenset({"env", "missingness", "seed", "out", "resume", "resume
                           "worlds_per_call", "physics"})
 # Settings that only the adversarial mode reads (its p_miss update, paper §3; the pool's
 # exploration share): runs of the other modes that differ only in these are seeds of one
-# curve, the baseline of every adversarial curve that shares their other settings.
+# curve, the baseline of every adversarial curve that shares their other settings. Mode
+# worst reads the pool's share alone (its p_miss is the argmin's, whatever l and ε).
 ADVERSARY_SETTINGS = frozenset({"lower_bound", "epsilon", "pool_explore"})
+SETTINGS_READ_BY = {"adversarial": ADVERSARY_SETTINGS, "worst": frozenset({"pool_explore"})}
 
 
 @dataclasses.dataclass
@@ -174,7 +177,7 @@ def load_run(path: str) -> Run:
         score_episodes=int(config.score_episodes), pooled=pooled, uniform_draws=uniform_draws,
         settings={key: setting_text(value) for key, value in {**dataclasses.asdict(TrainConfig()), **config}.items()
                   if key not in NOT_SETTINGS
-                  and (key not in ADVERSARY_SETTINGS or config.missingness == "adversarial")},
+                  and (key not in ADVERSARY_SETTINGS or key in SETTINGS_READ_BY.get(config.missingness, ()))},
     )
 
 
@@ -393,23 +396,25 @@ def summary_table(run_dirs: list[str]) -> str:
 
 @dataclasses.dataclass
 class Difference:
-    """Adversarial minus uniform on one per-seed quantity, with Welch's 95% t-interval and
-    two-sided p-value (seeds of one mode are independent of the other's)."""
+    """Adversarial minus a baseline mode (uniform, the paper's; or worst) on one per-seed
+    quantity, with Welch's 95% t-interval and two-sided p-value (seeds of one mode are
+    independent of the other's)."""
     metric: str
     adversarial: np.ndarray  # (seeds,)
-    uniform: np.ndarray  # (seeds,)
+    baseline: np.ndarray  # (seeds,) of the baseline mode
+    baseline_mode: str = "uniform"
 
     @property
     def mean(self) -> float:
-        return float(self.adversarial.mean() - self.uniform.mean())
+        return float(self.adversarial.mean() - self.baseline.mean())
 
     def interval(self, confidence: float = 0.95) -> tuple[float, float, float] | None:
         """(low, high, p), or None with fewer than two seeds in a mode (no variance to test)."""
         from scipy import stats
 
-        if min(len(self.adversarial), len(self.uniform)) < 2:
+        if min(len(self.adversarial), len(self.baseline)) < 2:
             return None
-        test = stats.ttest_ind(self.adversarial, self.uniform, equal_var=False)
+        test = stats.ttest_ind(self.adversarial, self.baseline, equal_var=False)
         low, high = test.confidence_interval(confidence)
         return float(low), float(high), float(test.pvalue)
 
@@ -422,25 +427,25 @@ class Difference:
         if low > 0:
             return "adversarial higher"
         if high < 0:
-            return "uniform higher"
+            return f"{self.baseline_mode} higher"
         return "not distinguishable (95% interval holds 0)"
 
     def probability_of_improvement(self, confidence: float = 0.95,
                                    resamples: int = 10_000) -> tuple[float, float, float] | None:
         """(P, low, high): P(adversarial > uniform), the chance that a seed of adversarial
-        training ends above one of uniform training, ties counted half (the Mann–Whitney
+        training ends above one of the baseline's (uniform training's), ties counted half (the Mann–Whitney
         statistic over every pair of seeds; the probability of improvement of Agarwal et al.,
         2021, *Deep RL at the Edge of the Statistical Precipice*), with a percentile-bootstrap
         interval that resamples each mode's seeds apart (a fixed seed: the same file twice).
         A rank measure: it needs none of the normal spread Welch's t assumes, which a few
         seeds of RL returns rarely show. None with fewer than two seeds in a mode."""
-        if min(len(self.adversarial), len(self.uniform)) < 2:
+        if min(len(self.adversarial), len(self.baseline)) < 2:
             return None
         rng = np.random.default_rng(0)
         drawn = [values[rng.integers(0, len(values), (resamples, len(values)))]
-                 for values in (self.adversarial, self.uniform)]
+                 for values in (self.adversarial, self.baseline)]
         low, high = np.quantile(_wins(*drawn), [(1 - confidence) / 2, (1 + confidence) / 2])
-        return float(_wins(self.adversarial, self.uniform)), float(low), float(high)
+        return float(_wins(self.adversarial, self.baseline)), float(low), float(high)
 
     def chance_of_order(self) -> float | None:
         """Where every seed of one mode ends above every seed of the other (P(adversarial >
@@ -448,9 +453,9 @@ class Difference:
         may), how often chance alone orders the seeds so: Mann–Whitney's exact two-sided p,
         2 / C(n + m, n) (2 and 2 seeds: 0.333); None otherwise, or with fewer than two seeds
         in a mode."""
-        if min(len(self.adversarial), len(self.uniform)) < 2 or _wins(self.adversarial, self.uniform) not in (0, 1):
+        if min(len(self.adversarial), len(self.baseline)) < 2 or _wins(self.adversarial, self.baseline) not in (0, 1):
             return None
-        return min(1.0, 2 / math.comb(len(self.adversarial) + len(self.uniform), len(self.adversarial)))
+        return min(1.0, 2 / math.comb(len(self.adversarial) + len(self.baseline), len(self.adversarial)))
 
     def improvement_text(self) -> str:
         """:meth:`probability_of_improvement` as "0.88 [0.60, 1.00]", or "—"."""
@@ -465,7 +470,7 @@ class Difference:
         interval = self.interval()
         if interval is None or not interval[0] <= 0 <= interval[1]:
             return None
-        low, high = sorted((self.uniform, self.adversarial), key=np.mean)
+        low, high = sorted((self.baseline, self.adversarial), key=np.mean)
         return samples_to_separate(low, high, paired=False)
 
     def seeds_needed(self) -> str | None:
@@ -477,7 +482,7 @@ class Difference:
         return f"about {seeds:,}" if seeds <= 1000 else "over 1,000"
 
     def cells(self) -> str:
-        """A markdown table's cells under :data:`COMPARISON_COLUMNS`: difference | 95%
+        """A markdown table's cells under :func:`comparison_header`'s columns: difference | 95%
         interval | p | P(adversarial > uniform) [95%] | reading."""
         interval = self.interval()
         low_high, p = ("—", "—") if interval is None else (f"[{interval[0]:.1f}, {interval[1]:.1f}]", f"{interval[2]:.3g}")
@@ -492,49 +497,56 @@ def _wins(adversarial: np.ndarray, uniform: np.ndarray) -> np.ndarray:
     return (above + 0.5 * tied).mean(axis=(-2, -1))
 
 
-IMPROVEMENT_COLUMN = "P(adversarial > uniform) [95% bootstrap]"  # Difference.improvement_text()'s
-# The columns of Difference.cells(), for each table of them.
-COMPARISON_COLUMNS = ("adversarial − uniform", "95% interval (Welch)", "p (two-sided)", IMPROVEMENT_COLUMN, "reading")
+def improvement_column(baseline_mode: str = "uniform") -> str:
+    """The column of :meth:`Difference.improvement_text`."""
+    return f"P(adversarial > {baseline_mode}) [95% bootstrap]"
 
 
-def comparison_header(*leading: str) -> list[str]:
-    """A Markdown table's header and rule lines: ``leading`` columns, then :data:`COMPARISON_COLUMNS`."""
-    columns = (*leading, *COMPARISON_COLUMNS)
+IMPROVEMENT_COLUMN = improvement_column()
+
+
+def comparison_header(*leading: str, baseline_mode: str = "uniform") -> list[str]:
+    """A Markdown table's header and rule lines: ``leading`` columns, then those of
+    :meth:`Difference.cells` against ``baseline_mode``."""
+    columns = (*leading, f"adversarial − {baseline_mode}", "95% interval (Welch)", "p (two-sided)",
+               improvement_column(baseline_mode), "reading")
     return [f"| {' | '.join(columns)} |", "|" + "---|" * len(columns)]
 
 
-def mode_differences(run_dirs: list[str]) -> dict[str, list[Difference]]:
+def mode_differences(run_dirs: list[str], baseline_mode: str = "uniform") -> dict[str, list[Difference]]:
     """Per env (and variant, where runs differ in settings: "hopper, k=2") with both
-    adversarial and uniform runs, each adversarial curve against the uniform curve of its
-    other settings (in a sweep of l, every value against the one uniform curve that l does
-    not touch): the paper's comparison (final and AUC min_u a_u), the
+    adversarial and ``baseline_mode`` runs, each adversarial curve against the baseline's curve
+    of its other settings (in a sweep of l, every value against the one baseline curve that l
+    does not touch): the paper's comparison (final and AUC min_u a_u), the
     average case (final mean_u a_u; not for runs with a pool) and the price of robustness
     (final clean return), adversarial − uniform. The paper's point is that the first may
-    differ where the second does not: a weak spot averaged away."""
+    differ where the second does not: a weak spot averaged away. ``baseline_mode="worst"``:
+    the paper's stochastic adversary against the deterministic one it decides against (§3)."""
     curves = curves_of(run_dirs)
     differences = {}
     for (env, mode, variant), adversarial in curves.items():
-        uniform = curves.get((env, "uniform", adversarial[0].baseline_variant))
-        if mode != "adversarial" or not uniform:
+        baseline = curves.get((env, baseline_mode, adversarial[0].baseline_variant))
+        if mode != "adversarial" or not baseline:
             continue
         # Both modes over the records all their runs share, so the AUCs cover the same steps.
-        _, minimum = aligned(adversarial + uniform, "min_score")
-        _, average = aligned(adversarial + uniform, "mean_score")
-        _, clean = aligned(adversarial + uniform, "clean_score")
+        _, minimum = aligned(adversarial + baseline, "min_score")
+        _, average = aligned(adversarial + baseline, "mean_score")
+        _, clean = aligned(adversarial + baseline, "clean_score")
         metrics = [("final min_u a_u", minimum[:, -1]), ("AUC min_u a_u", minimum.mean(axis=1)),
                    ("final mean_u a_u", average[:, -1]), ("final clean return", clean[:, -1])]
         n = len(adversarial)
         differences[f"{env}, {variant}" if variant else env] = [
-            Difference(name, values[:n], values[n:]) for name, values in metrics if not np.isnan(values).any()]
+            Difference(name, values[:n], values[n:], baseline_mode) for name, values in metrics
+            if not np.isnan(values).any()]
     return differences
 
 
 def format_comparison(differences: dict[str, list[Difference]]) -> str:
-    """Markdown: :func:`mode_differences`' adversarial − uniform per env and metric (Welch),
+    """Markdown: :func:`mode_differences`' adversarial − baseline per env and metric (Welch),
     '' without both modes."""
     if not differences:
         return ""
-    lines = comparison_header("env", "metric")
+    lines = comparison_header("env", "metric", baseline_mode=_baseline_mode(differences))
     for env, rows in differences.items():
         for difference in rows:
             lines.append(f"| {env} | {difference.metric} | {difference.cells()} |")
@@ -547,10 +559,11 @@ def seeds_sentence(differences: list[tuple[str, Difference]]) -> str:
     never cross, how likely that order is by chance (:meth:`Difference.chance_of_order`: a
     bootstrap interval of one value reads surer than a few seeds are); '' where there is none."""
     needed = [f"{label}: {seeds}" for label, difference in differences if (seeds := difference.seeds_needed())]
-    ordered = [f"{label}: {p:.3g} ({len(difference.adversarial)} and {len(difference.uniform)} seeds)"
+    ordered = [f"{label}: {p:.3g} ({len(difference.adversarial)} and {len(difference.baseline)} seeds)"
                for label, difference in differences if (p := difference.chance_of_order()) is not None]
-    return ("Seeds per mode that would tell adversarial from uniform apart where these cannot (80% power at the "
-            f"difference and spread seen, two-sided 5% t-test): {'; '.join(needed)}.\n" if needed else "") + (
+    baseline_mode = differences[0][1].baseline_mode if differences else "uniform"
+    return (f"Seeds per mode that would tell adversarial from {baseline_mode} apart where these cannot (80% power "
+            f"at the difference and spread seen, two-sided 5% t-test): {'; '.join(needed)}.\n" if needed else "") + (
         "Where every seed of one mode ends above every seed of the other, the bootstrap interval is that one value "
         "whatever the seeds; how often chance alone orders seeds so (Mann–Whitney's exact two-sided p): "
         f"{'; '.join(ordered)}.\n" if ordered else "")
@@ -562,15 +575,35 @@ def seeds_note(differences: dict[str, list[Difference]]) -> str:
                            for env, rows in differences.items() for difference in rows])
 
 
+def _baseline_mode(differences: dict[str, list[Difference]]) -> str:
+    return next((row.baseline_mode for rows in differences.values() for row in rows), "uniform")
+
+
+# What each baseline of the comparisons asks of the adversarial mode.
+BASELINE_QUESTIONS = {
+    "uniform": "",
+    "worst": " (the paper's stochastic adversary against the deterministic one it decides against \"to avoid training "
+             "instabilities and forgetting\", §3)",
+}
+
+
 def comparison_section(differences: dict[str, list[Difference]]) -> str:
-    """Markdown: the adversarial − uniform table under its heading and, where seeds cannot
+    """Markdown: the adversarial − baseline table under its heading and, where seeds cannot
     tell the modes apart, the seeds per mode that would; '' without both modes."""
     comparison = format_comparison(differences)
     if not comparison:
         return ""
     seeds = seeds_note(differences)
-    return ("Adversarial − uniform, per env (over the records both modes share; seeds independent, "
-            "so Welch's t):\n\n" + comparison + (f"\n{seeds}" if seeds else ""))
+    baseline_mode = _baseline_mode(differences)
+    return (f"Adversarial − {baseline_mode}{BASELINE_QUESTIONS[baseline_mode]}, per env (over the records both modes "
+            "share; seeds independent, so Welch's t):\n\n" + comparison + (f"\n{seeds}" if seeds else ""))
+
+
+def comparison_sections(run_dirs: list[str]) -> str:
+    """Markdown: :func:`comparison_section` against each baseline mode the runs hold
+    (uniform, worst), one after the other; '' where there is none."""
+    sections = [comparison_section(mode_differences(run_dirs, baseline)) for baseline in BASELINE_QUESTIONS]
+    return "\n".join(section for section in sections if section)
 
 
 def trained_on(run_dirs: list[str]) -> str:

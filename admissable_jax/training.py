@@ -25,7 +25,7 @@ episode draws its set from the pool by p_miss, or with probability ``pool_explor
 uniformly random set of all U, so the agent (and the critic that ranks the next search)
 keeps meeting sets outside the pool. Uniform mode draws uniformly from all U. Both are pure functions of
 :class:`TrainState`, so they jit, and vmap over seeds or over (seed, mode) pairs: the mode
-is data (``adversarial``, ``masking``), not code, and so is the adversary's lower bound l
+is data (``adversarial``, ``masking``, ``greedy``), not code, and so is the adversary's lower bound l
 (``lower_bound``), so that one program can sweep it. The trainer reads a frozen
 :class:`~admissable_jax.run_spec.RunSpec`, never the user's config.
 """
@@ -54,15 +54,15 @@ from admissable_jax.scoring import MissingnessScores, beam_search_worst_sets, sc
 class TrainState:
     """Everything a run carries from one iteration to the next, as one pytree: the agent,
     its replay buffer, the envs mid-episode with each one's hidden set u, the adversary's
-    p_miss, and the mode as data (``adversarial``, ``masking``), so one compiled program
-    trains every mode and a vmap over a leading axis trains many (seed, mode) pairs."""
+    p_miss, and the mode as data (``adversarial``, ``masking``, ``greedy``), so one compiled
+    program trains every mode and a vmap over a leading axis trains many (seed, mode) pairs."""
 
     sac: SACState
     buffer: replay.ReplayBuffer
     env_states: EnvState  # batched over num_envs
     set_index: jax.Array  # (num_envs,) each env's current missing set (index into U)
     p_miss: jax.Array  # (P,) over the pool's sets; P = |U| without a pool
-    adversarial: jax.Array  # () bool: update p_miss from the scores
+    adversarial: jax.Array  # () bool: update p_miss from the scores (modes adversarial and worst)
     masking: jax.Array  # () bool: False in mode "none" (nothing hidden in training)
     rng: jax.Array  # raw uint32 key
     env_steps: jax.Array  # () int32, over all envs
@@ -72,6 +72,9 @@ class TrainState:
     # (num_envs,) int32: the env step of each env's episode at which its u fails, drawn from
     # the spec's fail_steps at the episode's start; None where u is hidden from the start (the paper)
     failure_step: jax.Array | None = None
+    # () bool: with adversarial, p_miss all on the worst-scored set (mode "worst"). Last and
+    # False in the other modes, so their states' fingerprints are those of earlier versions.
+    greedy: jax.Array = False
 
 
 class Trainer:
@@ -89,7 +92,7 @@ class Trainer:
 
     # --- construction -------------------------------------------------------------------
     def init(self, seed: jax.Array, mode_adversarial: jax.Array, mode_masking: jax.Array,
-             lower_bound: jax.Array) -> TrainState:
+             lower_bound: jax.Array, mode_greedy: jax.Array = False) -> TrainState:
         """A fresh run. Every argument may be traced: vmap over seeds, modes and lower bounds
         works (:func:`~admissable_jax.host_loop.init_arguments` gives them for a config)."""
         rng = jax.random.PRNGKey(seed)
@@ -117,6 +120,7 @@ class Trainer:
             pool=pool,
             lower_bound=jnp.asarray(lower_bound, jnp.float32),
             failure_step=self._draw_failure_steps(set_rng),
+            greedy=jnp.asarray(mode_greedy, bool),
         )
 
     # --- pieces -------------------------------------------------------------------------
@@ -306,7 +310,7 @@ class Trainer:
             pool = self._search_pool(state, search_rng)
         scores = self._score(state, score_rng, self.scored_sets(pool), self.spec.score_estimator)
         p_miss = update_p_miss(
-            state.p_miss, scores.scores, state.adversarial, state.lower_bound, self.spec.epsilon
+            state.p_miss, scores.scores, state.adversarial, state.greedy, state.lower_bound, self.spec.epsilon
         )
         return self.after_scoring(state, p_miss, pool), scores
 

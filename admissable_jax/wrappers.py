@@ -22,8 +22,8 @@ import gymnasium
 import numpy as np
 from tqdm.auto import tqdm
 
-from admissable_jax.method import MODES, candidate_sets, fail_steps, hidden_from_step, hidden_row, \
-    inverse_score_p_miss, mask_observation, spread_fail_steps
+from admissable_jax.method import DRAWING_MODES, candidate_sets, fail_steps, hidden_from_step, hidden_row, \
+    inverse_score_p_miss, mask_observation, spread_fail_steps, worst_set_p_miss
 
 HiddenChoice = Callable[[np.random.Generator], Iterable[int]]
 
@@ -89,7 +89,8 @@ class AdversarialMissingness(MissingnessObservation):
     ``update(scores)`` takes a_u for every set, in the order of :attr:`candidate_sets`
     (what :func:`score_policy` returns, given the same ``k`` and ``up_to_k``), and sets
     p_miss(u) ∝ 1/(max(a_u, l) − l + ε) in ``mode="adversarial"``; ``"uniform"`` keeps p_miss
-    uniform (the paper's baseline). In a vector env every copy holds its own p_miss:
+    uniform (the paper's baseline); ``"worst"`` puts it all on argmin_u a_u (the deterministic
+    adversary the paper decides against, ties shared). In a vector env every copy holds its own p_miss:
     ``envs.call("update", scores)`` updates them all. ``fail_at`` as in
     :class:`MissingnessObservation`.
     """
@@ -97,8 +98,8 @@ class AdversarialMissingness(MissingnessObservation):
     def __init__(self, env: gymnasium.Env, k: int = 1, mode: str = "adversarial", lower_bound: float = 0.0,
                  epsilon: float = 1e-8, include_empty_set: bool = False, seed: int | None = None,
                  up_to_k: bool = False, fail_at: int | Sequence[int] = 0):
-        if mode not in MODES[:2]:
-            raise ValueError(f"mode must be 'adversarial' or 'uniform', got {mode!r}")
+        if mode not in DRAWING_MODES:
+            raise ValueError(f"mode must be one of {', '.join(DRAWING_MODES)}, got {mode!r}")
         if not np.isfinite(lower_bound):
             raise ValueError(f"lower_bound must be a finite number, got {lower_bound}")
         if not 0 < epsilon < np.inf:
@@ -118,7 +119,8 @@ class AdversarialMissingness(MissingnessObservation):
         return np.flatnonzero(self.candidate_sets[self.set_index]).tolist()
 
     def update(self, scores) -> np.ndarray:
-        """The paper's update from a_u of every candidate set; returns the new p_miss."""
+        """The mode's update from a_u of every candidate set (the paper's, in mode
+        ``adversarial``); returns the new p_miss."""
         scores = np.asarray(scores, np.float64)
         if scores.shape != self.p_miss.shape:
             raise ValueError(f"update needs one score per candidate set ({len(self.p_miss)}), got shape {scores.shape}")
@@ -126,6 +128,8 @@ class AdversarialMissingness(MissingnessObservation):
             raise ValueError("update needs finite scores")
         if self.mode == "adversarial":
             self.p_miss = inverse_score_p_miss(scores, self.lower_bound, self.epsilon)
+        elif self.mode == "worst":
+            self.p_miss = worst_set_p_miss(scores)
         return self.p_miss
 
 

@@ -437,7 +437,7 @@ def test_one_program_sweeps_the_lower_bound_and_each_value_meets_the_one_uniform
     for result, (label, rows) in zip(results, differences.items()):
         assert rows[0].metric == "final min_u a_u"
         np.testing.assert_allclose(rows[0].adversarial, [result.scores[-1]["min_score"]])
-        np.testing.assert_allclose(rows[0].uniform, [uniform_final])
+        np.testing.assert_allclose(rows[0].baseline, [uniform_final])
 
     # Resumed with other values: refused before anything runs, naming the pairs.
     with pytest.raises(ValueError, match="has adversarial-l0-s0, adversarial-l15-s0, uniform-s0, this one "

@@ -144,8 +144,10 @@ def test_p_miss_update_against_hand_computed_values():
 
     uniform = uniform_p_miss(3)
     np.testing.assert_allclose(uniform, [1 / 3] * 3)
-    np.testing.assert_allclose(update_p_miss(uniform, positive, jnp.array(True), 0.0, eps), [4 / 7, 2 / 7, 1 / 7], rtol=1e-6)
-    np.testing.assert_array_equal(update_p_miss(uniform, positive, jnp.array(False), 0.0, eps), uniform)
+    yes, no = jnp.array(True), jnp.array(False)
+    np.testing.assert_allclose(update_p_miss(uniform, positive, yes, no, 0.0, eps), [4 / 7, 2 / 7, 1 / 7], rtol=1e-6)
+    np.testing.assert_array_equal(update_p_miss(uniform, positive, no, no, 0.0, eps), uniform)
+    np.testing.assert_array_equal(update_p_miss(uniform, positive, yes, yes, 0.0, eps), [1.0, 0.0, 0.0])  # mode worst
 
 
 def test_set_draws_follow_p_miss():

@@ -279,27 +279,28 @@ def test_a_sweep_of_l_sets_every_value_against_the_uniform_runs_which_l_does_not
     """Adversarial runs with l = 0, 25 and 100 are three curves, in that order and shaded
     light to dark as l grows (one config.yaml writes 25 as an integer: still a seed of l = 25);
     uniform runs never read l, so two saved with other l are seeds of one curve, the baseline
-    of all three comparisons."""
+    of all three comparisons; so are two of mode worst, whose p_miss is the argmin's."""
     root = tmp_path / "runs"
     for bound in (0.0, 25.0, 100.0):
         for seed in range(2):
             _fake_run(str(root / f"l{bound:g}"), "adversarial", seed, lower_bound=bound)
     for seed, bound in ((0, 0.0), (1, 50.0)):
         _fake_run(str(root / f"u{seed}"), "uniform", seed, lower_bound=bound)
+        _fake_run(str(root / f"w{seed}"), "worst", seed, lower_bound=bound)
     written_by_hand = root / "l25" / "adversarial-s1" / "config.yaml"  # l as an integer: the same l
     written_by_hand.write_text(written_by_hand.read_text().replace("lower_bound: 25.0", "lower_bound: 25"))
     assert main([str(root), f"out={tmp_path / 'figures'}", "formats=png"]) == 0
     summary = (tmp_path / "figures" / "summary.md").read_text()
-    assert [line.split(" | ")[1:3] for line in summary.splitlines() if line.startswith("| hopper | ")][:4] == [
+    assert [line.split(" | ")[1:3] for line in summary.splitlines() if line.startswith("| hopper | ")][:5] == [
         ["adversarial, lower_bound=0", "2"], ["adversarial, lower_bound=25", "2"],
-        ["adversarial, lower_bound=100", "2"], ["uniform", "2"]]
+        ["adversarial, lower_bound=100", "2"], ["uniform", "2"], ["worst", "2"]]
     assert ("the uniform and none runs never read lower_bound, so each adversarial curve is compared with the "
             "uniform curve of its other settings") in summary
     differences = mode_differences(find_runs([str(root)]))
     assert list(differences) == [f"hopper, lower_bound={bound}" for bound in ("0", "25", "100")]
     uniform = [load_run(str(root / f"u{seed}" / f"uniform-s{seed}")).min_score[-1] for seed in range(2)]
     for rows in differences.values():
-        np.testing.assert_allclose(rows[0].uniform, uniform)
+        np.testing.assert_allclose(rows[0].baseline, uniform)
     colors = curve_colors([("adversarial", f"lower_bound={bound}") for bound in ("100", "0", "25")]
                           + [("uniform", "")])
     lightness = [sum(to_rgb(colors["adversarial", f"lower_bound={bound}"])) for bound in ("0", "25", "100")]
@@ -359,6 +360,7 @@ def test_adversarial_minus_uniform_is_welchs_t(tmp_path):
     tight_high, tight_low = np.array([100.0, 101.0, 102.0]), np.array([10.0, 11.0, 12.0])
     assert Difference("x", tight_high, tight_low).reading() == "adversarial higher"
     assert Difference("x", tight_low, tight_high).reading() == "uniform higher"
+    assert Difference("x", tight_low, tight_high, baseline_mode="worst").reading() == "worst higher"
     assert Difference("x", np.array([5.0]), tight_low).interval() is None
     # P(adversarial > uniform), ties half: both adversarial seeds above both uniform ones: 1, in
     # every bootstrap resample too. [2, 3] against [2, 1]: a tie (1/2) and 3 wins of 4 pairs,
@@ -398,10 +400,18 @@ def test_adversarial_minus_uniform_is_welchs_t(tmp_path):
     assert rows[0][3:] == ["[-80.9, 162.9]", "0.149", "1.00 [1.00, 1.00]", "not distinguishable (95% interval holds 0)"]
     assert rows[2][3:6] == ["[-180.9, 62.9]", "0.104", "0.00 [0.00, 0.00]"]
     assert format_comparison(mode_differences(paths[:2])) == ""  # one mode: nothing to compare
-    # The CLI's summary.md carries it under the per-mode table.
+    # The CLI's summary.md carries it under the per-mode table; where mode worst ran too (here
+    # as the uniform seeds did), adversarial − worst follows, the paper's stochastic adversary
+    # against its deterministic one.
+    _run_with_minimums(str(tmp_path), "worst", 0, [5, 6, 7, 8], 90, spread=30)
+    _run_with_minimums(str(tmp_path), "worst", 1, [5, 6, 9, 10], 94, spread=30)
     assert main([str(tmp_path), f"out={tmp_path / 'figures'}", "formats=png"]) == 0
     summary = (tmp_path / "figures" / "summary.md").read_text()
-    assert "| hopper | final min_u a_u | +41.0 | [-80.9, 162.9] | 0.149 | 1.00 [1.00, 1.00] |" in summary
+    against_uniform, _, against_worst = summary.partition("Adversarial − worst (the paper's stochastic adversary")
+    for section in (against_uniform, against_worst):
+        assert "| hopper | final min_u a_u | +41.0 | [-80.9, 162.9] | 0.149 | 1.00 [1.00, 1.00] |" in section
+    assert "| adversarial − worst | 95% interval (Welch) | p (two-sided) | P(adversarial > worst) " in against_worst
+    assert "Seeds per mode that would tell adversarial from worst apart where these cannot" in against_worst
     assert "| env | metric | adversarial − uniform | 95% interval (Welch) | p (two-sided) | P(adversarial > uniform) " \
            "[95% bootstrap] | reading |\n|---|---|---|---|---|---|---|" in summary
     # None of the four told apart: the seeds per mode that would be (80% power at the difference

@@ -189,7 +189,8 @@ def test_unwritable_out_is_one_line(out, message, subprocess_run):
 def test_cli_edge_cases_are_one_line(tmp_path):
     empty_modes = _cli("admissable_jax.experiment", "env=point_mass", "modes=", f"out={tmp_path}/e", "progress=false")
     assert empty_modes.returncode == 2
-    assert empty_modes.stderr.strip() == "error: modes must be a comma-separated list of adversarial, uniform, none, got ''"
+    assert empty_modes.stderr.strip() == ("error: modes must be a comma-separated list of adversarial, uniform, none, "
+                                          "worst, got ''")
     # Values are read as YAML: one it cannot read is named (not YAML's traceback), with the
     # quoting that passes it as text; blanks after "=" are the empty string, as "key=" is.
     for module, item, message in [

@@ -37,8 +37,9 @@ from admissable_jax.checkpointing import CheckpointError, Checkpoints, OtherStat
 from admissable_jax.envs import observation_names
 from admissable_jax.export import main as export_main
 from admissable_jax.exported_policy import ExportedPolicy
-from admissable_jax.host_loop import TrainingDiverged, TrainingLoop
-from admissable_jax.method import inverse_score_p_miss
+from admissable_jax.host_loop import TrainingDiverged, TrainingLoop, stacked_init_arguments
+from admissable_jax.fingerprints import tree_fingerprint
+from admissable_jax.method import inverse_score_p_miss, worst_set_p_miss
 from admissable_jax.policies import load_policy
 from admissable_jax.run_directory import metrics_row, recorded_observation_names, same_policy_record
 from admissable_jax.run_spec import RunSpec
@@ -705,8 +706,6 @@ def test_checkpoint_resume_continues_exactly(tmp_path, capsys):
 def test_a_state_fingerprint_sees_every_bit_and_where_it_is():
     """The fingerprint a fast-forward checks: equal for equal bits (whatever order a device
     sums in), different for one flipped bit, two values swapped, or a leaf's change of kind."""
-    from admissable_jax.fingerprints import tree_fingerprint
-
     values = jax.random.normal(jax.random.key(0), (1000, 7))
     tree = {"params": values, "steps": jnp.int32(12), "done": jnp.zeros(5, bool), "key": jax.random.PRNGKey(3)}
     fingerprint = jax.jit(tree_fingerprint)
@@ -1011,14 +1010,15 @@ def test_train_step_vmaps_over_seeds_and_modes():
     second pair starts 64 env steps on, so for 16 iterations one pair learns and the other
     does not; and the vmapped program still branches on learning_starts (branching.lazy_cond)
     rather than computing every update for every pair. The third is the first with another
-    lower bound l: the same scores, and p_miss by its own l (one program sweeps l)."""
+    lower bound l: the same scores, and p_miss by its own l (one program sweeps l). The fourth
+    is the first in mode worst: the same scores, and p_miss all on their argmin."""
     env = make_env("point_mass", episode_length=20)
     config = dataclasses.replace(POINT_MASS, learning_starts=64, batch_size=32, episode_length=20, score_envs=3,
                                  score_episodes=2, hidden_size=32).resolved()
     trainer = Trainer(env, RunSpec.of(config))
 
-    def run(seed, adversarial, head_start, lower_bound):
-        state = trainer.init(seed, adversarial, True, lower_bound)
+    def run(head_start, *init_arguments):
+        state = trainer.init(*init_arguments)
         state, _ = trainer.run_chunk(state.replace(env_steps=state.env_steps + head_start), 40)
         state, scores = trainer.score_and_update(state)
         return state, scores.scores
@@ -1030,11 +1030,14 @@ def test_train_step_vmaps_over_seeds_and_modes():
                 for program, shapes in ((chunk, state_shapes), (jax.vmap(chunk), pair_shapes))]
     assert branches == [1, 1]  # learning_starts' branch, one run or two pairs
 
-    pairs = (jnp.array([0, 1, 0]), jnp.array([True, False, True]), jnp.array([0, 64, 0]), jnp.array([0.0, 0.0, 9.0]))
+    pairs = (jnp.array([0, 64, 0, 0]), *stacked_init_arguments([
+        dataclasses.replace(config, seed=seed, missingness=mode, lower_bound=lower_bound)
+        for seed, mode, lower_bound in ((0, "adversarial", 0.0), (1, "uniform", 0.0), (0, "adversarial", 9.0),
+                                        (0, "worst", 0.0))]))
     batched, unbatched = jax.jit(jax.vmap(run)), jax.jit(run)
     batched_state, batched_scores = batched(*pairs)
-    for pair, (seed, adversarial, head_start, lower_bound) in enumerate(zip(*pairs)):
-        state, scores = unbatched(seed, adversarial, head_start, lower_bound)
+    for pair, arguments in enumerate(zip(*pairs)):
+        state, scores = unbatched(*arguments)
         np.testing.assert_allclose(batched_scores[pair], scores, rtol=1e-4, atol=1e-4)
         np.testing.assert_allclose(
             batched_state.sac.actor_params["params"]["Dense_0"]["kernel"][pair],
@@ -1050,3 +1053,10 @@ def test_train_step_vmaps_over_seeds_and_modes():
         np.testing.assert_allclose(batched_state.p_miss[pair],
                                    inverse_score_p_miss(batched_scores[pair], lower_bound, config.epsilon), rtol=1e-5)
     assert not np.allclose(batched_state.p_miss[2], batched_state.p_miss[0], rtol=1e-3)
+    # Mode worst: every episode hides argmin_u a_u, the deterministic adversary (§3).
+    np.testing.assert_array_equal(batched_scores[3], batched_scores[0])
+    np.testing.assert_array_equal(batched_state.p_miss[3], np.eye(4)[int(np.argmin(batched_scores[3]))])
+    np.testing.assert_array_equal(worst_set_p_miss(np.array([3.0, 1.0, 2.0, 1.0])), [0.0, 0.5, 0.0, 0.5])  # ties share
+    # A state of another mode fingerprints as one without the flag (an earlier version's records).
+    first = jax.tree.map(lambda leaf: leaf[0], batched_state)
+    assert int(tree_fingerprint(first)) == int(tree_fingerprint(first.replace(greedy=None)))

@@ -159,7 +159,11 @@ def test_adversary_draws_from_the_papers_p_miss_and_updates_in_vector_envs():
     np.testing.assert_allclose(clipped, [0.0, 0.5, 0.5], atol=1e-6)
     uniform = AdversarialMissingness(ConstantFeatures(), mode="uniform")
     np.testing.assert_allclose(uniform.update([25.0, 20.0, 15.0]), 1 / 3)
-    with pytest.raises(ValueError, match="^mode must be 'adversarial' or 'uniform', got 'Adversarial'$"):
+    worst = AdversarialMissingness(ConstantFeatures(), mode="worst", seed=0)  # the deterministic adversary
+    np.testing.assert_array_equal(worst.update([25.0, 20.0, 15.0]), [0.0, 0.0, 1.0])
+    assert {tuple(info["hidden"]) for info in (worst.reset()[1] for _ in range(20))} == {(2,)}
+    np.testing.assert_array_equal(worst.update([15.0, 20.0, 15.0]), [0.5, 0.0, 0.5])  # ties share
+    with pytest.raises(ValueError, match="^mode must be one of adversarial, uniform, worst, got 'Adversarial'$"):
         AdversarialMissingness(ConstantFeatures(), mode="Adversarial")  # would have trained as uniform
     with pytest.raises(ValueError, match="one score per candidate set"):
         env.update([1.0, 2.0])
