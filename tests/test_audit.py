@@ -309,6 +309,16 @@ def test_gaps_to_the_worst_paired_and_by_welch(tmp_path):
     pairs = [dataclasses.replace(result, n_episodes=n, source={"mode": mode, "seed": 0, "checkpoint (env step)": 0})
              for n, mode in ((4, "adversarial"), (6, "uniform"))]
     assert "(N = 4–6 episodes per set, each audit's chosen by its pilot (`tell_apart`), `rollout`)" in compare_modes(pairs)
+    # With mode worst audited too, adversarial − worst follows adversarial − uniform, under a line of its own.
+    # (The worst pair's sets score 5 below the others': adversarial − worst is +5, − uniform 0.)
+    lower = {1: [dataclasses.replace(entry, score=entry.score - 5) for entry in pairs[1].sets[1]]}
+    worst_pair = dataclasses.replace(pairs[1], sets=lower, source={**pairs[1].source, "mode": "worst"})
+    against_uniform, _, against_worst = compare_modes([*pairs, worst_pair]).partition(
+        "Adversarial − worst (the paper's stochastic adversary against the deterministic one")
+    assert "| k | measure | adversarial − uniform |" in against_uniform and "adversarial − worst" not in against_uniform
+    assert "| 1 | worst a_u | +0.0 |" in against_uniform and "| 1 | mean a_u | +0.0 |" in against_uniform
+    assert "| k | measure | adversarial − worst |" in against_worst
+    assert "| 1 | worst a_u | +5.0 |" in against_worst and "| 1 | mean a_u | +5.0 |" in against_worst
     # Pairs trained with sensors failing mid-episode, and scored so in training: both comparisons say so.
     from admissable_jax.audit.report import compare_modes_by_failure_time, training_failure_source
 

@@ -15,7 +15,8 @@ import numpy as np
 
 from admissable_jax.audit.sets import AuditResult, drop_below_clean
 from admissable_jax.config import curve_mode, curve_names
-from admissable_jax.results import Difference, comparison_header, estimate, mean_and_interval, seeds_sentence
+from admissable_jax.results import BASELINE_QUESTIONS, Difference, comparison_header, estimate, mean_and_interval, \
+    seeds_sentence
 from admissable_jax.scoring.attribution import ShapleyAttribution
 
 # What an audited run's source says of its training with sensors failing mid-episode, per
@@ -459,14 +460,15 @@ def _single_features_by_time(ax, results: list[AuditResult], times: list[int]) -
     ax.set_title("which sensor hurts when: $a_u$ of each feature hidden alone", fontsize=10)
 
 
-def _baselines(results: list[AuditResult]) -> dict[str, str]:
-    """Each adversarial curve's uniform curve, where that was audited too: an experiment's
-    ``uniform`` (every value of a sweep of l against it), or, for several runs, the uniform
-    curve of the same other settings that their source names (``baseline``: as ``plot`` pairs
-    them, :attr:`~admissable_jax.results.Run.baseline_variant`)."""
+def _baselines(results: list[AuditResult], baseline_mode: str = "uniform") -> dict[str, str]:
+    """Each adversarial curve's uniform (or ``baseline_mode``'s) curve, where that was audited
+    too: an experiment's ``uniform`` (every value of a sweep of l against it), or, for several
+    runs, the uniform curve of the same other settings that their source names (``baseline``:
+    as ``plot`` pairs them, :attr:`~admissable_jax.results.Run.baseline_variant`), and the
+    ``baseline_mode`` curve of those settings."""
     curves = pair_curves(results)
-    pairs = {curve: result.source.get("baseline", "uniform") for result, curve in zip(results, curves)
-             if curve_mode(curve) == "adversarial"}
+    pairs = {curve: baseline_mode + result.source.get("baseline", "uniform").removeprefix("uniform")
+             for result, curve in zip(results, curves) if curve_mode(curve) == "adversarial"}
     return {curve: baseline for curve, baseline in pairs.items() if baseline in curves}
 
 
@@ -551,8 +553,8 @@ def _audited_together(results: list[AuditResult]) -> str:
 def compare_modes(results: list[AuditResult]) -> str:
     """Markdown: per k and mode, the pairs' worst a_u, their mean a_u over the sets (the
     average case; not for a searched k) and clean return (mean ± 95% t-interval over seeds)
-    and the set most often worst; then adversarial − uniform per k on the worst and the mean
-    (Welch's t: the seeds of one mode are independent of the other's), with the seeds per mode
+    and the set most often worst; then adversarial − uniform (and − worst, where audited) per k
+    on the worst and the mean (Welch's t: the seeds of one mode are independent of the other's), with the seeds per mode
     that would tell apart what these cannot (:func:`~admissable_jax.results.seeds_sentence`); where every pair
     was audited with ``shapley=``, each feature's Shapley value per mode."""
     by_mode: dict[str, list[AuditResult]] = {}
@@ -577,23 +579,34 @@ def compare_modes(results: list[AuditResult]) -> str:
             lines.append(f"| {k} | {mode} | {len(group)} | {estimate(measures['worst a_u'][mode][k])} | "
                          f"{'—' if np.isnan(average).any() else estimate(average)} | {common} "
                          f"({names.count(common)} of {len(group)}) | {estimate(clean)} |")
-    baselines = _baselines(results)  # several adversarial curves in a sweep of l, or of runs' settings
-    if baselines:
-        lines += ["", *comparison_header("k", "measure")]
-        swept = lambda curve: f" ({curve})" if curve != "adversarial" else ""
-        compared = [(k, name + swept(curve), Difference(f"k={k} {name}{swept(curve)}", per_mode[curve][k],
-                                                        per_mode[baseline][k]))
-                    for curve, baseline in baselines.items() for k in first.sets for name, per_mode in measures.items()
-                    if not np.isnan(per_mode[curve][k]).any()]
-        lines += [f"| {k} | {name} | {difference.cells()} |" for k, name, difference in compared]
-        sentence = seeds_sentence([(difference.metric, difference) for _, _, difference in compared])
-        if sentence:
-            lines += ["", sentence.rstrip()]
+    for baseline_mode, question in BASELINE_QUESTIONS.items():
+        lines += _mode_comparison(first, measures, _baselines(results, baseline_mode), baseline_mode, question)
     if all(result.shapley is not None for result in results):
         lines += _shapley_by_mode(by_mode, first.feature_names)
     if all(result.dropout is not None for result in results):
-        lines += _dropout_by_mode(by_mode, baselines)
+        lines += _dropout_by_mode(by_mode, _baselines(results))
     return "\n".join(lines) + "\n"
+
+
+def _mode_comparison(first: AuditResult, measures: dict[str, dict[str, dict[int, np.ndarray]]],
+                     baselines: dict[str, str], baseline_mode: str, question: str) -> list[str]:
+    """compare_modes' lines of adversarial − ``baseline_mode`` per k on each of ``measures``
+    (Welch's t), each adversarial curve against its curve of that mode in ``baselines`` (several
+    in a sweep of l, or of runs' settings), and the seeds that would tell apart what these
+    cannot; none without such a pair. Against uniform under the table above; against another
+    mode under a line of its own, saying what the comparison asks (``question``)."""
+    if not baselines:
+        return []
+    swept = lambda curve: f" ({curve})" if curve != "adversarial" else ""
+    compared = [(k, name + swept(curve), Difference(f"k={k} {name}{swept(curve)}", per_mode[curve][k],
+                                                    per_mode[baseline][k], baseline_mode))
+                for curve, baseline in baselines.items() for k in first.sets for name, per_mode in measures.items()
+                if not np.isnan(per_mode[curve][k]).any()]
+    heading = [] if baseline_mode == "uniform" else ["", f"Adversarial − {baseline_mode}{question}:"]
+    lines = [*heading, "", *comparison_header("k", "measure", baseline_mode=baseline_mode)]
+    lines += [f"| {k} | {name} | {difference.cells()} |" for k, name, difference in compared]
+    sentence = seeds_sentence([(difference.metric, difference) for _, _, difference in compared])
+    return lines + (["", sentence.rstrip()] if sentence else [])
 
 
 def compare_modes_by_failure_time(by_time: dict[int, list[AuditResult]]) -> str:
