@@ -16,7 +16,8 @@ at the end (``summary_table``); where runs hold an audit of their final policy
 return per mode beside the training's own final estimate, and adversarial − uniform on it
 (in the verdict and the top table too);
 adversarial − uniform on each with Welch's 95% interval and p-value, and the probability
-that a seed of adversarial training ends above one of uniform (``format_comparison``);
+that a seed of adversarial training ends above one of uniform (``format_comparison``), and
+where mode ``worst`` ran, adversarial − worst the same way;
 the verdict those numbers give, in words; mode ``none``'s clean return against the SB3
 RL-Zoo SAC at 1M env steps; what the runs cost, from their ``metrics.jsonl`` (seconds per
 training chunk and per scoring round), with a 1M-step run projected from it where they
@@ -45,7 +46,8 @@ from admissable_jax.errors import INTERRUPTED, UnusableDirectory, remove_if_unus
 from admissable_jax.method import set_sizes
 from admissable_jax.plot import check_formats, new_folder, plot_envs_side_by_side, plot_runs
 from admissable_jax.results import (
-    IMPROVEMENT_COLUMN, Difference, Run, comparison_header, differing_settings, estimate, find_runs, format_comparison,
+    BASELINE_QUESTIONS, IMPROVEMENT_COLUMN, Difference, Run, comparison_header, differing_settings, estimate, find_runs,
+    format_comparison,
     load_run, mean_and_interval, mode_differences, summary_table, trained_on, write_tables,
 )
 from admissable_jax.run_directory import load_config_yaml
@@ -88,13 +90,15 @@ def _settings(run_dirs: list[str]) -> str:
 
 def _verdict(difference: Difference) -> str:
     """One sentence: the difference, its interval and p, and what they say."""
+    baseline = difference.baseline_mode
     interval = difference.interval()
     if interval is None:
-        return f"{difference.metric}: adversarial − uniform = {difference.mean:+.1f} (one seed in a mode: no test)."
+        return (f"{difference.metric}: adversarial − {baseline} = {difference.mean:+.1f} (one seed in a mode: no "
+                "test).")
     low, high, p = interval
-    improvement = f", P(adversarial > uniform) = {difference.improvement_text()}"
+    improvement = f", P(adversarial > {baseline}) = {difference.improvement_text()}"
     words = {"adversarial higher": "adversarial training is higher, and 0 lies outside the 95% interval",
-             "uniform higher": "uniform training is higher, and 0 lies outside the 95% interval",
+             f"{baseline} higher": f"{baseline} training is higher, and 0 lies outside the 95% interval",
              }.get(difference.reading(), "the seeds cannot tell the modes apart (the 95% interval holds 0)")
     seeds = difference.seeds_needed()
     if seeds:
@@ -103,7 +107,7 @@ def _verdict(difference: Difference) -> str:
     if chance is not None:
         words += (f"; every seed of one mode ends above every seed of the other, an order chance alone gives with "
                   f"p = {chance:.3g} (Mann–Whitney, exact; the bootstrap interval cannot widen past one value then)")
-    return (f"{difference.metric}: adversarial − uniform = {difference.mean:+.1f} [{low:.1f}, {high:.1f}], "
+    return (f"{difference.metric}: adversarial − {baseline} = {difference.mean:+.1f} [{low:.1f}, {high:.1f}], "
             f"p = {p:.3g}{improvement}: {words}.")
 
 
@@ -249,8 +253,8 @@ def env_section(env: str, folder: str, window: int, out_file: str, formats: tupl
     plot_runs(run_dirs, figures, window, formats, per_seed)
     curves_csv, scores_csv = (os.path.relpath(path, os.path.dirname(os.path.abspath(out_file)))
                               for path in write_tables(run_dirs, figures))
-    compared = mode_differences(run_dirs)
-    differences = compared.get(env, [])
+    compared, against_worst = mode_differences(run_dirs), mode_differences(run_dirs, "worst")
+    differences, worst_differences = compared.get(env, []), against_worst.get(env, [])
     audited_differences = [] if audited_difference is None else [audited_difference]
     partial = "" if steps >= PAPER_STEPS else ", not the paper's 1M"
     figure, by_time = (os.path.relpath(os.path.join(figures, name), os.path.dirname(os.path.abspath(out_file)))
@@ -260,8 +264,10 @@ def env_section(env: str, folder: str, window: int, out_file: str, formats: tupl
         f"Runs: `{folder}` ({len(run_dirs)} runs, {steps:,} env steps each{partial}). "
         f"Settings: {_settings(run_dirs)}.", "",
         summary_table(run_dirs), format_comparison(compared) or "Not both adversarial and uniform runs: no comparison.\n",
+        *([f"Adversarial − worst{BASELINE_QUESTIONS['worst']}:", "", format_comparison(against_worst)]
+          if worst_differences else []),
         "**Verdict (computed):**", "",
-        *(f"- {_verdict(difference)}" for difference in differences + audited_differences),
+        *(f"- {_verdict(difference)}" for difference in differences + audited_differences + worst_differences),
         f"- {_clean_sac_line(env, runs)}", "",
         *audited,
         _cost_line(run_dirs), "",

@@ -53,6 +53,8 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys, 
     _run_with_minimums(str(root), "uniform", 1, [5, 6, 9, 10], 94)
     _run_with_minimums(str(root), "none", 0, [1, 2, 3, 4], 500, score_every=250_000)
     _run_with_minimums(str(root), "none", 1, [1, 2, 3, 4], 600, score_every=250_000)
+    _run_with_minimums(str(root), "worst", 0, [5, 6, 7, 8], 90)  # mode worst, as uniform did: against it +41.0 too
+    _run_with_minimums(str(root), "worst", 1, [5, 6, 9, 10], 94)
     # The program's times, in each run's metrics: chunks of 5,000 env steps at 2,500 env steps/s
     # (2 s each), scoring rounds of 1-4 s: 18 s in all; 196 scorings left to 1M at 2 + 2.5 s.
     # Every run timed every interval, so the wall-time figure is drawn and shown.
@@ -98,8 +100,12 @@ def test_figure1_computes_the_verdict_and_the_clean_sac_check(tmp_path, capsys, 
             "with p = 0.333 (Mann–Whitney, exact; the bootstrap interval cannot widen past one value then).") in text
     assert ("Clean SAC (mode `none`, 2 seeds): final clean return 550.0 [-85.3, 1185.3] against the SB3 RL-Zoo "
             "SAC at 1M, 2,326 ± 1,130 (v3 envs): clearly below SB3's (our 95% interval lies under its mean − 1 sd).") in text
-    assert "(6 runs, 20,000 env steps each, not the paper's 1M)" in text
-    assert ("**The final policies, audited afresh** (4 of 6 runs, `<run>/audit-final/`: Gymnasium's own C-MuJoCo env, "
+    assert "(8 runs, 20,000 env steps each, not the paper's 1M)" in text
+    assert ("Adversarial − worst (the paper's stochastic adversary against the deterministic one it decides against "
+            "\"to avoid training instabilities and forgetting\", §3):\n\n| env | metric | adversarial − worst |"
+            ) in text
+    assert "- final min_u a_u: adversarial − worst = +41.0 [-80.9, 162.9], p = 0.149, P(adversarial > worst)" in text
+    assert ("**The final policies, audited afresh** (4 of 8 runs, `<run>/audit-final/`: Gymnasium's own C-MuJoCo env, "
             "new start states, 50 episodes per set, against the training's last scoring of 10;") in text
     assert "| adversarial | 2 | 60.0 ± 127.1 | 50.0 ± 127.1 | 1050.0 ± 635.3 |" in text
     assert "| uniform | 2 | 11.0 ± 12.7 | 9.0 ± 12.7 | 900.0 ± 0.0 |" in text and "\n| none |" not in text
@@ -217,6 +223,10 @@ def test_figure1_words_each_reading_the_clean_check_above_sb3_and_the_late_round
     lower = figure1._verdict(Difference("AUC min_u a_u", np.array([10.0, 12.0]), np.array([200.0, 210.0])))
     assert lower.startswith("AUC min_u a_u: adversarial − uniform = -194.0 [")
     assert lower.endswith(": uniform training is higher, and 0 lies outside the 95% interval" + separated)
+    worst_higher = figure1._verdict(
+        Difference("final min_u a_u", np.array([10.0, 12.0]), np.array([200.0, 210.0]), baseline_mode="worst"))
+    assert worst_higher.startswith("final min_u a_u: adversarial − worst = -194.0 [")
+    assert worst_higher.endswith(": worst training is higher, and 0 lies outside the 95% interval" + separated)
     assert figure1._verdict(Difference("final min_u a_u", np.array([40.0]), np.array([8.0, 10.0]))) == (
         "final min_u a_u: adversarial − uniform = +31.0 (one seed in a mode: no test).")
 
