@@ -433,8 +433,8 @@ class Difference:
     def probability_of_improvement(self, confidence: float = 0.95,
                                    resamples: int = 10_000) -> tuple[float, float, float] | None:
         """(P, low, high): P(adversarial > uniform), the chance that a seed of adversarial
-        training ends above one of the baseline's (uniform training's), ties counted half (the Mann–Whitney
-        statistic over every pair of seeds; the probability of improvement of Agarwal et al.,
+        training ends above one of the baseline's (uniform training's), ties counted half (the
+        Mann–Whitney statistic over every pair of seeds; the probability of improvement of Agarwal et al.,
         2021, *Deep RL at the Edge of the Statistical Precipice*), with a percentile-bootstrap
         interval that resamples each mode's seeds apart (a fixed seed: the same file twice).
         A rank measure: it needs none of the normal spread Welch's t assumes, which a few

@@ -554,9 +554,10 @@ def compare_modes(results: list[AuditResult]) -> str:
     """Markdown: per k and mode, the pairs' worst a_u, their mean a_u over the sets (the
     average case; not for a searched k) and clean return (mean ± 95% t-interval over seeds)
     and the set most often worst; then adversarial − uniform (and − worst, where audited) per k
-    on the worst and the mean (Welch's t: the seeds of one mode are independent of the other's), with the seeds per mode
-    that would tell apart what these cannot (:func:`~admissable_jax.results.seeds_sentence`); where every pair
-    was audited with ``shapley=``, each feature's Shapley value per mode."""
+    on the worst and the mean (Welch's t: the seeds of one mode are independent of the
+    other's), with the seeds per mode that would tell apart what these cannot
+    (:func:`~admissable_jax.results.seeds_sentence`); where every pair was audited with
+    ``shapley=``, each feature's Shapley value per mode."""
     by_mode: dict[str, list[AuditResult]] = {}
     for result, curve in zip(results, pair_curves(results)):
         by_mode.setdefault(curve, []).append(result)
