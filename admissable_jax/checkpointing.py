@@ -4,7 +4,9 @@ A checkpoint holds the :class:`~admissable_jax.training.TrainState` pytree: netw
 parameters, optimizer states, p_miss, step counters, the RNG, the env states and the
 replay buffer, so a resumed run continues exactly where the saved one stood. Orbax cannot
 write zero-size arrays (``mjx.Data`` has several), so those leaves are left out and taken
-from the run's own freshly built state on restore.
+from the run's own freshly built state on restore. A checkpoint written before a mode's flag
+was appended to the state (``greedy``, mode ``worst``'s, 2026-12-08) lacks only that last
+bool leaf: it restores with the flag False, as every run of that version had it.
 """
 
 from __future__ import annotations
@@ -125,7 +127,8 @@ class Checkpoints:
     def _restore(self, like, step: int, resizable_leading_axis: bool = False, part: Callable[[Any], Any] | None = None):
         leaves, treedef = jax.tree.flatten(like)
         wanted = {id(leaf) for leaf in jax.tree.leaves(part(like))} if part else {id(leaf) for leaf in leaves}
-        abstract = {key: _placed_shape(leaf) for key, leaf in _non_empty_leaves(like).items()}
+        abstract = self._without_flags_added_since(step, {key: _placed_shape(leaf)
+                                                          for key, leaf in _non_empty_leaves(like).items()})
         try:
             resize = resizable_leading_axis and self._differs_in_leading_axis_only(abstract, step)
             if part:
@@ -159,6 +162,22 @@ class Checkpoints:
                                                               partial_restore=True))
         finally:
             reader.close()
+
+    def _without_flags_added_since(self, step: int, abstract: dict) -> dict:
+        """``abstract`` less the bool leaves that checkpoint ``step`` lacks where they all come
+        after every leaf it holds: flags appended to the state since it was written, which
+        restore as False (zeros), the only value that version knew. Any other difference
+        stays, for the restore to refuse (:meth:`_check_layout`)."""
+        try:
+            saved = set(self._manager.item_metadata(step))
+        except Exception:  # unreadable metadata: the restore itself says what is wrong
+            return abstract
+        missing = set(abstract) - saved
+        appended_flags = (saved and saved < set(abstract) and min(map(int, missing)) > max(map(int, saved))
+                          and all(abstract[key].dtype == bool for key in missing))
+        if not appended_flags:
+            return abstract
+        return {key: shape for key, shape in abstract.items() if key not in missing}
 
     def _check_layout(self, step: int, abstract: dict) -> None:
         """OtherStateLayout where checkpoint ``step`` holds another number of arrays than

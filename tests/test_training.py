@@ -747,7 +747,8 @@ def test_corrupt_checkpoint_and_divergence_keep_finished_work(tmp_path):
 
 def test_a_checkpoint_of_an_older_state_layout_is_named_and_its_networks_still_read(tmp_path):
     """A checkpoint written before TrainState gained a field (as ``lower_bound``) cannot be
-    resumed; the error says why, in one line, and offers no older checkpoint (all are alike)."""
+    resumed; the error says why, in one line, and offers no older checkpoint (all are alike).
+    One that lacks only a bool flag appended last restores with it False."""
     checkpoints = Checkpoints(str(tmp_path / "checkpoints"))
     written = {"sac": jnp.arange(3.0), "pool": jnp.zeros(2, jnp.int32)}
     checkpoints.save(1000, written)
@@ -760,6 +761,14 @@ def test_a_checkpoint_of_an_older_state_layout_is_named_and_its_networks_still_r
     step, sac = checkpoints.read(now, part=lambda state: state["sac"])
     assert step == 2000
     np.testing.assert_array_equal(sac, written["sac"])
+    # A mode's flag appended since (mode worst's greedy, per pair of an experiment): restored as
+    # False, the only value the older version knew; a flag anywhere else still changes the layout.
+    flagged = {**written, "z_flag": jnp.ones(2, bool)}
+    step, restored = checkpoints.read(flagged)
+    assert step == 2000 and not restored["z_flag"].any() and restored["z_flag"].shape == (2,)
+    np.testing.assert_array_equal(restored["sac"], written["sac"])
+    with pytest.raises(OtherStateLayout):
+        checkpoints.restore({**written, "a_flag": jnp.ones(2, bool)})  # first in key order
     checkpoints.close()
 
 
