@@ -455,7 +455,28 @@ def report(message: str) -> None:
     tqdm.write(message, file=sys.stderr)
 
 
-class LogLines(tqdm):
+class PacedProgress:
+    """A bar (tqdm's, or :class:`LogLines`) whose rate, and so the time it says is left, is
+    the ``pace`` its owner sets (units per second; 0: not known yet, shown as '?'), where the
+    mean since the command began misleads: a training run's random-action warm-up runs far
+    faster than SAC's intervals, and its first scoring rounds, of short episodes, are shorter
+    than its later ones. Unset (None), tqdm's own mean."""
+
+    pace: float | None = None
+
+    @property
+    def format_dict(self) -> dict[str, Any]:
+        values = super().format_dict
+        if self.pace is not None:
+            values["rate"] = self.pace
+        return values
+
+
+class PacedBar(PacedProgress, tqdm):
+    """tqdm's bar (on a terminal, or a notebook's widget) with :class:`PacedProgress`'s rate."""
+
+
+class LogLines(PacedProgress, tqdm):
     """Progress where stderr is no terminal (a batch job's log file, a pipe): not a bar
     redrawn in place, whose carriage returns would make a long run's log one line of
     megabytes, but a line of its own each time the scores are set (training: every scoring)
@@ -507,11 +528,12 @@ class LogLines(tqdm):
             self.lined_at, self.lined_n = time.monotonic(), self.n
 
 
-def progress_bar(what: str, every: float = 0.0, **kwargs) -> tqdm:
+def progress_bar(what: str, every: float = 0.0, **kwargs) -> PacedBar | LogLines:
     """A bar for long work over ``what`` (tqdm's keywords): tqdm's, redrawn in place, on a
-    terminal and in a notebook's widget; elsewhere :class:`LogLines`."""
+    terminal and in a notebook's widget; elsewhere :class:`LogLines`. Either takes a
+    ``pace`` (:class:`PacedProgress`)."""
     drawn_in_place = sys.stderr.isatty() or tqdm_auto.notebook_tqdm is not tqdm_auto.std_tqdm
-    return tqdm(**kwargs) if drawn_in_place else LogLines(what, every, **kwargs)
+    return PacedBar(**kwargs) if drawn_in_place else LogLines(what, every, **kwargs)
 
 
 @contextlib.contextmanager

@@ -36,7 +36,7 @@ from admissable_jax.fast_forward import RecordedScoring, check_fingerprint, reco
 from admissable_jax.memory import MemoryBudget, MemoryBudgetExceeded, memory_budget
 from admissable_jax.placement import PairPlacement
 from admissable_jax.provenance import invocation_record
-from admissable_jax.run_directory import RunDirectory, metrics_row, score_row
+from admissable_jax.run_directory import PACE_INTERVALS, RunDirectory, metrics_row, score_row, trained_at
 from admissable_jax.run_spec import RunSpec
 from admissable_jax.training import Trainer, TrainState
 
@@ -268,9 +268,11 @@ class TrainingLoop:
                     report(note)
         invocation = invocation_record(start_step, records_kept_to if config.fast_forward else None, budget.device,
                                        self.num_devices, self.trainer.env.physics_name, self.num_runs)
-        # smoothing=0: the rate (and the time left) over this invocation, scorings included.
         bar = progress_bar("env steps", total=config.planned_steps, initial=start_step, unit="step",
-                           disable=not config.progress, dynamic_ncols=True, smoothing=0)
+                           disable=not config.progress, dynamic_ncols=True)
+        # The rate (and the time left) at the pace of this command's last PACE_INTERVALS scored
+        # intervals that trained SAC, training and scoring: '?' until one has run (cli.PacedProgress).
+        bar.pace, trained_seconds = 0.0, []
         with stop_at_next_boundary("at the end of this scoring interval, with a checkpoint") as stop, ticking(bar):
             try:
                 for scoring in range(first_scoring, num_scorings):
@@ -291,6 +293,9 @@ class TrainingLoop:
 
                     last = scoring == num_scorings - 1
                     now = time.perf_counter()
+                    if rows and trained_at(rows[0], config):
+                        trained_seconds.append(now - interval_started)
+                        bar.pace = config.score_every / float(np.mean(trained_seconds[-PACE_INTERVALS:]))
                     pause = self.any_process(not last and config.time_limit > 0
                                              and now - started_run + (now - interval_started) > config.time_limit)
                     stopped = not last and self.any_process(stop.requested)  # Ctrl-C or SIGTERM, in any process

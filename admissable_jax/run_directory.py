@@ -265,6 +265,11 @@ def metrics_row(env_steps, grad_steps, chunk, train_seconds, score_seconds, conf
     return row
 
 
+# The last scoring intervals (of SAC's training, after the warm-up) whose wall time gives a
+# run's pace: `status`'s time left, and the progress bar's.
+PACE_INTERVALS = 5
+
+
 def trained_at(row: dict[str, Any], config: TrainConfig) -> bool:
     """Whether the scoring ``row`` scored a policy SAC had trained: one after ``learning_starts``.
     Before it the actor is its random initialisation, which may score high without being any

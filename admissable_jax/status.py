@@ -42,11 +42,10 @@ from admissable_jax.config import EXPERIMENT_SETTINGS, RUN_SETTINGS, TrainConfig
 from admissable_jax.locks import LOCK_NAME, live_holder
 from admissable_jax.loggers import FINGERPRINT
 from admissable_jax.results import check_is_folder, distinct_directories, interval_seconds, paths_of
-from admissable_jax.run_directory import (best_scoring, experiment_of, load_config, read_run_file, run_config_path,
-                                          trained_at)
+from admissable_jax.run_directory import (PACE_INTERVALS, best_scoring, experiment_of, load_config, read_run_file,
+                                          run_config_path, trained_at)
 
 STATES = ("running", "finished", "stopped", "unreadable")
-PACE_INTERVALS = 5  # the last scoring intervals (of SAC's training, after the warm-up) whose wall time gives a run's pace
 
 
 @dataclasses.dataclass(frozen=True)

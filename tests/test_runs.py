@@ -23,12 +23,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from tqdm.auto import tqdm
 
 from admissable_jax import TrainConfig, host_loop, train_fn
 from admissable_jax.best_policy import KeptPolicy, best_kept, write_best_policy
 from admissable_jax.checkpointing import CheckpointError, _reason
-from admissable_jax.cli import LogLines, parse_args, progress_bar, run_from_cli, ticking
+from admissable_jax.cli import LogLines, PacedBar, parse_args, progress_bar, run_from_cli, ticking
 from admissable_jax.config import config_file_of
 from admissable_jax.errors import INTERRUPTED
 from admissable_jax.host_loop import TrainingLoop, interval_pieces
@@ -366,7 +365,19 @@ def test_the_bar_moves_within_an_interval_and_names_what_runs(tmp_path, monkeypa
     assert progress_bar("env steps", disable=True).__class__ is LogLines  # pytest's stderr is no terminal
     with monkeypatch.context() as patched:
         patched.setattr(sys.stderr, "isatty", lambda: True)
-        assert progress_bar("env steps", disable=True).__class__ is tqdm
+        assert progress_bar("env steps", disable=True).__class__ is PacedBar
+    # The time left at the pace its owner sets (the host loop: its last intervals that trained
+    # SAC), '?' while it is 0 (the warm-up); unset, tqdm's mean since the start.
+    log = io.StringIO()
+    paced = LogLines("env steps", total=1500, unit="step", file=log)
+    paced.update(500)
+    paced.pace = 0.0
+    paced.set_postfix(scored=1)
+    paced.pace = 100.0
+    paced.set_postfix(scored=2)
+    paced.close()
+    assert [line.split("elapsed, ")[1] for line in log.getvalue().splitlines()] == [
+        "about ? left at ?step/s, scored=1", "about 00:10 left at 100.00step/s, scored=2"]
     # An audit's episodes in a log: a line at most once per `every` seconds as they finish, and at the end.
     log = io.StringIO()
     episodes = LogLines("episodes", every=3600, total=40, unit="episode", file=log, smoothing=0)
@@ -397,10 +408,12 @@ def test_the_bar_moves_within_an_interval_and_names_what_runs(tmp_path, monkeypa
     logged = capsys.readouterr().err
     lines = [line for line in logged.splitlines() if " env steps (" in line]
     assert "\r" not in logged and len(lines) == 3, logged
-    for line, steps, share, row in zip(lines, ("500", "1,000", "1,500"), (33, 67, 100), result.scores):
-        assert re.fullmatch(rf"{steps} of 1,500 env steps \({share}%\), 00:\d\d elapsed, about 00:\d\d left at "
-                            rf"[\d.]+step/s, min_a_u={row['min_score']:.1f}, clean={row['clean_score']:.1f}, "
-                            r"train_sps=\d+", line), line
+    # The first interval, before learning_starts=500, says no time left: its pace is not SAC's.
+    for line, steps, share, row, pace in zip(lines, ("500", "1,000", "1,500"), (33, 67, 100), result.scores,
+                                             (r"\? left at \?", r"00:\d\d left at [\d.]+", r"00:00 left at [\d.]+")):
+        assert re.fullmatch(rf"{steps} of 1,500 env steps \({share}%\), 00:\d\d elapsed, about {pace}step/s, "
+                            rf"min_a_u={row['min_score']:.1f}, clean={row['clean_score']:.1f}, train_sps=\d+",
+                            line), line
     assert sorted(os.listdir(os.path.join(result.run_dir, "checkpoints"))) == ["1000", "1500"]
     with open(os.path.join(result.run_dir, "metrics.jsonl")) as file:
         rows = [json.loads(line) for line in file]
