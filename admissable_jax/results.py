@@ -587,6 +587,12 @@ BASELINE_QUESTIONS = {
 }
 
 
+def comparison_title(baseline_mode: str) -> str:
+    """The heading of an adversarial − ``baseline_mode`` comparison, with what it asks
+    (:data:`BASELINE_QUESTIONS`): "Adversarial − worst (the paper's stochastic adversary ...)"."""
+    return f"Adversarial − {baseline_mode}{BASELINE_QUESTIONS[baseline_mode]}"
+
+
 def comparison_section(differences: dict[str, list[Difference]]) -> str:
     """Markdown: the adversarial − baseline table under its heading and, where seeds cannot
     tell the modes apart, the seeds per mode that would; '' without both modes."""
@@ -594,9 +600,8 @@ def comparison_section(differences: dict[str, list[Difference]]) -> str:
     if not comparison:
         return ""
     seeds = seeds_note(differences)
-    baseline_mode = _baseline_mode(differences)
-    return (f"Adversarial − {baseline_mode}{BASELINE_QUESTIONS[baseline_mode]}, per env (over the records both modes "
-            "share; seeds independent, so Welch's t):\n\n" + comparison + (f"\n{seeds}" if seeds else ""))
+    return (f"{comparison_title(_baseline_mode(differences))}, per env (over the records both modes share; seeds "
+            "independent, so Welch's t):\n\n" + comparison + (f"\n{seeds}" if seeds else ""))
 
 
 def comparison_sections(run_dirs: list[str]) -> str:

@@ -46,9 +46,8 @@ from admissable_jax.errors import INTERRUPTED, UnusableDirectory, remove_if_unus
 from admissable_jax.method import set_sizes
 from admissable_jax.plot import check_formats, new_folder, plot_envs_side_by_side, plot_runs
 from admissable_jax.results import (
-    BASELINE_QUESTIONS, IMPROVEMENT_COLUMN, Difference, Run, comparison_header, differing_settings, estimate, find_runs,
-    format_comparison,
-    load_run, mean_and_interval, mode_differences, summary_table, trained_on, write_tables,
+    IMPROVEMENT_COLUMN, Difference, Run, comparison_header, comparison_title, differing_settings, estimate, find_runs,
+    format_comparison, load_run, mean_and_interval, mode_differences, summary_table, trained_on, write_tables,
 )
 from admissable_jax.run_directory import load_config_yaml
 from common import benchmark_commit
@@ -264,7 +263,7 @@ def env_section(env: str, folder: str, window: int, out_file: str, formats: tupl
         f"Runs: `{folder}` ({len(run_dirs)} runs, {steps:,} env steps each{partial}). "
         f"Settings: {_settings(run_dirs)}.", "",
         summary_table(run_dirs), format_comparison(compared) or "Not both adversarial and uniform runs: no comparison.\n",
-        *([f"Adversarial − worst{BASELINE_QUESTIONS['worst']}:", "", format_comparison(against_worst)]
+        *([f"{comparison_title('worst')}:", "", format_comparison(against_worst)]
           if worst_differences else []),
         "**Verdict (computed):**", "",
         *(f"- {_verdict(difference)}" for difference in differences + audited_differences + worst_differences),

@@ -15,8 +15,8 @@ import numpy as np
 
 from admissable_jax.audit.sets import AuditResult, drop_below_clean
 from admissable_jax.config import curve_mode, curve_names
-from admissable_jax.results import BASELINE_QUESTIONS, Difference, comparison_header, estimate, mean_and_interval, \
-    seeds_sentence
+from admissable_jax.results import BASELINE_QUESTIONS, Difference, comparison_header, comparison_title, estimate, \
+    mean_and_interval, seeds_sentence
 from admissable_jax.scoring.attribution import ShapleyAttribution
 
 # What an audited run's source says of its training with sensors failing mid-episode, per
@@ -580,8 +580,8 @@ def compare_modes(results: list[AuditResult]) -> str:
             lines.append(f"| {k} | {mode} | {len(group)} | {estimate(measures['worst a_u'][mode][k])} | "
                          f"{'—' if np.isnan(average).any() else estimate(average)} | {common} "
                          f"({names.count(common)} of {len(group)}) | {estimate(clean)} |")
-    for baseline_mode, question in BASELINE_QUESTIONS.items():
-        lines += _mode_comparison(first, measures, _baselines(results, baseline_mode), baseline_mode, question)
+    for baseline_mode in BASELINE_QUESTIONS:
+        lines += _mode_comparison(first, measures, _baselines(results, baseline_mode), baseline_mode)
     if all(result.shapley is not None for result in results):
         lines += _shapley_by_mode(by_mode, first.feature_names)
     if all(result.dropout is not None for result in results):
@@ -590,12 +590,12 @@ def compare_modes(results: list[AuditResult]) -> str:
 
 
 def _mode_comparison(first: AuditResult, measures: dict[str, dict[str, dict[int, np.ndarray]]],
-                     baselines: dict[str, str], baseline_mode: str, question: str) -> list[str]:
+                     baselines: dict[str, str], baseline_mode: str) -> list[str]:
     """compare_modes' lines of adversarial − ``baseline_mode`` per k on each of ``measures``
     (Welch's t), each adversarial curve against its curve of that mode in ``baselines`` (several
     in a sweep of l, or of runs' settings), and the seeds that would tell apart what these
     cannot; none without such a pair. Against uniform under the table above; against another
-    mode under a line of its own, saying what the comparison asks (``question``)."""
+    mode under a line of its own, saying what the comparison asks (:func:`comparison_title`)."""
     if not baselines:
         return []
     swept = lambda curve: f" ({curve})" if curve != "adversarial" else ""
@@ -603,7 +603,7 @@ def _mode_comparison(first: AuditResult, measures: dict[str, dict[str, dict[int,
                                                     per_mode[baseline][k], baseline_mode))
                 for curve, baseline in baselines.items() for k in first.sets for name, per_mode in measures.items()
                 if not np.isnan(per_mode[curve][k]).any()]
-    heading = [] if baseline_mode == "uniform" else ["", f"Adversarial − {baseline_mode}{question}:"]
+    heading = [] if baseline_mode == "uniform" else ["", f"{comparison_title(baseline_mode)}:"]
     lines = [*heading, "", *comparison_header("k", "measure", baseline_mode=baseline_mode)]
     lines += [f"| {k} | {name} | {difference.cells()} |" for k, name, difference in compared]
     sentence = seeds_sentence([(difference.metric, difference) for _, _, difference in compared])
